@@ -1,0 +1,59 @@
+"""Picks a Vulkan driver before SAPIEN starts and turns "no renderer" into a clear error.
+
+On machines without a GPU Vulkan driver, SAPIEN needs Mesa's software driver (lavapipe) at
+24.3 or newer (it uses VK_KHR_external_semaphore_fd). Where both a GPU and lavapipe drivers are
+installed the Vulkan loader chooses itself, so we only pin lavapipe when no NVIDIA driver exists.
+"""
+from __future__ import annotations
+
+import glob
+import os
+import subprocess
+import sys
+
+ICD_DIRS = ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d",
+            "/usr/local/nvidia/share/vulkan/icd.d")
+_PROBE = "import sapien; sapien.render.RenderSystem(); print('ok')"
+_PROBE_ENV = "RSB_RENDERER_OK"  # inherited by worker processes so that they skip the probe
+
+FIX = ("Install a Vulkan driver: an NVIDIA driver on GPU machines, or Mesa lavapipe >= 24.3 "
+       "without one (Debian 12: `apt-get install -t bookworm-backports mesa-vulkan-drivers`; "
+       "`bash scripts/setup.sh` does this). State-only use needs no renderer: pass "
+       "obs_mode='state' and render_backend='none'.")
+
+
+class RendererUnavailableError(RuntimeError):
+    """No Vulkan device that SAPIEN can render with."""
+
+
+def select_vulkan_driver() -> str | None:
+    """Points the Vulkan loader at lavapipe when no NVIDIA driver is installed; returns the ICD used."""
+    if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
+        return os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES")
+    icds = [f for d in ICD_DIRS for f in sorted(glob.glob(os.path.join(d, "*.json")))]
+    if any("nvidia" in os.path.basename(f) for f in icds):
+        return None
+    lavapipe = [f for f in icds if os.path.basename(f).startswith("lvp")]
+    if lavapipe:
+        os.environ["VK_ICD_FILENAMES"] = lavapipe[0]
+        return lavapipe[0]
+    return None
+
+
+def ensure_renderer() -> None:
+    """Raises :class:`RendererUnavailableError` with a fix if SAPIEN cannot render here.
+
+    The probe runs in a subprocess because a broken Vulkan stack can crash rather than raise."""
+    if os.environ.get(_PROBE_ENV) == "1":
+        return
+    try:
+        out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired as err:
+        raise RendererUnavailableError(f"The Vulkan renderer did not start within 120 s. {FIX}") from err
+    if out.returncode != 0 or "ok" not in out.stdout:
+        detail = (out.stderr.strip().splitlines() or [f"exit code {out.returncode}"])[-1]
+        raise RendererUnavailableError(f"SAPIEN found no usable Vulkan device ({detail}). {FIX}")
+    os.environ[_PROBE_ENV] = "1"
+
+
+select_vulkan_driver()

@@ -1,0 +1,199 @@
+"""Aloha-AgileX dual-arm agent (``aloha_agilex``) for ManiSkill3.
+
+Action layout (every control mode), 14 numbers, ManiSkill's sub-controller order:
+
+    [ 0: 6] left arm joints 1-6   (fl_joint1..6)
+    [ 6:12] right arm joints 1-6  (fr_joint1..6)
+    [12]    left gripper           -1 closed ... +1 open
+    [13]    right gripper          -1 closed ... +1 open
+
+Both arms sit under one sub-controller ``"arm"`` and both grippers under ``"gripper"`` so that
+ManiSkill's replay tool can convert between joint control modes. The gripper command is the same
+normalised absolute opening in every mode (the replay tool copies it unchanged), so delta modes
+are entirely in [-1, 1] as ManiSkill's diffusion-policy baseline expects.
+VLA datasets use the Aloha order [left arm 6, left gripper, right arm 6, right gripper] with the
+gripper in [0, 1] (0 closed); :func:`to_aloha14` and :func:`from_aloha14` convert.
+"""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import sapien
+import torch
+
+from mani_skill.agents.base_agent import BaseAgent, Keyframe
+from mani_skill.agents.controllers import (
+    PDJointPosControllerConfig,
+    PDJointPosMimicControllerConfig,
+    deepcopy_dict,
+)
+from mani_skill.agents.registration import register_agent
+from mani_skill.sensors.camera import CameraConfig
+from mani_skill.utils import common
+from mani_skill.utils.structs.actor import Actor
+from mani_skill.utils.structs.pose import Pose
+
+from rsb_maniskill.agents.aloha_urdf import ASSET_DIR, FINGER_TRAVEL, URDF_NAME
+
+ARMS = ("left", "right")
+PREFIX = {"left": "fl", "right": "fr"}
+ARM_JOINT_NAMES = [f"{p}_joint{i}" for p in ("fl", "fr") for i in range(1, 7)]
+GRIPPER_JOINT_NAMES = ["fl_joint7", "fl_joint8", "fr_joint7", "fr_joint8"]
+GRIPPER_CLOSED = -0.005  # a target slightly past closed keeps squeezing a held block
+GRIPPER_OPEN = FINGER_TRAVEL
+ARM_STIFFNESS, ARM_DAMPING, ARM_FORCE_LIMIT = 2e3, 2e2, 100.0
+GRIPPER_STIFFNESS, GRIPPER_DAMPING, GRIPPER_FORCE_LIMIT = 1e3, 1e2, 40.0
+ARM_DELTA = 0.1  # rad per control step at |action| = 1 in the delta modes
+
+# Per arm: arm raised above the table, wrist bent down, gripper open and pointing forward-down.
+REST_ARM_QPOS = np.array([0.0, 0.6, 0.8, -1.2, 0.0, 0.0])
+CAMERA_SIZE = (320, 240)  # width, height (RoboTwin's D435 model)
+CAMERA_FOVY = np.deg2rad(37.0)
+
+
+def _rest_qpos() -> np.ndarray:
+    """Rest pose in ManiSkill's active-joint order, computed from joint names at load time."""
+    q = {}
+    for p in ("fl", "fr"):
+        for i, v in enumerate(REST_ARM_QPOS, start=1):
+            q[f"{p}_joint{i}"] = v
+        q[f"{p}_joint7"] = q[f"{p}_joint8"] = GRIPPER_OPEN
+    return q
+
+
+@register_agent()
+class AlohaAgilex(BaseAgent):
+    """Two ARX5-style 6-DoF arms with parallel grippers on a fixed base, plus a head camera."""
+
+    uid = "aloha_agilex"
+    urdf_path = str(ASSET_DIR / URDF_NAME)
+    urdf_config = dict(
+        _materials=dict(finger=dict(static_friction=2.0, dynamic_friction=2.0, restitution=0.0)),
+        link={
+            f"{p}_link{i}": dict(material="finger", patch_radius=0.1, min_patch_radius=0.1)
+            for p in ("fl", "fr") for i in (7, 8)
+        },
+    )
+    fix_root_link = True
+    # qpos is filled in active-joint order in _after_init (SAPIEN orders joints by tree walk).
+    keyframes = dict(rest=Keyframe(pose=sapien.Pose(), qpos=np.zeros(16)))
+
+    arm_joint_names = ARM_JOINT_NAMES
+    gripper_joint_names = GRIPPER_JOINT_NAMES
+    camera_size = CAMERA_SIZE
+
+    @property
+    def _sensor_configs(self):
+        w, h = self.camera_size
+        return [
+            CameraConfig("head_camera", sapien.Pose(), w, h, CAMERA_FOVY, 0.01, 10.0,
+                         mount=self.robot.links_map["head_camera_link"]),
+            CameraConfig("left_wrist_camera", sapien.Pose(), w, h, CAMERA_FOVY * 1.5, 0.01, 10.0,
+                         mount=self.robot.links_map["fl_camera_link"]),
+            CameraConfig("right_wrist_camera", sapien.Pose(), w, h, CAMERA_FOVY * 1.5, 0.01, 10.0,
+                         mount=self.robot.links_map["fr_camera_link"]),
+        ]
+
+    @property
+    def _controller_configs(self):
+        arm_pd_joint_pos = PDJointPosControllerConfig(
+            self.arm_joint_names, lower=None, upper=None, stiffness=ARM_STIFFNESS,
+            damping=ARM_DAMPING, force_limit=ARM_FORCE_LIMIT, normalize_action=False,
+        )
+        arm_pd_joint_delta_pos = PDJointPosControllerConfig(
+            self.arm_joint_names, lower=-ARM_DELTA, upper=ARM_DELTA, stiffness=ARM_STIFFNESS,
+            damping=ARM_DAMPING, force_limit=ARM_FORCE_LIMIT, use_delta=True,
+        )
+        arm_pd_joint_target_delta_pos = copy.deepcopy(arm_pd_joint_delta_pos)
+        arm_pd_joint_target_delta_pos.use_target = True
+        gripper = PDJointPosMimicControllerConfig(
+            self.gripper_joint_names, lower=GRIPPER_CLOSED, upper=GRIPPER_OPEN,
+            stiffness=GRIPPER_STIFFNESS, damping=GRIPPER_DAMPING, force_limit=GRIPPER_FORCE_LIMIT,
+            normalize_action=True,
+            mimic={"fl_joint8": {"joint": "fl_joint7"}, "fr_joint8": {"joint": "fr_joint7"}},
+        )
+        return deepcopy_dict(dict(
+            pd_joint_pos=dict(arm=arm_pd_joint_pos, gripper=gripper),
+            pd_joint_delta_pos=dict(arm=arm_pd_joint_delta_pos, gripper=gripper),
+            pd_joint_target_delta_pos=dict(arm=arm_pd_joint_target_delta_pos, gripper=gripper),
+        ))
+
+    def _after_init(self):
+        links = self.robot.links_map
+        self.tcp = {a: links[f"{PREFIX[a]}_tcp_link"] for a in ARMS}
+        self.fingers = {a: (links[f"{PREFIX[a]}_link7"], links[f"{PREFIX[a]}_link8"]) for a in ARMS}
+        names = [j.name for j in self.robot.get_active_joints()]
+        rest = _rest_qpos()
+        self.keyframes = dict(rest=Keyframe(pose=sapien.Pose(), qpos=np.array([rest[n] for n in names])))
+        self.active_joint_names = names
+        self.arm_qpos_index = {a: [names.index(f"{PREFIX[a]}_joint{i}") for i in range(1, 7)] for a in ARMS}
+        self.finger_qpos_index = {a: names.index(f"{PREFIX[a]}_joint7") for a in ARMS}
+
+    # ------------------------------------------------------------------ state helpers
+    def tcp_pose(self, arm: str) -> Pose:
+        """Pose of the tool centre point (12 cm along link6's x axis) of ``arm``."""
+        return self.tcp[arm].pose
+
+    @property
+    def tcp_poses(self) -> dict[str, Pose]:
+        return {a: self.tcp[a].pose for a in ARMS}
+
+    def gripper_opening(self, arm: str) -> torch.Tensor:
+        """Finger joint position (0 = closed, FINGER_TRAVEL = open), per env."""
+        return self.robot.get_qpos()[:, self.finger_qpos_index[arm]]
+
+    def is_gripper_closed(self, arm: str) -> torch.Tensor:
+        """The gripper is commanded closed (its drive target is below half travel)."""
+        target = self.robot.get_drive_targets()[:, self.finger_qpos_index[arm]]
+        return target < 0.5 * GRIPPER_OPEN
+
+    def finger_contact(self, arm: str, actor: Actor, min_force: float = 0.1) -> torch.Tensor:
+        """Either finger of ``arm`` touches ``actor``."""
+        f1, f2 = self.fingers[arm]
+        force1 = torch.linalg.norm(self.scene.get_pairwise_contact_forces(f1, actor), dim=1)
+        force2 = torch.linalg.norm(self.scene.get_pairwise_contact_forces(f2, actor), dim=1)
+        return (force1 >= min_force) | (force2 >= min_force)
+
+    def is_grasping(self, actor: Actor, arm: str | None = None, min_force: float = 0.5,
+                    max_angle: float = 85.0) -> torch.Tensor:
+        """Both fingers of ``arm`` (either arm if None) push ``actor`` from opposite sides."""
+        if arm is None:
+            return self.is_grasping(actor, "left", min_force, max_angle) | self.is_grasping(
+                actor, "right", min_force, max_angle)
+        f1, f2 = self.fingers[arm]
+        c1 = self.scene.get_pairwise_contact_forces(f1, actor)
+        c2 = self.scene.get_pairwise_contact_forces(f2, actor)
+        # The finger opening direction is +y of link7 and -y of link8.
+        d1 = f1.pose.to_transformation_matrix()[..., :3, 1]
+        d2 = -f2.pose.to_transformation_matrix()[..., :3, 1]
+        ok1 = (torch.linalg.norm(c1, dim=1) >= min_force) & (
+            torch.rad2deg(common.compute_angle_between(d1, c1)) <= max_angle)
+        ok2 = (torch.linalg.norm(c2, dim=1) >= min_force) & (
+            torch.rad2deg(common.compute_angle_between(d2, c2)) <= max_angle)
+        return ok1 & ok2
+
+    def is_static(self, threshold: float = 0.2) -> torch.Tensor:
+        """All arm joints move slower than ``threshold`` rad/s."""
+        idx = self.arm_qpos_index["left"] + self.arm_qpos_index["right"]
+        return torch.max(torch.abs(self.robot.get_qvel()[:, idx]), dim=1)[0] <= threshold
+
+    def rest_action(self) -> torch.Tensor:
+        """pd_joint_pos action that holds the rest pose with both grippers open."""
+        q = torch.as_tensor(REST_ARM_QPOS, dtype=torch.float32)
+        return torch.cat([q, q, torch.ones(2)])
+
+
+# ---------------------------------------------------------------------- Aloha-14 layout
+def to_aloha14(action: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    """ManiSkill action [..., 14] -> Aloha [left arm 6, left grip, right arm 6, right grip], grip in [0, 1]."""
+    a = action
+    parts = [a[..., 0:6], (a[..., 12:13] + 1) / 2, a[..., 6:12], (a[..., 13:14] + 1) / 2]
+    return torch.cat(parts, -1) if isinstance(a, torch.Tensor) else np.concatenate(parts, -1)
+
+
+def from_aloha14(action: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    """Aloha [left arm 6, left grip, right arm 6, right grip] (grip in [0, 1]) -> ManiSkill action [..., 14]."""
+    a = action
+    parts = [a[..., 0:6], a[..., 7:13], 2 * a[..., 6:7] - 1, 2 * a[..., 13:14] - 1]
+    return torch.cat(parts, -1) if isinstance(a, torch.Tensor) else np.concatenate(parts, -1)

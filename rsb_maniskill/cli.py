@@ -1,0 +1,49 @@
+"""`rsb` command line: one entry point, sub-commands contributed by the package's modules.
+
+Each module listed in ``_COMMAND_MODULES`` exposes ``register(subparsers)`` that adds its
+sub-commands with ``set_defaults(func=...)``; ``func(args) -> int`` is the exit status.
+Modules are imported lazily per invocation so that ``rsb questions`` never loads the simulator.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+_COMMAND_MODULES = (
+    "rsb_maniskill.demo",
+    "rsb_maniskill.semantic.cli",
+    "rsb_maniskill.motionplan.cli",
+    "rsb_maniskill.evaluation.cli",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rsb", description="RoboSemanticBench on ManiSkill3")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as err:
+            if err.name == name:  # sub-command module not part of this build
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("rsb: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,4 @@
+"""ManiSkill tasks of the pack (registered on import)."""
+from rsb_maniskill.tasks.tabletop import TableTopEnv
+
+__all__ = ["TableTopEnv"]

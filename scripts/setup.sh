@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# One-shot, idempotent set-up for a fresh Linux machine (Debian 12 / Ubuntu 22.04+, with or
+# without an NVIDIA GPU). Creates ./.venv with rsb_maniskill installed in editable mode and,
+# where no GPU Vulkan driver exists, a software Vulkan driver new enough for SAPIEN.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=${RSB_VENV:-.venv}
+PY=${PYTHON:-python3}
+SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+
+have_nvidia() { command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1; }
+
+lavapipe_version() {
+  # Prints the installed mesa-vulkan-drivers version (empty if none).
+  dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null | sed 's/^[0-9]*://' || true
+}
+
+install_software_vulkan() {
+  # SAPIEN needs VK_KHR_external_semaphore_fd, which lavapipe has from Mesa 24.3 on.
+  # Debian 12 ships Mesa 22.3, so take bookworm-backports (Mesa 25.x) there.
+  command -v apt-get >/dev/null 2>&1 || { echo "setup: no apt-get; install Mesa lavapipe >= 24.3 (mesa-vulkan-drivers) by hand" >&2; return 0; }
+  local v; v=$(lavapipe_version)
+  if [ -n "$v" ] && dpkg --compare-versions "$v" ge 24.3; then return 0; fi
+  . /etc/os-release
+  if [ "${ID:-}" = debian ] && [ "${VERSION_CODENAME:-}" = bookworm ]; then
+    if ! grep -rqs bookworm-backports /etc/apt/sources.list /etc/apt/sources.list.d/; then
+      echo "deb http://deb.debian.org/debian bookworm-backports main" | $SUDO tee /etc/apt/sources.list.d/bookworm-backports.list >/dev/null
+    fi
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
+  else
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
+  fi
+  v=$(lavapipe_version)
+  if [ -z "$v" ] || ! dpkg --compare-versions "$v" ge 24.3; then
+    echo "setup: warning: Mesa lavapipe is '${v:-missing}' (< 24.3); CPU rendering will be unavailable" >&2
+  fi
+}
+
+if have_nvidia; then
+  echo "setup: NVIDIA GPU found; using its Vulkan driver"
+  command -v apt-get >/dev/null 2>&1 && ! ldconfig -p | grep -q libvulkan.so.1 && { $SUDO apt-get update -qq; $SUDO apt-get install -y -qq libvulkan1 >/dev/null; } || true
+else
+  install_software_vulkan
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+  $PY -m venv "$VENV"
+fi
+PIP="$VENV/bin/python -m pip"
+$PIP install -q --upgrade pip >/dev/null
+if ! $VENV/bin/python -c "import torch" 2>/dev/null; then
+  if have_nvidia; then
+    $PIP install -q torch
+  else
+    # The CPU wheel: a plain `pip install mani-skill` would pull a multi-GB CUDA torch.
+    # A local wheel mirror (find-links) may already hold it; else PyTorch's CPU index.
+    $PIP install -q "torch==2.13.0+cpu" 2>/dev/null \
+      || $PIP install -q torch --index-url https://download.pytorch.org/whl/cpu
+  fi
+fi
+$PIP install -q -e ".[dev,eval]"
+echo "setup: done ($($VENV/bin/python -c 'import mani_skill, sapien, torch; print("mani_skill", mani_skill.__version__, "sapien", sapien.__version__, "torch", torch.__version__)'))"

@@ -46,17 +46,20 @@ ARM_STIFFNESS, ARM_DAMPING, ARM_FORCE_LIMIT = 2e3, 2e2, 100.0
 GRIPPER_STIFFNESS, GRIPPER_DAMPING, GRIPPER_FORCE_LIMIT = 1e3, 1e2, 40.0
 ARM_DELTA = 0.1  # rad per control step at |action| = 1 in the delta modes
 
-# Per arm: arm raised above the table, wrist bent down, gripper open and pointing forward-down.
-REST_ARM_QPOS = np.array([0.0, 0.6, 0.8, -1.2, 0.0, 0.0])
+# Per arm: folded above the table, turned inward so the head camera sees both grippers,
+# tool pointing 57 degrees down, gripper open. The right arm mirrors the left (joint1 sign).
+REST_ARM_QPOS = {"left": np.array([-0.6, 0.6, 0.8, -1.2, 0.0, 0.0]),
+                 "right": np.array([0.6, 0.6, 0.8, -1.2, 0.0, 0.0])}
 CAMERA_SIZE = (320, 240)  # width, height (RoboTwin's D435 model)
-CAMERA_FOVY = np.deg2rad(37.0)
+CAMERA_FOVY = np.deg2rad(42.0)  # a D435's colour camera
+WRIST_CAMERA_FOVY = np.deg2rad(60.0)  # wide enough to see both fingertips and the block
 
 
 def _rest_qpos() -> np.ndarray:
     """Rest pose in ManiSkill's active-joint order, computed from joint names at load time."""
     q = {}
-    for p in ("fl", "fr"):
-        for i, v in enumerate(REST_ARM_QPOS, start=1):
+    for arm, p in PREFIX.items():
+        for i, v in enumerate(REST_ARM_QPOS[arm], start=1):
             q[f"{p}_joint{i}"] = v
         q[f"{p}_joint7"] = q[f"{p}_joint8"] = GRIPPER_OPEN
     return q
@@ -89,9 +92,9 @@ class AlohaAgilex(BaseAgent):
         return [
             CameraConfig("head_camera", sapien.Pose(), w, h, CAMERA_FOVY, 0.01, 10.0,
                          mount=self.robot.links_map["head_camera_link"]),
-            CameraConfig("left_wrist_camera", sapien.Pose(), w, h, CAMERA_FOVY * 1.5, 0.01, 10.0,
+            CameraConfig("left_wrist_camera", sapien.Pose(), w, h, WRIST_CAMERA_FOVY, 0.01, 10.0,
                          mount=self.robot.links_map["fl_camera_link"]),
-            CameraConfig("right_wrist_camera", sapien.Pose(), w, h, CAMERA_FOVY * 1.5, 0.01, 10.0,
+            CameraConfig("right_wrist_camera", sapien.Pose(), w, h, WRIST_CAMERA_FOVY, 0.01, 10.0,
                          mount=self.robot.links_map["fr_camera_link"]),
         ]
 
@@ -180,8 +183,8 @@ class AlohaAgilex(BaseAgent):
 
     def rest_action(self) -> torch.Tensor:
         """pd_joint_pos action that holds the rest pose with both grippers open."""
-        q = torch.as_tensor(REST_ARM_QPOS, dtype=torch.float32)
-        return torch.cat([q, q, torch.ones(2)])
+        q = [torch.as_tensor(REST_ARM_QPOS[a], dtype=torch.float32) for a in ARMS]
+        return torch.cat([*q, torch.ones(2)])
 
 
 # ---------------------------------------------------------------------- Aloha-14 layout

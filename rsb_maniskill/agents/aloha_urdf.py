@@ -25,7 +25,7 @@ MPLIB_SRDF_NAME = "aloha_agilex_mplib.srdf"  # full never-collide list for mplib
 ARM_PREFIXES = ("fl", "fr")  # front-left = left arm (+y), front-right = right arm (-y)
 ARM_BASE_XYZ = {"fl": (0.0, 0.30, 0.04), "fr": (0.0, -0.30, 0.04)}
 HEAD_CAMERA_XYZ = (-0.05, 0.0, 0.62)
-HEAD_CAMERA_LOOK = (0.6, 0.0, -0.8)  # forward-down, as RoboTwin's head camera
+HEAD_CAMERA_LOOK = (0.5, 0.0, -0.866)  # 60 degrees down: blocks and zone fill the view
 WRIST_CAMERA_XYZ = (0.07, 0.032, 0.065)
 WRIST_CAMERA_PITCH = 0.4
 TCP_OFFSET = 0.12  # along link6 x

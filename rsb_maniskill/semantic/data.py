@@ -1,0 +1,237 @@
+"""Where GSM8K and MMLU come from: a data directory, else the pinned Hugging Face hub copy.
+
+Order (issue 3): ``data_dir`` argument, else ``$RSB_DATA_DIR`` -- a directory holding
+``gsm8k/{train,test}.jsonl`` and ``mmlu/{dev,test}/<subject>_<split>.csv`` in their original
+formats -- else the hub files at pinned revisions (cached by huggingface_hub, so the second run
+is offline), else :class:`DataNotFoundError` naming both ways. Readers return raw row dicts with
+their origin ("file, line N") so that every later error can point at the record.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+from typing import Any, Iterator
+
+from .errors import DataNotFoundError, SemanticDataError
+
+ENV_VAR = "RSB_DATA_DIR"
+
+# Pinned hub revisions (commit SHAs of the dataset repositories), so that every machine builds
+# the same pools. Found in public code pinning these datasets (lighteval / lm-eval configs).
+GSM8K_REPO = "openai/gsm8k"
+GSM8K_REVISION = "cc7b047b6e5bb11b4f1af84efc572db110a51b3c"
+GSM8K_FILES = {"train": "main/train-00000-of-00001.parquet", "test": "main/test-00000-of-00001.parquet"}
+MMLU_REPO = "cais/mmlu"
+MMLU_REVISION = "c30699e8356da336a370243923dbaf21066bb9fe"
+MMLU_FILES = {"test": "all/test-00000-of-00001.parquet", "dev": "all/dev-00000-of-00001.parquet"}
+MMLU_SPLITS = ("dev", "test")  # the original release splits the project reads
+GSM8K_SPLITS = ("train", "test")
+
+Row = dict[str, Any]
+
+
+def resolve_data_dir(data_dir: str | os.PathLike | None) -> Path | None:
+    """The data directory to use (argument, else $RSB_DATA_DIR), or None for the hub."""
+    if data_dir is not None and str(data_dir) != "":
+        return Path(data_dir).expanduser()
+    env = os.environ.get(ENV_VAR, "")
+    return Path(env).expanduser() if env else None
+
+
+def _how_to_provide(what: str) -> str:
+    return (f"{what} not found. Provide it either way: (1) a data directory passed as data_dir / "
+            f"--data-dir or in ${ENV_VAR}, holding gsm8k/{{train,test}}.jsonl and "
+            f"mmlu/{{dev,test}}/<subject>_<split>.csv (original formats); or (2) the Hugging Face hub "
+            f"copy ({GSM8K_REPO}@{GSM8K_REVISION[:12]}, {MMLU_REPO}@{MMLU_REVISION[:12]}): run "
+            f"`rsb data download` once on a machine with network (needs pip install 'rsb_maniskill[hub]').")
+
+
+# ---------------------------------------------------------------------------------------------
+# data directory readers (original formats)
+
+
+def read_gsm8k_jsonl(path: Path) -> list[Row]:
+    """GSM8K rows ``{"question", "answer", "origin"}``; malformed lines raise with file and line."""
+    rows: list[Row] = []
+    with open(path, encoding="utf-8") as fh:
+        for lineno, line in enumerate(fh, 1):
+            if not line.strip():
+                continue
+            try:
+                obj = json.loads(line)
+            except json.JSONDecodeError as err:
+                raise SemanticDataError(path, lineno, f"invalid JSON ({err.msg})") from None
+            if not isinstance(obj, dict):
+                raise SemanticDataError(path, lineno, "expected a JSON object with 'question' and 'answer'")
+            for key in ("question", "answer"):
+                if not isinstance(obj.get(key), str) or not obj[key].strip():
+                    raise SemanticDataError(path, lineno, f"missing or empty field {key!r}")
+            rows.append({"question": obj["question"], "answer": obj["answer"], "origin": f"{path}, line {lineno}"})
+    return rows
+
+
+def read_mmlu_csv(path: Path, subject: str) -> list[Row]:
+    """MMLU rows from one original CSV (no header: question, A, B, C, D, answer letter)."""
+    rows: list[Row] = []
+    with open(path, encoding="utf-8", newline="") as fh:
+        reader = csv.reader(fh)
+        start = 1
+        for rec in reader:
+            lineno = start  # first physical line of the record (fields may span lines)
+            start = reader.line_num + 1
+            if not rec or all(not f.strip() for f in rec):
+                continue
+            if len(rec) != 6:
+                raise SemanticDataError(path, lineno, f"expected 6 columns (question, A, B, C, D, answer), got {len(rec)}")
+            letter = rec[5].strip().upper()
+            if letter not in ("A", "B", "C", "D"):
+                raise SemanticDataError(path, lineno, f"answer must be one of A-D, got {rec[5]!r}")
+            rows.append(_mmlu_row(rec[0], rec[1:5], "ABCD".index(letter), subject, f"{path}, line {lineno}", path, lineno))
+    return rows
+
+
+def _mmlu_row(question: Any, choices: Any, answer: int, subject: str, origin: str, path: Any, line: int | None) -> Row:
+    if not isinstance(question, str) or not question.strip():
+        raise SemanticDataError(path, line, "missing or empty question")
+    choices = list(choices)
+    if len(choices) != 4 or not all(isinstance(c, str) for c in choices):
+        raise SemanticDataError(path, line, f"expected 4 text choices, got {choices!r}")
+    return {"question": question, "choices": choices, "answer": int(answer), "subject": subject, "origin": origin}
+
+
+def _gsm8k_dir_file(root: Path, split: str) -> Path:
+    path = root / "gsm8k" / f"{split}.jsonl"
+    if not path.is_file():
+        raise DataNotFoundError(f"{path} does not exist (data directory {root}). " + _how_to_provide("GSM8K"))
+    return path
+
+
+def _mmlu_dir_files(root: Path) -> Iterator[tuple[Path, str]]:
+    found = False
+    for split in MMLU_SPLITS:
+        folder = root / "mmlu" / split
+        for path in sorted(folder.glob(f"*_{split}.csv")):
+            found = True
+            yield path, path.name[: -len(f"_{split}.csv")]
+    if not found:
+        raise DataNotFoundError(f"no MMLU CSV under {root / 'mmlu'}/{{dev,test}}/ (data directory {root}). "
+                                + _how_to_provide("MMLU"))
+
+
+# ---------------------------------------------------------------------------------------------
+# hub
+
+
+def hub_file(repo: str, filename: str, revision: str, *, allow_network: bool = True) -> Path:
+    """Path of a pinned hub file: the local cache first, the network second."""
+    try:
+        import huggingface_hub
+    except ImportError as err:  # pragma: no cover - a core dependency
+        raise DataNotFoundError(_how_to_provide(repo) + f" (huggingface_hub unavailable: {err})") from None
+    try:
+        return Path(huggingface_hub.hf_hub_download(repo, filename, repo_type="dataset", revision=revision,
+                                                    local_files_only=True))
+    except Exception as cache_err:  # noqa: BLE001 - any miss falls through to the network
+        if not allow_network:
+            raise DataNotFoundError(_how_to_provide(repo) + f" (hub cache: {cache_err})") from None
+    try:
+        return Path(huggingface_hub.hf_hub_download(repo, filename, repo_type="dataset", revision=revision))
+    except Exception as err:  # noqa: BLE001 - offline, DNS, HTTP: all mean "not available"
+        raise DataNotFoundError(_how_to_provide(repo) + f" (hub download of {repo}/{filename} failed: "
+                                f"{type(err).__name__}: {err})") from None
+
+
+def read_parquet_rows(path: Path) -> list[Row]:
+    """Rows of a parquet file as dicts (needs the optional ``hub`` extra: pyarrow)."""
+    try:
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise DataNotFoundError(f"reading the hub file {path} needs pyarrow: pip install 'rsb_maniskill[hub]', "
+                                f"or use a data directory via ${ENV_VAR}.") from None
+    return pq.read_table(path).to_pylist()
+
+
+def _gsm8k_hub_rows(split: str) -> list[Row]:
+    path = hub_file(GSM8K_REPO, GSM8K_FILES[split], GSM8K_REVISION)
+    rows = []
+    for i, rec in enumerate(read_parquet_rows(path), 1):
+        for key in ("question", "answer"):
+            if not isinstance(rec.get(key), str) or not rec[key].strip():
+                raise SemanticDataError(path, i, f"row {i}: missing or empty field {key!r}")
+        rows.append({"question": rec["question"], "answer": rec["answer"], "origin": f"{path}, row {i}"})
+    return rows
+
+
+def _mmlu_hub_rows() -> list[Row]:
+    rows = []
+    for split in MMLU_SPLITS:
+        path = hub_file(MMLU_REPO, MMLU_FILES[split], MMLU_REVISION)
+        for i, rec in enumerate(read_parquet_rows(path), 1):
+            ans = rec.get("answer")
+            if not isinstance(ans, int) or not 0 <= ans <= 3:
+                raise SemanticDataError(path, i, f"row {i}: answer must be an index 0-3, got {ans!r}")
+            rows.append(_mmlu_row(rec.get("question"), rec.get("choices") or [], ans, str(rec.get("subject", "")),
+                                  f"{path}, row {i}", path, i))
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# public entry points
+
+
+def gsm8k_rows(split: str, data_dir: str | os.PathLike | None = None) -> list[Row]:
+    """Raw GSM8K rows of ``split`` ("train" or "test") from the first source that has them."""
+    if split not in GSM8K_SPLITS:
+        raise ValueError(f"unknown GSM8K split {split!r}; valid: {', '.join(GSM8K_SPLITS)}")
+    root = resolve_data_dir(data_dir)
+    if root is not None:
+        return read_gsm8k_jsonl(_gsm8k_dir_file(root, split))
+    return _gsm8k_hub_rows(split)
+
+
+def mmlu_rows(data_dir: str | os.PathLike | None = None) -> list[Row]:
+    """All raw MMLU rows (dev + test, every subject) from the first source that has them."""
+    root = resolve_data_dir(data_dir)
+    if root is not None:
+        rows: list[Row] = []
+        for path, subject in _mmlu_dir_files(root):
+            rows.extend(read_mmlu_csv(path, subject))
+        return rows
+    return _mmlu_hub_rows()
+
+
+def data_source_label(data_dir: str | os.PathLike | None = None) -> str:
+    """Human-readable description of where data would be read from (for `rsb stats`)."""
+    root = resolve_data_dir(data_dir)
+    return f"directory {root}" if root is not None else f"hub cache ({GSM8K_REPO}, {MMLU_REPO}, pinned)"
+
+
+def download_hub_data(export_dir: str | os.PathLike | None = None) -> dict[str, Path]:
+    """Fetch (or find cached) every pinned hub file; optionally write them out in the original
+    formats under ``export_dir`` so that it can serve as ``$RSB_DATA_DIR`` offline."""
+    paths: dict[str, Path] = {}
+    for split, fn in GSM8K_FILES.items():
+        paths[f"gsm8k/{split}"] = hub_file(GSM8K_REPO, fn, GSM8K_REVISION)
+    for split, fn in MMLU_FILES.items():
+        paths[f"mmlu/{split}"] = hub_file(MMLU_REPO, fn, MMLU_REVISION)
+    if export_dir is not None:
+        root = Path(export_dir)
+        for split in GSM8K_SPLITS:
+            out = root / "gsm8k" / f"{split}.jsonl"
+            out.parent.mkdir(parents=True, exist_ok=True)
+            with open(out, "w", encoding="utf-8") as fh:
+                for rec in read_parquet_rows(paths[f"gsm8k/{split}"]):
+                    fh.write(json.dumps({"question": rec["question"], "answer": rec["answer"]}) + "\n")
+        for split in MMLU_SPLITS:
+            by_subject: dict[str, list[list[str]]] = {}
+            for rec in read_parquet_rows(paths[f"mmlu/{split}"]):
+                by_subject.setdefault(str(rec["subject"]), []).append(
+                    [rec["question"], *rec["choices"], "ABCD"[int(rec["answer"])]])
+            folder = root / "mmlu" / split
+            folder.mkdir(parents=True, exist_ok=True)
+            for subject, recs in sorted(by_subject.items()):
+                with open(folder / f"{subject}_{split}.csv", "w", encoding="utf-8", newline="") as fh:
+                    csv.writer(fh).writerows(recs)
+    return paths

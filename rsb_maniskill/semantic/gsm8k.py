@@ -1,0 +1,85 @@
+"""RSB-HardMath: GSM8K word problems (train pool = GSM8K train, evaluation pool = GSM8K test)."""
+from __future__ import annotations
+
+import os
+import re
+
+from .data import gsm8k_rows
+from .errors import SemanticDataError
+from .records import Question, format_number, normalize_text
+
+_ANNOTATION = re.compile(r"<<[^>]*>>")
+_CALC_RESULT = re.compile(r"<<[^>]*=\s*(-?[\d,]*\.?\d+)\s*>>")
+_FINAL = re.compile(r"^(-?)(\d{1,3}(?:,\d{3})+|\d+)(?:\.(\d+))?$")
+_NUMBER = re.compile(r"(?<![\d.])-?\d[\d,]*(?:\.\d+)?")
+
+
+def parse_final_answer(answer_field: str) -> tuple[int, int]:
+    """Value after the last ``####`` as (units, decimals): thousands separators stripped,
+    negatives kept. ValueError when absent or not a number (the caller adds file and line)."""
+    if "####" not in answer_field:
+        raise ValueError("no '####' final-answer marker in 'answer'")
+    raw = answer_field.rsplit("####", 1)[1].strip()
+    m = _FINAL.match(raw.replace("$", "").strip())
+    if not m:
+        raise ValueError(f"cannot parse final answer {raw!r} as a number")
+    sign, whole, frac = m.group(1), m.group(2).replace(",", ""), m.group(3) or ""
+    frac = frac.rstrip("0")
+    units = int(whole + frac) if frac else int(whole)
+    return (-units if sign else units), len(frac)
+
+
+def _to_units(text: str, decimals: int) -> int | None:
+    try:
+        t = text.replace(",", "")
+        if "." in t:
+            whole, frac = t.split(".", 1)
+            if len(frac) > decimals:
+                return None
+            return int(whole + frac.ljust(decimals, "0")) if decimals else None
+        return int(t) * 10 ** decimals
+    except ValueError:
+        return None
+
+
+def clean_solution(answer_field: str) -> str:
+    """GSM8K's worked solution as one line, without calculator annotations or the #### line."""
+    body = answer_field.rsplit("####", 1)[0]
+    return normalize_text(_ANNOTATION.sub("", body))
+
+
+def question_from_row(row: dict) -> Question:
+    """Build a HardMath question; unparseable records raise SemanticDataError (never skipped)."""
+    origin = row.get("origin", "")
+    path, _, line = origin.rpartition(", line ")
+    lineno = int(line) if line.isdigit() else None
+    if lineno is None:
+        path = origin
+    try:
+        units, decimals = parse_final_answer(row["answer"])
+    except ValueError as err:
+        raise SemanticDataError(path, lineno, str(err)) from None
+    hints: list[int] = []
+    for m in _CALC_RESULT.finditer(row["answer"]):  # partial results of the worked solution
+        u = _to_units(m.group(1), decimals)
+        if u is not None:
+            hints.append(u)
+    for m in _NUMBER.finditer(row["question"]):  # quantities of the problem (a typical slip)
+        u = _to_units(m.group(0), decimals)
+        if u is not None:
+            hints.append(u)
+    return Question(
+        text=normalize_text(row["question"]),
+        answer=format_number(units, decimals),
+        source="gsm8k",
+        value=units,
+        decimals=decimals,
+        hints=tuple(dict.fromkeys(h for h in hints if h != units)),
+        solution=clean_solution(row["answer"]),
+        origin=origin,
+    )
+
+
+def gsm8k_pool(split: str, data_dir: str | os.PathLike | None = None) -> tuple[Question, ...]:
+    """All GSM8K questions of ``split`` in file order (question_id = row index)."""
+    return tuple(question_from_row(r) for r in gsm8k_rows(split, data_dir))

@@ -1,0 +1,96 @@
+"""RSB-Math: procedurally generated arithmetic, identical on every machine.
+
+The full question space is enumerated and ordered by SHA-256 of a canonical key, so the pools
+depend on nothing but this file. Forms (paper section 3.2):
+
+* a + b, both two-digit;
+* a - b, both two-digit, with a - b >= 10 (never negative; the two-digit result also leaves nine
+  non-negative values below every answer, so the answer's rank among the options can be uniform);
+* d x b, d one-digit in 2..9 (x1 is trivial), b two-digit.
+
+a + b and b + a (same unordered pair) always land in the same split, so the evaluation pool holds
+no commuted copy of a training question.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+from .records import Question
+from .stable import stable_key
+
+TRAIN_SIZE = 500
+TEST_SIZE = 1000
+_OPS = ("plus", "minus", "times")
+
+
+def _question(op: str, a: int, b: int) -> Question:
+    if op == "plus":
+        v = a + b
+        hints = (a - b if a >= b else b - a, v - 10, v + 10, v - 1, v + 1,
+                 (a % 10 + b % 10) % 10 + 10 * (a // 10 + b // 10))  # carry dropped
+        word = "plus"
+    elif op == "minus":
+        v = a - b
+        hints = (a + b, v - 10, v + 10, v - 1, v + 1,
+                 10 * (a // 10 - b // 10) + abs(a % 10 - b % 10))  # smaller-from-larger digit slip
+        word = "minus"
+    else:
+        v = a * b
+        tens, ones = (b // 10) * 10, b % 10
+        hints = (a + b, a * tens, a * ones, a * tens + ones, a * (b + 1), a * (b - 1), v - 10, v + 10)
+        word = "times"
+    return Question(
+        text=f"What is {a} {word} {b}?",
+        answer=str(v),
+        source="math",
+        group=op,
+        value=v,
+        hints=tuple(h for h in hints if h != v),
+        solution=f"{a} {word} {b} equals {v}.",
+        origin=f"math generator ({a} {word} {b})",
+    )
+
+
+def _groups(op: str) -> list[list[tuple[int, int]]]:
+    """Operand pairs grouped by canonical key, in stable hash order."""
+    groups: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    if op == "plus":
+        for a in range(10, 100):
+            for b in range(10, 100):
+                groups.setdefault((min(a, b), max(a, b)), []).append((a, b))
+    elif op == "minus":
+        for a in range(10, 100):
+            for b in range(10, 100):
+                if a - b >= 10:
+                    groups[(a, b)] = [(a, b)]
+    else:
+        for d in range(2, 10):
+            for b in range(10, 100):
+                groups[(d, b)] = [(d, b)]
+    keys = sorted(groups, key=lambda k: stable_key("rsb-math", op, *k))
+    return [groups[k] for k in keys]
+
+
+def _take(groups: list[list[tuple[int, int]]], start: int, count: int) -> tuple[list[tuple[int, int]], int]:
+    """Take whole groups from ``start`` until ``count`` pairs (a group is cut, its rest discarded)."""
+    out: list[tuple[int, int]] = []
+    i = start
+    while len(out) < count and i < len(groups):
+        out.extend(groups[i][: count - len(out)])
+        i += 1
+    return out, i
+
+
+@lru_cache(maxsize=None)
+def math_pool(split: str) -> tuple[Question, ...]:
+    """Training (500) or evaluation (1,000) arithmetic questions, disjoint by text and by operand pair."""
+    per_train = [TRAIN_SIZE // 3 + (1 if i < TRAIN_SIZE % 3 else 0) for i in range(3)]
+    per_test = [TEST_SIZE // 3 + (1 if i < TEST_SIZE % 3 else 0) for i in range(3)]
+    chosen: list[Question] = []
+    for op, n_train, n_test in zip(_OPS, per_train, per_test):
+        groups = _groups(op)
+        train, nxt = _take(groups, 0, n_train)
+        pairs = train if split == "train" else _take(groups, nxt, n_test)[0]
+        chosen.extend(_question(op, a, b) for a, b in pairs)
+    chosen.sort(key=lambda q: stable_key("rsb-math-order", q.text))  # mix the operations
+    return tuple(chosen)

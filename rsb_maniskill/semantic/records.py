@@ -1,0 +1,44 @@
+"""The source-independent question record that pools hold."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Question:
+    """One question of a pool.
+
+    Numeric questions (Math, GSM8K) carry ``value`` (the answer in units of 10**-decimals) and
+    ``hints`` (plausible wrong values: slips, partial results) for distractor generation.
+    Text questions carry ``choices`` (MMLU's own options, answer included) and/or ``group``
+    (subject or knowledge category) whose other answers serve as distractors.
+    """
+
+    text: str
+    answer: str
+    source: str  # "math" | "gsm8k" | "mmlu" | "commonsense"
+    group: str = ""
+    value: int | None = None
+    decimals: int = 0
+    hints: tuple[int, ...] = ()
+    choices: tuple[str, ...] | None = None
+    solution: str = ""
+    origin: str = ""  # "file, line N" or generator description, for error reports
+
+    @property
+    def numeric(self) -> bool:
+        return self.value is not None
+
+
+def format_number(units: int, decimals: int) -> str:
+    """Render an integer number of 10**-decimals units as plain text (no thousands separators)."""
+    if decimals == 0:
+        return str(units)
+    sign = "-" if units < 0 else ""
+    q, r = divmod(abs(units), 10 ** decimals)
+    return f"{sign}{q}.{r:0{decimals}d}"
+
+
+def normalize_text(s: str) -> str:
+    """Whitespace-collapsed text: instructions are one line."""
+    return " ".join(str(s).split())

@@ -1,0 +1,279 @@
+"""The RSB answer-selection task: put the block of the correct answer into the gray zone.
+
+One class serves every suite (``RSB-Math-4`` ... ``RSB-Direct-10``): the suite only changes the
+question source and the number of candidates. The physical primitive never changes.
+
+Determinism: everything about an episode is a function of its episode seed. The question is
+``seed mod pool size`` of the split's pool (so seeds 0..P-1 visit every question once), the rest
+of the semantic draw (options, colour map, template) comes from the semantic engine seeded with
+the same seed, and the layout from ManiSkill's ``_batched_episode_rng``, identical on CPU and
+GPU and under ``replay_trajectory``.
+"""
+from __future__ import annotations
+
+import numpy as np
+import sapien
+import torch
+
+from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.utils.registration import register_env
+from mani_skill.utils.structs.pose import Pose
+from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
+
+from rsb_maniskill.agents.aloha import ARMS, AlohaAgilex
+from rsb_maniskill.objects import AnswerTargets, Blocks
+from rsb_maniskill.semantic import SUITE_IDS, EpisodeSampler, EpisodeSpec, parse_suite_id
+from rsb_maniskill.tasks.contacts import PairContacts
+from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
+from rsb_maniskill.tasks.tabletop import CONTROL_FREQ, SIM_FREQ
+
+# Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0).
+SLOT_X = (0.30, 0.40)
+SLOT_Y = (-0.27, -0.18, -0.09, 0.0, 0.09, 0.18, 0.27)
+SLOT_XY = np.array([(x, y) for x in SLOT_X for y in SLOT_Y], dtype=np.float32)  # 14 slots
+POS_JITTER = 0.008  # keeps >= 7.4 cm between neighbouring block centres
+YAW_JITTER = 0.2  # rad; letters stay upright enough to read
+ZONE_XY = (0.17, 0.0)  # on the midline: both arms reach it
+ZONE_HALF = 0.05
+ZONE_COLOR = (0.50, 0.50, 0.52, 1.0)
+
+# Grasp and placement rule (paper appendix C).
+CONTACT_FORCE = 0.5  # N: a finger "touches" a candidate
+LIFT_HEIGHT = 0.01  # m above its resting height
+HOLD_STEPS = 8  # consecutive control steps of closed-gripper contact
+REST_SPEED = 0.05  # m/s: a placed block must be at rest
+
+MAX_EPISODE_STEPS = 300  # 12 s at 25 Hz; the expert needs about 7 s (see docs/tasks.md)
+
+
+class AnswerSelectionEnv(BaseEnv):
+    """Aloha-AgileX at a table with N candidate blocks and a gray answer zone.
+
+    Args:
+        suite_id: one of ``rsb_maniskill.semantic.SUITE_IDS`` (set by the registered id).
+        split: ``"train"`` or ``"test"`` (the evaluation pool, disjoint from train).
+        instructions: ``"seen"`` or ``"unseen"`` templates; default seen for train, unseen for test.
+        color_map: 4-choice only: ``"fixed"`` (A=red, B=green, C=blue, D=yellow) or ``"shuffle"``.
+        data_dir: directory with GSM8K / MMLU files (else ``$RSB_DATA_DIR``, else the HF hub cache).
+        camera_size: (width, height) of the head and wrist cameras; default 320x240.
+    """
+
+    SUPPORTED_ROBOTS = ["aloha_agilex"]
+    SUPPORTED_REWARD_MODES = ["normalized_dense", "dense", "sparse", "none"]
+    agent: AlohaAgilex
+    targets: AnswerTargets
+
+    def __init__(self, *args, suite_id: str, split: str = "train", instructions: str | None = None,
+                 color_map: str = "fixed", data_dir: str | None = None,
+                 camera_size: tuple[int, int] | None = None, robot_uids: str = "aloha_agilex", **kwargs):
+        self.suite_id = suite_id
+        self.suite, self.n_choices = parse_suite_id(suite_id)
+        # Built first so that a bad split, template set, colour map or missing data fails fast.
+        self.sampler = EpisodeSampler(suite_id, split=split, instructions=instructions,
+                                      color_map=color_map, data_dir=data_dir)
+        self.split = split
+        if camera_size is not None:
+            w, h = camera_size
+            kwargs["sensor_configs"] = {**kwargs.get("sensor_configs", {}), "width": int(w), "height": int(h)}
+        self.episode_specs: list[EpisodeSpec | None] = []
+        super().__init__(*args, robot_uids=robot_uids, **kwargs)
+
+    # ------------------------------------------------------------------ configuration
+    @property
+    def _default_sim_config(self):
+        return SimConfig(sim_freq=SIM_FREQ, control_freq=CONTROL_FREQ,
+                         gpu_memory_config=GPUMemoryConfig(max_rigid_contact_count=2**21,
+                                                           max_rigid_patch_count=2**19,
+                                                           found_lost_pairs_capacity=2**25))
+
+    @property
+    def _default_sensor_configs(self):
+        return []  # head and wrist cameras ride on the robot
+
+    @property
+    def _default_human_render_camera_configs(self):
+        return human_camera_config()
+
+    def _load_agent(self, options: dict):
+        super()._load_agent(options, sapien.Pose())
+
+    def _load_scene(self, options: dict):
+        self.table_scene = TableSceneBuilder(self)
+        self.table_scene.build()
+        self.targets = Blocks(self.n_choices, self.num_envs, self.device)
+        self.blocks = self.targets.build(self.scene)
+        builder = self.scene.create_actor_builder()
+        builder.add_box_visual(half_size=[ZONE_HALF, ZONE_HALF, 0.0005],
+                               material=sapien.render.RenderMaterial(base_color=ZONE_COLOR, roughness=0.9))
+        builder.initial_pose = sapien.Pose(p=[*ZONE_XY, 0.0006])
+        self.zone = builder.build_kinematic(name="answer_zone")
+
+    def _after_reconfigure(self, options: dict):
+        fingers = [f for arm in ARMS for f in self.agent.fingers[arm]]
+        self.contacts = PairContacts(self.scene, fingers, self.blocks)
+        self.rest_z = self.targets.rest_height()
+        self.zone_xy = torch.tensor(ZONE_XY, device=self.device)
+        n, b = self.n_choices, self.num_envs
+        long = dict(dtype=torch.long, device=self.device)
+        self.target_block = torch.zeros(b, **long)
+        self.answer_slot = torch.zeros(b, **long)
+        self.question_id = torch.zeros(b, **long)
+        self.template_id = torch.zeros(b, **long)
+        self.block_of_option = torch.zeros(b, n, **long)
+        self.block_slot = torch.zeros(b, n, **long)
+        self.hold_steps = torch.zeros(b, len(ARMS), n, **long)
+        self.first_grasped = torch.full((b,), -1, **long)
+        self.grasped_correct = torch.zeros(b, dtype=torch.bool, device=self.device)
+        self.grasped_wrong = torch.zeros(b, dtype=torch.bool, device=self.device)
+        self.episode_specs = [None] * b
+        self._grasp_update_pending = False
+
+    # ------------------------------------------------------------------ episodes
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        self.table_scene.initialize(env_idx)
+        idx = env_idx.cpu().numpy()
+        for i in idx:
+            seed = int(self._episode_seed[i])
+            spec = self.sampler.sample(seed, question_index=seed % self.sampler.num_questions)
+            self.episode_specs[i] = spec
+            self.target_block[i] = spec.target_block
+            self.answer_slot[i] = spec.answer_slot
+            self.question_id[i] = spec.question_id
+            self.template_id[i] = spec.template_id
+            self.block_of_option[i] = torch.as_tensor(spec.block_of_option, device=self.device)
+        self._place_blocks(env_idx)
+        self.hold_steps[env_idx] = 0
+        self.first_grasped[env_idx] = -1
+        self.grasped_correct[env_idx] = False
+        self.grasped_wrong[env_idx] = False
+        self._grasp_update_pending = False
+
+    def _place_blocks(self, env_idx: torch.Tensor):
+        """Random distinct slots, position and yaw jitter: identity and place are independent."""
+        rng = self._batched_episode_rng[env_idx]
+        n = self.n_choices
+        slots = rng.permutation(len(SLOT_XY))[:, :n]  # (b, n)
+        jitter = rng.uniform(-POS_JITTER, POS_JITTER, size=(n, 2))  # (b, n, 2)
+        yaw = rng.uniform(-YAW_JITTER, YAW_JITTER, size=(n,))  # (b, n)
+        xy = torch.as_tensor(SLOT_XY[slots] + jitter, dtype=torch.float32, device=self.device)
+        yaw = torch.as_tensor(yaw, dtype=torch.float32, device=self.device)
+        self.block_slot[env_idx] = torch.as_tensor(slots, device=self.device)
+        rest_z = self.rest_z[env_idx]
+        for i, block in enumerate(self.blocks):
+            p = torch.cat([xy[:, i], rest_z[:, i:i + 1] + 5e-4], dim=1)
+            q = torch.stack([torch.cos(yaw[:, i] / 2), torch.zeros_like(yaw[:, i]),
+                             torch.zeros_like(yaw[:, i]), torch.sin(yaw[:, i] / 2)], dim=1)
+            block.set_pose(Pose.create_from_pq(p, q))
+            block.set_linear_velocity(torch.zeros((len(env_idx), 3), device=self.device))
+            block.set_angular_velocity(torch.zeros((len(env_idx), 3), device=self.device))
+
+    def get_language_instruction(self) -> list[str]:
+        """The instruction of each parallel env (strings can't live in observations)."""
+        return [spec.instruction for spec in self.episode_specs]
+
+    # ------------------------------------------------------------------ evaluation
+    def _after_control_step(self):
+        self._grasp_update_pending = True  # grasp state advances once per control step
+
+    def _block_positions(self) -> torch.Tensor:
+        return torch.stack([b.pose.p for b in self.blocks], dim=1)  # (B, N, 3)
+
+    def _update_grasps(self, forces: torch.Tensor, pos: torch.Tensor):
+        touch = (forces >= CONTACT_FORCE).view(self.num_envs, len(ARMS), 2, self.n_choices).any(2)
+        closed = torch.stack([self.agent.is_gripper_closed(a) for a in ARMS], dim=1)  # (B, 2)
+        contact = touch & closed[..., None]  # (B, arms, N)
+        self.hold_steps = torch.where(contact, self.hold_steps + 1, torch.zeros_like(self.hold_steps))
+        lifted = (pos[..., 2] - self.rest_z) >= LIFT_HEIGHT  # (B, N)
+        grasp_now = (contact & (lifted[:, None] | (self.hold_steps >= HOLD_STEPS))).any(1)  # (B, N)
+        is_target = torch.arange(self.n_choices, device=self.device)[None] == self.target_block[:, None]
+        self.grasped_correct |= (grasp_now & is_target).any(1)
+        self.grasped_wrong |= (grasp_now & ~is_target).any(1)
+        new = (self.first_grasped < 0) & grasp_now.any(1)
+        self.first_grasped = torch.where(new, grasp_now.float().argmax(1), self.first_grasped)
+
+    def evaluate(self) -> dict:
+        forces = self.contacts.forces()  # (B, 4 fingers, N)
+        pos = self._block_positions()
+        if self._grasp_update_pending:
+            self._update_grasps(forces, pos)
+            self._grasp_update_pending = False
+        speed = torch.stack([torch.linalg.norm(b.linear_velocity, dim=1) for b in self.blocks], dim=1)
+        in_zone = (pos[..., :2] - self.zone_xy).abs().le(ZONE_HALF).all(-1)
+        untouched = (forces < CONTACT_FORCE).all(1)
+        at_rest = (pos[..., 2] - self.rest_z < LIFT_HEIGHT) & (speed < REST_SPEED) & untouched
+        placed = in_zone & at_rest  # (B, N)
+        is_target = torch.arange(self.n_choices, device=self.device)[None] == self.target_block[:, None]
+        placed_correct = (placed & is_target).any(1)
+        placed_wrong = (placed & ~is_target).any(1)
+        held = (forces >= CONTACT_FORCE).view(self.num_envs, len(ARMS), 2, self.n_choices).all(2).any(1)
+        return dict(
+            success=placed_correct & ~placed_wrong,
+            fail=placed_wrong,
+            grasped_any=self.first_grasped >= 0,
+            grasped_correct=self.grasped_correct.clone(),
+            grasped_wrong=self.grasped_wrong.clone(),
+            first_grasped=self.first_grasped.clone(),
+            placed_correct=placed_correct,
+            placed_wrong=placed_wrong,
+            holding_target=(held & is_target).any(1),
+            question_id=self.question_id.clone(),
+            answer_slot=self.answer_slot.clone(),
+            target_block=self.target_block.clone(),
+        )
+
+    # ------------------------------------------------------------------ observations / rewards
+    def _get_obs_extra(self, info: dict):
+        obs = {f"{a}_tcp_pose": self.agent.tcp_pose(a).raw_pose for a in ARMS}
+        obs["zone_pos"] = self.zone.pose.p
+        if "state" in self.obs_mode:
+            obs["block_pose"] = torch.cat([b.pose.raw_pose for b in self.blocks], dim=1)  # (B, 7N)
+            obs["block_id"] = torch.arange(self.n_choices, device=self.device).expand(self.num_envs, -1)
+        return obs
+
+    def compute_dense_reward(self, obs, action, info: dict):
+        target_pos = self._block_positions()[torch.arange(self.num_envs, device=self.device), self.target_block]
+        reach = torch.stack([torch.linalg.norm(self.agent.tcp_pose(a).p - target_pos, dim=1) for a in ARMS], 1).min(1)[0]
+        to_zone = torch.linalg.norm(target_pos[:, :2] - self.zone_xy, dim=1)
+        holding = info["holding_target"].float()
+        reward = (1 - torch.tanh(5 * reach)) + 1.5 * holding + 2 * holding * (1 - torch.tanh(5 * to_zone))
+        reward = reward - 1.0 * info["grasped_wrong"].float()
+        reward[info["success"]] = 6.0
+        return reward
+
+    def compute_normalized_dense_reward(self, obs, action, info: dict):
+        return self.compute_dense_reward(obs, action, info) / 6.0
+
+    # ------------------------------------------------------------------ state (for replay)
+    def _task_state(self) -> torch.Tensor:
+        cols = [self.question_id[:, None], self.answer_slot[:, None], self.target_block[:, None],
+                self.template_id[:, None], self.first_grasped[:, None], self.grasped_correct[:, None],
+                self.grasped_wrong[:, None], self.block_of_option, self.block_slot,
+                self.hold_steps.flatten(1)]
+        return torch.cat([c.to(torch.float32) for c in cols], dim=1)
+
+    def get_state_dict(self):
+        state = super().get_state_dict()
+        state["task"] = self._task_state()
+        return state
+
+    def set_state_dict(self, state: dict, env_idx: torch.Tensor | None = None):
+        task = state.get("task")
+        state = {k: v for k, v in state.items() if k != "task"}
+        super().set_state_dict(state, env_idx)
+        if task is None:
+            return
+        task = torch.as_tensor(task, device=self.device).round().long()
+        if task.ndim == 1:
+            task = task[None]
+        idx = slice(None) if env_idx is None else env_idx
+        n = self.n_choices
+        self.question_id[idx], self.answer_slot[idx], self.target_block[idx] = task[:, 0], task[:, 1], task[:, 2]
+        self.template_id[idx], self.first_grasped[idx] = task[:, 3], task[:, 4]
+        self.grasped_correct[idx], self.grasped_wrong[idx] = task[:, 5].bool(), task[:, 6].bool()
+        self.block_of_option[idx] = task[:, 7:7 + n]
+        self.block_slot[idx] = task[:, 7 + n:7 + 2 * n]
+        self.hold_steps[idx] = task[:, 7 + 2 * n:].view(-1, len(ARMS), n)
+
+
+for _suite_id in SUITE_IDS:
+    register_env(_suite_id, max_episode_steps=MAX_EPISODE_STEPS, suite_id=_suite_id)(AnswerSelectionEnv)

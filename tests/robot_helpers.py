@@ -8,7 +8,7 @@ import torch
 from mani_skill.utils.building import actors
 from mani_skill.utils.registration import register_env
 
-from rsb_maniskill.agents.aloha import ARMS, PREFIX
+from rsb_maniskill.agents.aloha import PREFIX
 from rsb_maniskill.tasks.tabletop import TableTopEnv
 
 CUBE_HALF = 0.02
@@ -68,9 +68,7 @@ class ArmDriver:
             self.step()
 
     def step(self):
-        return self.env.step(torch.as_tensor(self.action[None], dtype=torch.float32))
+        out = self.env.step(torch.as_tensor(self.action[None], dtype=torch.float32))
+        self.info = out[-1]
+        return out
 
-
-def arm_of(side: str) -> str:
-    assert side in ARMS
-    return side

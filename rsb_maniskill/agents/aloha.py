@@ -151,6 +151,11 @@ class AlohaAgilex(BaseAgent):
         target = self.robot.get_drive_targets()[:, self.finger_qpos_index[arm]]
         return target < 0.5 * GRIPPER_OPEN
 
+    def grippers_closed(self) -> torch.Tensor:
+        """(B, 2) :meth:`is_gripper_closed` of the left and right arm, in one read."""
+        idx = [self.finger_qpos_index[a] for a in ARMS]
+        return self.robot.get_drive_targets()[:, idx] < 0.5 * GRIPPER_OPEN
+
     def finger_contact(self, arm: str, actor: Actor, min_force: float = 0.1) -> torch.Tensor:
         """Either finger of ``arm`` touches ``actor``."""
         f1, f2 = self.fingers[arm]

@@ -127,6 +127,7 @@ class AnswerSelectionEnv(BaseEnv):
         self.grasped_wrong = torch.zeros(b, dtype=torch.bool, device=self.device)
         self.episode_specs = [None] * b
         self._grasp_update_pending = False
+        self._block_pose_cache = self._tcp_cache = None
 
     # ------------------------------------------------------------------ episodes
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
@@ -166,6 +167,7 @@ class AnswerSelectionEnv(BaseEnv):
             block.set_pose(Pose.create_from_pq(p, q))
             block.set_linear_velocity(torch.zeros((len(env_idx), 3), device=self.device))
             block.set_angular_velocity(torch.zeros((len(env_idx), 3), device=self.device))
+        self._block_pose_cache = self._tcp_cache = None
 
     def get_language_instruction(self) -> list[str]:
         """The instruction of each parallel env (strings can't live in observations)."""
@@ -174,13 +176,26 @@ class AnswerSelectionEnv(BaseEnv):
     # ------------------------------------------------------------------ evaluation
     def _after_control_step(self):
         self._grasp_update_pending = True  # grasp state advances once per control step
+        self._block_pose_cache = self._tcp_cache = None
+
+    def _block_poses(self) -> torch.Tensor:
+        """(B, N, 7) raw poses, read once per control step (evaluate, obs and reward share it)."""
+        if self._block_pose_cache is None:
+            self._block_pose_cache = torch.stack([b.pose.raw_pose for b in self.blocks], dim=1)
+        return self._block_pose_cache
+
+    def _tcp_raw_poses(self) -> list[torch.Tensor]:
+        """Left and right TCP raw poses, read once per control step."""
+        if self._tcp_cache is None:
+            self._tcp_cache = [self.agent.tcp_pose(a).raw_pose for a in ARMS]
+        return self._tcp_cache
 
     def _block_positions(self) -> torch.Tensor:
-        return torch.stack([b.pose.p for b in self.blocks], dim=1)  # (B, N, 3)
+        return self._block_poses()[..., :3]
 
     def _update_grasps(self, forces: torch.Tensor, pos: torch.Tensor):
         touch = (forces >= CONTACT_FORCE).view(self.num_envs, len(ARMS), 2, self.n_choices).any(2)
-        closed = torch.stack([self.agent.is_gripper_closed(a) for a in ARMS], dim=1)  # (B, 2)
+        closed = self.agent.grippers_closed()  # (B, 2)
         contact = touch & closed[..., None]  # (B, arms, N)
         self.hold_steps = torch.where(contact, self.hold_steps + 1, torch.zeros_like(self.hold_steps))
         lifted = (pos[..., 2] - self.rest_z) >= LIFT_HEIGHT  # (B, N)
@@ -197,7 +212,7 @@ class AnswerSelectionEnv(BaseEnv):
         if self._grasp_update_pending:
             self._update_grasps(forces, pos)
             self._grasp_update_pending = False
-        speed = torch.stack([torch.linalg.norm(b.linear_velocity, dim=1) for b in self.blocks], dim=1)
+        speed = torch.linalg.norm(torch.stack([b.linear_velocity for b in self.blocks], dim=1), dim=-1)
         in_zone = (pos[..., :2] - self.zone_xy).abs().le(ZONE_HALF).all(-1)
         untouched = (forces < CONTACT_FORCE).all(1)
         at_rest = (pos[..., 2] - self.rest_z < LIFT_HEIGHT) & (speed < REST_SPEED) & untouched
@@ -223,16 +238,17 @@ class AnswerSelectionEnv(BaseEnv):
 
     # ------------------------------------------------------------------ observations / rewards
     def _get_obs_extra(self, info: dict):
-        obs = {f"{a}_tcp_pose": self.agent.tcp_pose(a).raw_pose for a in ARMS}
+        obs = {f"{a}_tcp_pose": pose for a, pose in zip(ARMS, self._tcp_raw_poses())}
         obs["zone_pos"] = self.zone.pose.p
         if "state" in self.obs_mode:
-            obs["block_pose"] = torch.cat([b.pose.raw_pose for b in self.blocks], dim=1)  # (B, 7N)
+            obs["block_pose"] = self._block_poses().flatten(1)  # (B, 7N)
             obs["block_id"] = torch.arange(self.n_choices, device=self.device).expand(self.num_envs, -1)
         return obs
 
     def compute_dense_reward(self, obs, action, info: dict):
         target_pos = self._block_positions()[torch.arange(self.num_envs, device=self.device), self.target_block]
-        reach = torch.stack([torch.linalg.norm(self.agent.tcp_pose(a).p - target_pos, dim=1) for a in ARMS], 1).min(1)[0]
+        tcp = torch.stack([obs_pose[:, :3] for obs_pose in self._tcp_raw_poses()], 1)  # (B, 2, 3)
+        reach = torch.linalg.norm(tcp - target_pos[:, None], dim=-1).min(1)[0]
         to_zone = torch.linalg.norm(target_pos[:, :2] - self.zone_xy, dim=1)
         holding = info["holding_target"].float()
         reward = (1 - torch.tanh(5 * reach)) + 1.5 * holding + 2 * holding * (1 - torch.tanh(5 * to_zone))
@@ -260,6 +276,7 @@ class AnswerSelectionEnv(BaseEnv):
         task = state.get("task")
         state = {k: v for k, v in state.items() if k != "task"}
         super().set_state_dict(state, env_idx)
+        self._block_pose_cache = self._tcp_cache = None
         if task is None:
             return
         task = torch.as_tensor(task, device=self.device).round().long()

@@ -13,7 +13,7 @@ from mani_skill.utils.structs.types import SimConfig
 from rsb_maniskill.agents.aloha import AlohaAgilex
 from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
 
-SIM_FREQ, CONTROL_FREQ = 250, 25  # RoboTwin's physics rate; 10 physics steps per action
+SIM_FREQ, CONTROL_FREQ = 125, 25  # 5 physics steps per action, as ManiSkill's tabletop tasks
 
 
 @register_env("RSB-TableTop-v1", max_episode_steps=500)

@@ -60,5 +60,5 @@ if ! $VENV/bin/python -c "import torch" 2>/dev/null; then
       || $PIP install -q torch --index-url https://download.pytorch.org/whl/cpu
   fi
 fi
-$PIP install -q -e ".[dev,eval]"
+$PIP install -q -e ".[dev,eval,hub]"
 echo "setup: done ($($VENV/bin/python -c 'import mani_skill, sapien, torch; print("mani_skill", mani_skill.__version__, "sapien", sapien.__version__, "torch", torch.__version__)'))"

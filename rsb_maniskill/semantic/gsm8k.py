@@ -44,8 +44,9 @@ def _to_units(text: str, decimals: int) -> int | None:
 
 def clean_solution(answer_field: str) -> str:
     """GSM8K's worked solution as one line, without calculator annotations or the #### line."""
-    body = answer_field.rsplit("####", 1)[0]
-    return normalize_text(_ANNOTATION.sub("", body))
+    body = _ANNOTATION.sub("", answer_field.rsplit("####", 1)[0])
+    lines = [normalize_text(line) for line in body.splitlines() if line.strip()]
+    return " ".join(line if line[-1] in ".!?" else line + "." for line in lines)
 
 
 def question_from_row(row: dict) -> Question:

@@ -1,0 +1,33 @@
+"""Semantic engine of RSB: (suite, split, seed) -> EpisodeSpec.
+
+Knows nothing of the simulator (no mani_skill, sapien or torch imports), so it is fast to test
+and shared by the tasks, the scripted expert, the evaluator and the exporters. See docs/semantic.md.
+"""
+from __future__ import annotations
+
+from .errors import DataNotFoundError, SemanticDataError, SemanticError
+from .sampler import EpisodeSampler
+from .spec import EpisodeSpec
+from .suites import (
+    COLOR_MAPS,
+    COLORS_4,
+    INSTRUCTION_SETS,
+    LETTERS_4,
+    LETTERS_10,
+    SPLITS,
+    SUITE_IDS,
+    SUITE_SOURCES,
+    SUITES,
+    block_names_for,
+    letters_for,
+    parse_suite_id,
+)
+from .templates import render_instruction
+from .pools import clear_cache, get_pool
+
+__all__ = [
+    "COLOR_MAPS", "COLORS_4", "DataNotFoundError", "EpisodeSampler", "EpisodeSpec", "INSTRUCTION_SETS",
+    "LETTERS_4", "LETTERS_10", "SPLITS", "SUITE_IDS", "SUITE_SOURCES", "SUITES", "SemanticDataError",
+    "SemanticError", "block_names_for", "clear_cache", "get_pool", "letters_for", "parse_suite_id",
+    "render_instruction",
+]

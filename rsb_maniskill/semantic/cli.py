@@ -1,0 +1,116 @@
+"""`rsb questions`, `rsb stats` and `rsb data download` (no simulator imports)."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the semantic engine's sub-commands to the `rsb` dispatcher."""
+    from .suites import COLOR_MAPS, INSTRUCTION_SETS, SPLITS, SUITE_IDS
+
+    p = subparsers.add_parser("questions", help="print sample episodes of a suite",
+                              description="Print sample episode specifications (question, options, instruction, answer).")
+    p.add_argument("suite", help=f"suite id, one of: {', '.join(SUITE_IDS)}")
+    p.add_argument("--split", default="train", help=f"{' | '.join(SPLITS)} (test = evaluation pool)")
+    p.add_argument("-n", "--num", type=int, default=5, help="number of episodes (default 5)")
+    p.add_argument("--seed", type=int, default=0, help="first seed (episodes use seed, seed+1, ...)")
+    p.add_argument("--instructions", choices=INSTRUCTION_SETS, default=None, help="template set (default: seen for train, unseen for test)")
+    p.add_argument("--color-map", choices=COLOR_MAPS, default="fixed")
+    p.add_argument("--data-dir", default=None, help="directory with gsm8k/ and mmlu/ (else $RSB_DATA_DIR, else hub cache)")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.set_defaults(func=cmd_questions)
+
+    s = subparsers.add_parser("stats", help="print question pool sizes per suite and split")
+    s.add_argument("--data-dir", default=None)
+    s.set_defaults(func=cmd_stats)
+
+    d = subparsers.add_parser("data", help="question data (GSM8K, MMLU)")
+    dsub = d.add_subparsers(dest="data_command", metavar="ACTION")
+    dl = dsub.add_parser("download", help="fetch and cache the pinned hub data for offline use")
+    dl.add_argument("--export", default=None, metavar="DIR",
+                    help="also write the data in its original formats under DIR (usable as RSB_DATA_DIR)")
+    dl.set_defaults(func=cmd_data_download)
+    d.set_defaults(func=lambda args: (d.print_help(), 2)[1])
+
+
+def _fail(err: Exception) -> int:
+    print(f"rsb: error: {err}", file=sys.stderr)
+    return 1
+
+
+def cmd_questions(args: argparse.Namespace) -> int:
+    """Print ``-n`` episodes of a suite."""
+    from .errors import SemanticError
+    from .sampler import EpisodeSampler
+
+    try:
+        sampler = EpisodeSampler(args.suite, args.split, args.instructions, args.color_map, args.data_dir)
+        for seed in range(args.seed, args.seed + args.num):
+            spec = sampler.sample(seed)
+            if args.json:
+                print(json.dumps(spec.to_dict()))
+                continue
+            print(f"=== {spec.suite_id} {spec.split} seed={seed} question_id={spec.question_id} template={spec.template_id}")
+            print(f"instruction: {spec.instruction}")
+            for letter, opt, blk in zip(spec.letters, spec.options, spec.block_of_option):
+                mark = "*" if letter == spec.correct_letter else " "
+                print(f"  {mark} ({letter}) {opt}  -> {spec.block_names[blk]}")
+            print(f"answer: {spec.correct_letter} (block {spec.target_block}: {spec.block_names[spec.target_block]})")
+            print(f"rationale: {spec.rationale}")
+    except (ValueError, SemanticError) as err:
+        return _fail(err)
+    return 0
+
+
+def cmd_stats(args: argparse.Namespace) -> int:
+    """Pool sizes per suite and split (reads like the paper's Table 2, plus evaluation pools)."""
+    from .data import data_source_label
+    from .errors import DataNotFoundError
+    from .pools import get_pool
+    from .suites import SUITE_IDS, SUITE_SOURCES, parse_suite_id
+
+    print(f"data: {data_source_label(args.data_dir)}")
+    print(f"{'suite':<18}{'source':<32}{'choices':>8}{'train':>9}{'test':>9}")
+    notes: list[str] = []
+    status = 0
+    for sid in SUITE_IDS:
+        suite, n = parse_suite_id(sid)
+        sizes = []
+        for split in ("train", "test"):
+            if suite == "Direct":
+                sizes.append(f"{n:,}")
+                continue
+            try:
+                pool = get_pool(suite, split, args.data_dir)
+            except DataNotFoundError as err:
+                sizes.append("n/a")
+                if str(err) not in notes:
+                    notes.append(str(err))
+                status = 1
+                continue
+            sizes.append(f"{len(pool):,}")
+            if suite == "General" and n == 4:
+                mix = ", ".join(f"{k} {v:,}" for k, v in pool.source_counts.items())
+                notes.append(f"General {split} mix: {mix}")
+        print(f"{sid:<18}{SUITE_SOURCES[suite]:<32}{n:>8}{sizes[0]:>9}{sizes[1]:>9}")
+    for note in notes:
+        print(f"note: {note}")
+    return status
+
+
+def cmd_data_download(args: argparse.Namespace) -> int:
+    """Fetch the pinned GSM8K / MMLU hub files into the huggingface_hub cache."""
+    from .data import download_hub_data
+    from .errors import SemanticError
+
+    try:
+        paths = download_hub_data(args.export)
+    except SemanticError as err:
+        return _fail(err)
+    for name, path in paths.items():
+        print(f"{name}: {path}")
+    if args.export:
+        print(f"exported to {args.export} (set RSB_DATA_DIR={args.export})")
+    return 0

@@ -1,0 +1,157 @@
+"""EpisodeSampler: (suite, split, seed) -> EpisodeSpec, deterministic in any process."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .errors import SemanticDataError
+from .distractors import length_key, numeric_distractors, pick_by_length, rank_range
+from .pools import Pool, get_pool
+from .records import Question, format_number
+from .spec import EpisodeSpec
+from .stable import episode_rng
+from .suites import COLOR_MAPS, INSTRUCTION_SETS, block_names_for, check_split, letters_for, parse_suite_id
+from .templates import render_direct, render_instruction, template_ids
+
+_MMLU_EXTRA = 6  # 10-choice MMLU: four own options + six answers of other questions of the subject
+
+
+def _sentence(text: str) -> str:
+    """Text closed by exactly one full stop (MMLU options often end with their own)."""
+    return text if text[-1:] in ".!?" else text + "."
+
+
+def block_phrase(block_name: str) -> str:
+    """"the red block" / "block F" for rationales."""
+    return f"the {block_name}" if block_name.endswith(" block") else block_name
+
+
+class EpisodeSampler:
+    """Builds episode specifications of one suite and split.
+
+    ``split="test"`` is the evaluation pool. ``instructions`` defaults to the seen templates for
+    training and the unseen ones for evaluation. ``color_map="shuffle"`` draws the 4-choice
+    letter->colour map per episode (10-choice blocks carry their letter, so it has no effect there).
+    """
+
+    def __init__(self, suite_id: str, split: str = "train", instructions: str | None = None,
+                 color_map: str = "fixed", data_dir: str | os.PathLike | None = None) -> None:
+        self.suite_id = suite_id
+        self.suite, self.n_choices = parse_suite_id(suite_id)
+        self.split = check_split(split)
+        if instructions is None:
+            instructions = "seen" if split == "train" else "unseen"
+        if instructions not in INSTRUCTION_SETS:
+            raise ValueError(f"unknown instruction set {instructions!r}; valid: {', '.join(INSTRUCTION_SETS)}")
+        if color_map not in COLOR_MAPS:
+            raise ValueError(f"unknown color_map {color_map!r}; valid: {', '.join(COLOR_MAPS)}")
+        self.instructions = instructions
+        self.color_map = color_map
+        self.letters = letters_for(self.n_choices)
+        self.block_names = block_names_for(self.n_choices)
+        self.direct = self.suite == "Direct"
+        self._templates = template_ids(self.n_choices, instructions, self.direct)
+        self.pool: Pool | None = None if self.direct else get_pool(self.suite, split, data_dir)
+
+    @property
+    def num_questions(self) -> int:
+        """Pool size of this split (Direct: one "question" per block)."""
+        return self.n_choices if self.pool is None else len(self.pool)
+
+    def question(self, index: int) -> Question:
+        """The pool's question record (not for Direct)."""
+        if self.pool is None:
+            raise ValueError("Direct suites have no question records")
+        return self.pool.questions[index]
+
+    def sample(self, seed: int, question_index: int | None = None) -> EpisodeSpec:
+        """Episode of ``seed``; ``question_index`` forces the question (one demo per question),
+        the option order, colour map and template still come from ``seed``."""
+        seed = int(seed)
+        if seed < 0:
+            raise ValueError(f"seed must be >= 0, got {seed}")
+        n_q = self.num_questions
+        if question_index is None:
+            qi = int(episode_rng(self.suite_id, self.split, seed, "question").integers(n_q))
+        else:
+            qi = int(question_index)
+            if not 0 <= qi < n_q:
+                raise IndexError(f"question_index {qi} out of range 0..{n_q - 1} for {self.suite_id} {self.split}")
+        rng = episode_rng(self.suite_id, self.split, seed, "episode")
+        n = self.n_choices
+        template_id = int(self._templates[int(rng.integers(len(self._templates)))])
+        if n == 4 and self.color_map == "shuffle":
+            block_of_option = tuple(int(b) for b in rng.permutation(4))
+        else:
+            block_of_option = tuple(range(n))
+        if self.direct:
+            return self._direct(seed, qi, template_id, block_of_option)
+
+        q = self.pool.questions[qi]
+        options = self._options(qi, q, rng)  # options[0] is the answer
+        perm = rng.permutation(n)
+        ordered = tuple(options[int(i)] for i in perm)
+        slot = int(np.flatnonzero(perm == 0)[0])
+        letter = self.letters[slot]
+        instruction = render_instruction(n, template_id, q.text, ordered, self.letters, self.block_names, block_of_option)
+        binding = (f"Option {letter} is {_sentence(ordered[slot])} "
+                   f"Option {letter} is {block_phrase(self.block_names[block_of_option[slot]])}.")
+        if q.source == "math":
+            rationale = f"{q.solution} {binding}"
+        elif q.source == "gsm8k":
+            rationale = f"{q.solution} The answer is {_sentence(q.answer)} {binding}"
+        else:  # MMLU, commonsense (the latter states its fact first)
+            rationale = f"{q.solution} The answer is {_sentence(q.answer)} {binding}".lstrip()
+        return EpisodeSpec(self.suite_id, self.suite, n, self.split, seed, qi, q.text, ordered, self.letters, slot,
+                           letter, block_of_option, self.block_names, instruction, template_id, rationale)
+
+    # -----------------------------------------------------------------------------------------
+
+    def _direct(self, seed: int, target: int, template_id: int, block_of_option: tuple[int, ...]) -> EpisodeSpec:
+        options = tuple(self.block_names[b] for b in block_of_option)
+        slot = block_of_option.index(target)
+        letter = self.letters[slot]
+        name = self.block_names[target]
+        rationale = f"The instruction names {block_phrase(name)}."
+        return EpisodeSpec(self.suite_id, self.suite, self.n_choices, self.split, seed, target, "", options,
+                           self.letters, slot, letter, block_of_option, self.block_names,
+                           render_direct(self.n_choices, template_id, name), template_id, rationale)
+
+    def _options(self, qi: int, q: Question, rng: np.random.Generator) -> list[str]:
+        n = self.n_choices
+        if q.numeric:
+            lo, hi = rank_range(q.value, n)
+            if lo == 0 and hi == n - 1:
+                rank = int(rng.choice(n, p=self.pool.rank_weights(n)))
+            else:
+                rank = int(rng.integers(lo, hi + 1))
+            values = numeric_distractors(q.value, q.hints, n, rank, rng)
+            return [format_number(v, q.decimals) for v in [q.value, *values]]
+        if q.source == "mmlu":
+            others = [c for c in q.choices if c != q.answer]
+            if n == 4:
+                return [q.answer, *others]
+            return [q.answer, *others, *self._mmlu_extra(q, rng)]
+        cands = self.pool.candidates[qi]
+        return [q.answer, *pick_by_length(q.answer, cands, n - 1, rng)]
+
+    def _mmlu_extra(self, q: Question, rng: np.random.Generator) -> list[str]:
+        """Six answers of other questions of the subject, keeping "longest option" at chance:
+        when the answer is already the longest of its four, it stays the longest with the
+        probability that makes the pool-wide rate 1/10."""
+        n = self.n_choices
+        ak = length_key(q.answer)
+        k_longer = sum(length_key(c) > ak for c in q.choices)
+        if k_longer == 0:
+            keep = min(1.0, (1.0 / n) / max(self.pool.p_longest(), 1e-9))
+            m = 0 if rng.random() < keep else int(rng.integers(1, _MMLU_EXTRA + 1))
+        else:
+            m = int(rng.integers(0, _MMLU_EXTRA + 1))
+        exclude = {c.casefold() for c in q.choices}
+        for source in (self.pool.subject_answers(q.group), self.pool.all_answers(), self.pool.fallback()):
+            for mm in sorted(range(_MMLU_EXTRA + 1), key=lambda x: (abs(x - m), x)):  # nearest feasible m
+                got = source.draw(q.answer, exclude, mm, _MMLU_EXTRA - mm, rng)
+                if got is not None:
+                    return got
+        raise SemanticDataError(q.origin, None, f"{self.suite_id}: not enough MMLU answers for 10 distinct options")

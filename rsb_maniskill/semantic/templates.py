@@ -1,0 +1,180 @@
+"""Instruction templates (paper section 3.4): question, options and their blocks, never the answer.
+
+4-choice templates place ``{MAPA}`` .. ``{MAPD}`` (one option and its block each); 10-choice
+templates place all mappings in ``{OPTIONS}``. Each template has its own entry format so that
+the option list is worded differently too. "seen" templates are for training, "unseen" ones,
+worded differently, for evaluation. Template ids: seen 0..S-1, unseen S..S+U-1 within a family.
+
+:func:`render_instruction` takes no answer argument at all: an instruction cannot depend on
+which option is correct.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+from .records import normalize_text
+
+
+@dataclass(frozen=True)
+class Template:
+    text: str
+    entry: str  # format of one option mapping: {L} letter, {O} option text, {B} block name
+    joiner: str = " "
+
+
+_M4 = "{MAPA} {MAPB} {MAPC} {MAPD}"
+
+SEEN_4: tuple[Template, ...] = (
+    Template("{Q} Options: " + _M4 + " Place the block of the correct option in the gray answer zone.", "({L}) {O} - {B}."),
+    Template("Question: {Q} Choices: " + _M4 + " Pick up the block that matches the right answer and put it in the gray answer zone.", "{L}: {O} ({B})."),
+    Template("{Q} " + _M4 + " Move the block of the correct choice into the gray answer zone.", "Option {L} is {O}, on the {B}."),
+    Template("Answer this: {Q} The options are " + _M4 + " Put the matching block in the gray answer zone.", "({L}) {O} [{B}]"),
+    Template("Solve: {Q} " + _M4 + " Then place the block for your answer in the gray answer zone.", "{L} = {O} -> {B};"),
+    Template("{Q} Choose from " + _M4 + " and put that block in the gray answer zone.", "({L}) {O} on the {B},"),
+    Template("Here is a question: {Q} Possible answers: " + _M4 + " Grasp the block of the correct answer and drop it in the gray answer zone.", "{L}) {O}, the {B}."),
+    Template("{Q} Candidates: " + _M4 + " Carry the block holding the right option to the gray answer zone.", "{L}: {O} / {B}."),
+    Template("Work out the answer. {Q} " + _M4 + " Place the corresponding block in the gray answer zone.", "({L}) {O} is the {B}."),
+    Template("{Q} The {BLOCKS} stand for these options: " + _M4 + " Put the block of the correct one in the gray answer zone.", "{L} {O} ({B})"),
+    Template("Read the question and act. {Q} " + _M4 + " Move the block that answers it to the gray answer zone.", "({L}) {O}, {B}."),
+    Template("{Q} Options with their blocks: " + _M4 + " Pick the block of the correct option and place it in the gray answer zone.", "{L}: {O} - {B};"),
+    Template("Question: {Q} Answer choices: " + _M4 + " Deliver the block of the right choice to the gray answer zone.", "({L}) {O} => {B}"),
+    Template("{Q} Option list: " + _M4 + " Place the block belonging to the correct answer in the gray answer zone.", "option {L}: {O} on the {B}."),
+    Template("Figure out: {Q} " + _M4 + " Then pick up the matching block and set it down in the gray answer zone.", "{L} is {O} ({B})."),
+    Template("{Q} Each block is an option: " + _M4 + " Put the block with the correct option in the gray answer zone.", "the {B} is ({L}) {O}."),
+    Template("Quiz: {Q} " + _M4 + " Select the block of the right answer and move it to the gray answer zone.", "({L}) {O} {B},"),
+    Template("{Q} Here are the options: " + _M4 + " Take the block of the correct answer to the gray answer zone.", "{L} - {O} - {B}."),
+    Template("Please answer: {Q} " + _M4 + " Place the block that corresponds to your answer in the gray answer zone.", "({L}) {O}: {B}."),
+    Template("{Q} Pick one of " + _M4 + " and place its block in the gray answer zone.", "({L}) {O} as the {B},"),
+)
+UNSEEN_4: tuple[Template, ...] = (
+    Template("Think about this problem: {Q} You can choose " + _M4 + " Lift whichever block shows the solution and lay it inside the gray target area.", "{O} marked {L} with the {B},"),
+    Template("A question for the robot: {Q} Listed answers are " + _M4 + " Bring the solution's block over to the gray square.", "[{L}] {O} goes with the {B};"),
+    Template("{Q} Among " + _M4 + " exactly one fits. Set its block down on the gray region.", "{O} (letter {L}, {B}),"),
+    Template("Consider: {Q} Alternatives: " + _M4 + " Find the block standing for the solution and transport it onto the gray patch.", "letter {L} means {O} and uses the {B};"),
+    Template("Your task is to answer {Q} by moving a block. Mapping: " + _M4 + " Drop the block for the answer on the gray area.", "{L} -> {O} -> {B},"),
+    Template("{Q} Possible solutions and blocks: " + _M4 + " Relocate the one that solves it to the gray zone on the table.", "{O} is {L}, held by the {B}."),
+    Template("Determine the solution to the following. {Q} Blocks: " + _M4 + " Transfer the right block onto the gray mat.", "the {B} carries {L}, {O};"),
+    Template("Respond with a block. {Q} Choices map as " + _M4 + " Lay the block of the true answer in the gray area.", "{L} <- {O} ({B}),"),
+)
+
+SEEN_10: tuple[Template, ...] = (
+    Template("{Q} Options: {OPTIONS}. Place the block of the correct option in the gray answer zone.", "({L}) {O}"),
+    Template("Question: {Q} Choices: {OPTIONS}. Pick up the lettered block of the right answer and put it in the gray answer zone.", "{L}: {O}", "; "),
+    Template("{Q} {OPTIONS}. Move the block of the correct choice into the gray answer zone.", "option {L} is {O}", ", "),
+    Template("Answer this: {Q} The options are {OPTIONS}. Put the matching letter block in the gray answer zone.", "({L}) {O}", ", "),
+    Template("Solve: {Q} {OPTIONS}. Then place the block for your answer in the gray answer zone.", "{L} = {O}", "; "),
+    Template("{Q} Choose from {OPTIONS} and put that block in the gray answer zone.", "({L}) {O}", ", "),
+    Template("Here is a question: {Q} Possible answers: {OPTIONS}. Grasp the block of the correct answer and drop it in the gray answer zone.", "{L}) {O}", " "),
+    Template("{Q} Candidates: {OPTIONS}. Carry the block with the right letter to the gray answer zone.", "{L}: {O}", " / "),
+    Template("Work out the answer. {Q} {OPTIONS}. Place the corresponding letter block in the gray answer zone.", "({L}) {O}", " "),
+    Template("{Q} The blocks are lettered: {OPTIONS}. Put the block of the correct one in the gray answer zone.", "{B} is {O}", ", "),
+    Template("Read the question and act. {Q} {OPTIONS}. Move the block that answers it to the gray answer zone.", "({L}) {O}", "; "),
+    Template("{Q} Options by letter: {OPTIONS}. Pick the block of the correct option and place it in the gray answer zone.", "{L} - {O}", "; "),
+    Template("Question: {Q} Answer choices: {OPTIONS}. Deliver the block of the right choice to the gray answer zone.", "({L}) {O}", " "),
+    Template("{Q} Option list: {OPTIONS}. Place the block lettered with the correct answer in the gray answer zone.", "option {L}: {O}", "; "),
+    Template("Figure out: {Q} {OPTIONS}. Then pick up the matching block and set it down in the gray answer zone.", "{L} is {O}", ", "),
+    Template("{Q} Each block is an option: {OPTIONS}. Put the block with the correct option in the gray answer zone.", "{B}: {O}", "; "),
+    Template("Quiz: {Q} {OPTIONS}. Select the block of the right answer and move it to the gray answer zone.", "({L}) {O}", ", "),
+    Template("{Q} Here are the options: {OPTIONS}. Take the block of the correct answer to the gray answer zone.", "{L} - {O}", ", "),
+    Template("Please answer: {Q} {OPTIONS}. Place the block that corresponds to your answer in the gray answer zone.", "({L}) {O}", "; "),
+    Template("{Q} Pick one of {OPTIONS} and place its block in the gray answer zone.", "({L}) {O}", " "),
+)
+UNSEEN_10: tuple[Template, ...] = (
+    Template("Think about this problem: {Q} You can choose {OPTIONS}. Lift whichever letter block shows the solution and lay it inside the gray target area.", "{O} marked {L}", ", "),
+    Template("A question for the robot: {Q} Listed answers are {OPTIONS}. Bring the solution's block over to the gray square.", "[{L}] {O}", " "),
+    Template("{Q} Among {OPTIONS} exactly one fits. Set its block down on the gray region.", "{O} (letter {L})", ", "),
+    Template("Consider: {Q} Alternatives: {OPTIONS}. Find the block standing for the solution and transport it onto the gray patch.", "letter {L} means {O}", "; "),
+    Template("Your task is to answer {Q} by moving a block. Mapping: {OPTIONS}. Drop the block for the answer on the gray area.", "{L} -> {O}", ", "),
+    Template("{Q} Possible solutions by letter: {OPTIONS}. Relocate the one that solves it to the gray zone on the table.", "{O} is {L}", "; "),
+    Template("Determine the solution to the following. {Q} Letters: {OPTIONS}. Transfer the right block onto the gray mat.", "{B} carries {O}", "; "),
+    Template("Respond with a block. {Q} Choices map as {OPTIONS}. Lay the block of the true answer in the gray area.", "{L} <- {O}", ", "),
+)
+
+# Direct (diagnostic): the instruction names the target block itself; {BLOCK} = "blue block" / "block F".
+SEEN_DIRECT: tuple[Template, ...] = tuple(Template(t, "") for t in (
+    "Put the {BLOCK} in the gray answer zone.",
+    "Pick up the {BLOCK} and place it in the gray answer zone.",
+    "Move the {BLOCK} into the gray answer zone.",
+    "Place the {BLOCK} in the gray answer zone.",
+    "Grasp the {BLOCK} and drop it in the gray answer zone.",
+    "Carry the {BLOCK} to the gray answer zone.",
+    "Take the {BLOCK} to the gray answer zone.",
+    "Deliver the {BLOCK} to the gray answer zone.",
+    "Select the {BLOCK} and move it to the gray answer zone.",
+    "Set the {BLOCK} down in the gray answer zone.",
+    "Put the {BLOCK} into the gray answer zone, please.",
+    "Pick the {BLOCK} and place it in the gray answer zone.",
+    "Your target is the {BLOCK}: put it in the gray answer zone.",
+    "Bring the {BLOCK} to the gray answer zone.",
+    "Grab the {BLOCK} and put it in the gray answer zone.",
+    "Lift the {BLOCK} and set it in the gray answer zone.",
+    "Move only the {BLOCK} to the gray answer zone.",
+    "The {BLOCK} goes in the gray answer zone.",
+    "Place the {BLOCK} inside the gray answer zone.",
+    "Get the {BLOCK} into the gray answer zone.",
+))
+UNSEEN_DIRECT: tuple[Template, ...] = tuple(Template(t, "") for t in (
+    "Transport the {BLOCK} onto the gray patch.",
+    "Lay the {BLOCK} inside the gray target area.",
+    "Relocate the {BLOCK} to the gray square on the table.",
+    "The gray region should end up holding the {BLOCK}.",
+    "Transfer the {BLOCK} onto the gray mat.",
+    "Use a gripper to shift the {BLOCK} over to the gray area.",
+    "Drop the {BLOCK} on the gray zone of the table.",
+    "Make sure the {BLOCK} ends up in the gray target.",
+))
+
+
+def template_family(n_choices: int, direct: bool = False) -> tuple[tuple[Template, ...], tuple[Template, ...]]:
+    """(seen, unseen) templates for a suite family."""
+    if direct:
+        return SEEN_DIRECT, UNSEEN_DIRECT
+    if n_choices == 4:
+        return SEEN_4, UNSEEN_4
+    if n_choices == 10:
+        return SEEN_10, UNSEEN_10
+    raise ValueError(f"n_choices must be 4 or 10, got {n_choices!r}")
+
+
+def template_ids(n_choices: int, instructions: str, direct: bool = False) -> range:
+    """Template ids available for an instruction set ("seen" or "unseen")."""
+    seen, unseen = template_family(n_choices, direct)
+    if instructions == "seen":
+        return range(len(seen))
+    if instructions == "unseen":
+        return range(len(seen), len(seen) + len(unseen))
+    raise ValueError(f"unknown instruction set {instructions!r}; valid: seen, unseen")
+
+
+def get_template(n_choices: int, template_id: int, direct: bool = False) -> Template:
+    seen, unseen = template_family(n_choices, direct)
+    allt = seen + unseen
+    if not 0 <= template_id < len(allt):
+        raise ValueError(f"template id {template_id} out of range 0..{len(allt) - 1}")
+    return allt[template_id]
+
+
+def render_instruction(n_choices: int, template_id: int, question: str, options: Sequence[str],
+                       letters: Sequence[str], block_names: Sequence[str], block_of_option: Sequence[int]) -> str:
+    """Instruction for a multiple-choice episode. Deliberately has no answer parameter."""
+    t = get_template(n_choices, template_id)
+    entries = [t.entry.format(L=letters[i], O=normalize_text(options[i]), B=block_names[block_of_option[i]])
+               for i in range(n_choices)]
+    fields = {"Q": normalize_text(question)}
+    if n_choices == 4:
+        # the last mapping closes the list: a full stop before a new sentence, nothing mid-sentence
+        after = t.text.split("{MAPD}", 1)[1]
+        last = entries[3].rstrip(",;.")
+        entries[3] = last + "." if after[:1] == " " and after[1:2].isupper() else last
+        fields.update({f"MAP{letters[i]}": entries[i] for i in range(4)})
+        fields["BLOCKS"] = ", ".join(block_names[:-1]) + " and " + block_names[-1]
+        text = t.text.format(**fields)
+    else:
+        text = t.text.format(OPTIONS=t.joiner.join(entries), **fields)
+    return normalize_text(text)
+
+
+def render_direct(n_choices: int, template_id: int, block_name: str) -> str:
+    """Instruction of a Direct episode: names the target block (that is the point of Direct)."""
+    return get_template(n_choices, template_id, direct=True).text.format(BLOCK=block_name)

@@ -1,0 +1,123 @@
+"""`rsb generate`, `rsb merge` and `rsb replay`: demonstration datasets (see docs/demos.md).
+
+Heavy imports (simulator, planner) happen inside the commands so ``rsb --help`` stays quick.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from rsb_maniskill.motionplan.generate import DEFAULT_EXPERT
+
+# The replay sub-parser must hand every argument, options included, to ManiSkill's own parser:
+# a prefix character no option uses makes argparse treat them all as positionals.
+_NO_PREFIX = "\x01"
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "generate", help="scripted-expert demonstrations (ManiSkill .h5 + .json)",
+        description="Runs the motion-planning expert and keeps only successful episodes. Output: "
+                    "<out>/<ENV_ID>/motionplanning/<split>.<obs_mode>.pd_joint_pos.physx_cpu.h5 and .json.")
+    p.add_argument("env_id", help="suite id, e.g. RSB-Math-4")
+    p.add_argument("--split", default="train", help="question pool: train (default) or test")
+    p.add_argument("-n", "--num", type=int, default=None,
+                   help="number of successful demos (total over all shards); with --questions: "
+                        "only the first N questions")
+    p.add_argument("--questions", default=None, metavar="all|START:STOP",
+                   help="one demo per question of the pool (seeds q, q+P, q+2P, ... for question q)")
+    p.add_argument("--seed-start", type=int, default=0, help="first seed (seed mode; default 0)")
+    p.add_argument("--out", default="demos", help="output root directory (default: demos)")
+    p.add_argument("--traj-name", default=None, help="file name stem (default: the split)")
+    p.add_argument("-o", "--obs-mode", default="state", help="observations to record (default: state)")
+    p.add_argument("--save-video", action="store_true", help="also write one mp4 per kept demo")
+    p.add_argument("--num-procs", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--shard", default="0/1", metavar="I/N",
+                   help="make shard I of N (disjoint seeds/questions); merge shards with `rsb merge`")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.add_argument("--max-attempts", type=int, default=20,
+                   help="seeds tried per question (--questions), or failures in a row before a "
+                        "worker gives up (seed mode); default 20")
+    p.add_argument("--instructions", default=None, help="env kwarg: seen / unseen instruction templates")
+    p.add_argument("--color-map", default=None, help="env kwarg: fixed / shuffle (4-choice colours)")
+    p.add_argument("--data-dir", default=None, help="env kwarg: GSM8K / MMLU directory")
+    p.add_argument("--expert", default=DEFAULT_EXPERT, help=argparse.SUPPRESS)
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("-v", "--verbose", action="store_true", help="log each failed seed with its reason")
+    p.set_defaults(func=run_generate)
+
+    m = subparsers.add_parser("merge", help="merge trajectory files (parts, shards) into one",
+                              description="Concatenates .h5/.json trajectory pairs of the same env and "
+                                          "env kwargs, renumbering traj_<i>; writes atomically.")
+    m.add_argument("inputs", nargs="+", help="input .h5 files (their .json next to them)")
+    m.add_argument("--out", required=True, help="output .h5 path")
+    m.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    m.add_argument("--sort-by-seed", action="store_true", help="order episodes by episode seed")
+    m.set_defaults(func=run_merge)
+
+    r = subparsers.add_parser(
+        "replay", prefix_chars=_NO_PREFIX, add_help=False,
+        help="ManiSkill's replay_trajectory with the RSB envs registered (same arguments)",
+        description="rsb replay --traj-path X.h5 [-o rgb] [-c pd_joint_delta_pos] [--save-traj] ...")
+    r.add_argument("replay_args", nargs="*")
+    r.set_defaults(func=run_replay)
+
+
+def run_generate(args: argparse.Namespace) -> int:
+    from rsb_maniskill.motionplan.dataset import DatasetError
+    from rsb_maniskill.motionplan.generate import GenerateConfig, GenerateError, describe, generate, parse_shard
+
+    extra = {k: v for k, v in (("instructions", args.instructions), ("color_map", args.color_map),
+                               ("data_dir", args.data_dir)) if v is not None}
+    try:
+        cfg = GenerateConfig(
+            env_id=args.env_id, out=args.out, split=args.split, num=args.num, questions=args.questions,
+            seed_start=args.seed_start, obs_mode=args.obs_mode, save_video=args.save_video,
+            num_procs=args.num_procs, shard=parse_shard(args.shard), overwrite=args.overwrite,
+            max_attempts=args.max_attempts, traj_name=args.traj_name, expert=args.expert,
+            env_kwargs=extra, progress=not args.quiet, verbose=args.verbose)
+        summary = generate(cfg)
+    except (GenerateError, DatasetError) as err:
+        print(f"rsb generate: error: {err}", file=sys.stderr)
+        return 2
+    print(describe(summary))
+    return summary.exit_code
+
+
+def run_merge(args: argparse.Namespace) -> int:
+    from rsb_maniskill.motionplan.dataset import DatasetError, check_pair, merge_pairs
+
+    try:
+        blocks = []
+        for path in args.inputs:
+            data = check_pair(path)
+            blocks.append(dict(file=str(path), episodes=len(data["episodes"]), rsb=data.get("rsb")))
+        header = {"rsb": combine_rsb_blocks([b["rsb"] for b in blocks]), "rsb_merged_from": blocks}
+        key = (lambda ep: ep["episode_seed"]) if args.sort_by_seed else None
+        n = merge_pairs(args.inputs, args.out, overwrite=args.overwrite, sort_key=key, header=header)
+    except DatasetError as err:
+        print(f"rsb merge: error: {err}", file=sys.stderr)
+        return 2
+    print(f"wrote {n} episodes to {args.out}")
+    return 0
+
+
+def combine_rsb_blocks(blocks: list[dict | None]) -> dict | None:
+    """One ``rsb`` block for merged shards: counts summed, failures and skipped questions joined."""
+    if not blocks or any(b is None for b in blocks):
+        return None
+    out = {k: v for k, v in blocks[0].items() if k not in ("shard", "num_procs")}
+    out["shards"] = [b.get("shard") for b in blocks]
+    for key in ("requested", "completed"):
+        out[key] = sum(b.get(key, 0) for b in blocks)
+    out["complete"] = all(b.get("complete", False) for b in blocks)
+    out["interrupted"] = next((b["interrupted"] for b in blocks if b.get("interrupted")), None)
+    out["failures"] = sorted((f for b in blocks for f in b.get("failures", [])), key=lambda f: f["seed"])
+    out["skipped_questions"] = sorted(q for b in blocks for q in b.get("skipped_questions", []))
+    return out
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    from rsb_maniskill.replay import main
+
+    return main(args.replay_args)

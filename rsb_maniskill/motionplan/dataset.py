@@ -1,0 +1,179 @@
+"""Trajectory files as ManiSkill writes them (``X.h5`` + ``X.json``): temp names, atomic
+finalisation, checks and merging of parts / shards into one dataset.
+
+A dataset is a pair: the .h5 holds groups ``traj_<episode_id>`` (actions, env_states, obs, ...)
+and the .json holds ``env_info`` plus one ``episodes`` entry per group. Both are written under
+temporary names in the destination directory and renamed at the end (json first, h5 last), so
+a finished ``X.h5`` always has its ``X.json`` and a failed run leaves no half-written pair.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import h5py
+
+TMP_TAG = ".tmp"
+
+
+class DatasetError(RuntimeError):
+    """A trajectory file pair is missing, inconsistent or cannot be written."""
+
+
+def json_path_of(h5_path: str | os.PathLike) -> Path:
+    """ManiSkill's rule: the metadata lives next to the .h5 with the suffix swapped."""
+    p = Path(h5_path)
+    if p.suffix != ".h5":
+        raise DatasetError(f"{p}: trajectory files must end in .h5")
+    return p.with_suffix(".json")
+
+
+def temp_h5_path(final_h5: str | os.PathLike, tag: str = "") -> Path:
+    """Hidden temp name in the same directory (same file system, so rename is atomic)."""
+    p = Path(final_h5)
+    return p.with_name(f".{p.stem}{TMP_TAG}{os.getpid()}{tag}.h5")
+
+
+def existing_outputs(h5_path: str | os.PathLike) -> list[Path]:
+    """The files of the pair that already exist."""
+    h5 = Path(h5_path)
+    return [p for p in (h5, json_path_of(h5)) if p.exists()]
+
+
+def check_writable_dir(directory: Path) -> list[Path]:
+    """Creates ``directory`` (and parents) and checks a file can be written there.
+
+    Returns the directories it created, so that a failing run can remove them again."""
+    created = []
+    missing = []
+    d = directory.absolute()
+    while not d.exists():
+        missing.append(d)
+        d = d.parent
+    try:
+        for d in reversed(missing):
+            d.mkdir()
+            created.append(d)
+        probe = directory / f".write-probe{os.getpid()}"
+        probe.touch()
+        probe.unlink()
+    except OSError as err:
+        remove_empty_dirs(created)
+        raise DatasetError(f"cannot write to output directory {directory}: {err.strerror or err}. "
+                           "Choose a writable --out or fix its permissions.") from err
+    return created
+
+
+def remove_empty_dirs(dirs: Iterable[Path]) -> None:
+    """Removes directories this run created, deepest first, if they stayed empty."""
+    for d in sorted(dirs, key=lambda p: len(p.parts), reverse=True):
+        try:
+            d.rmdir()
+        except OSError:
+            pass
+
+
+def remove_pair(h5_path: str | os.PathLike) -> None:
+    """Deletes an .h5/.json pair (missing files are fine)."""
+    for p in (Path(h5_path), json_path_of(h5_path)):
+        try:
+            p.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def finalize_pair(tmp_h5: str | os.PathLike, final_h5: str | os.PathLike) -> Path:
+    """Renames a finished temp pair onto its final name (json first, h5 last)."""
+    os.replace(json_path_of(tmp_h5), json_path_of(final_h5))
+    os.replace(tmp_h5, final_h5)
+    return Path(final_h5)
+
+
+def load_json(path: str | os.PathLike) -> dict:
+    with open(path) as f:
+        return json.load(f)
+
+
+def dump_json(path: str | os.PathLike, data: dict) -> None:
+    """ManiSkill's encoder (numpy scalars and arrays) and layout (indent 2)."""
+    from mani_skill.utils.io_utils import dump_json as ms_dump_json
+
+    ms_dump_json(path, data, indent=2)
+
+
+def check_pair(h5_path: str | os.PathLike) -> dict:
+    """Opens a trajectory pair and checks h5 groups and json episodes agree; returns the json."""
+    h5_path = Path(h5_path)
+    jp = json_path_of(h5_path)
+    if not h5_path.exists() or not jp.exists():
+        raise DatasetError(f"{h5_path}: need both {h5_path.name} and {jp.name}")
+    data = load_json(jp)
+    if "episodes" not in data or "env_info" not in data:
+        raise DatasetError(f"{jp}: not a ManiSkill trajectory json (no 'env_info' / 'episodes')")
+    with h5py.File(h5_path, "r") as f:
+        groups = set(f.keys())
+    wanted = {f"traj_{ep['episode_id']}" for ep in data["episodes"]}
+    if groups != wanted or len(wanted) != len(data["episodes"]):
+        raise DatasetError(f"{h5_path}: h5 groups and json episodes disagree "
+                           f"({len(groups)} groups, {len(data['episodes'])} episodes)")
+    return data
+
+
+def _env_signature(env_info: dict | None) -> tuple:
+    if env_info is None:
+        return (None, None)
+    kwargs = {k: v for k, v in (env_info.get("env_kwargs") or {}).items() if k != "render_mode"}
+    return env_info.get("env_id"), json.dumps(kwargs, sort_keys=True)
+
+
+def merge_pairs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike, *,
+                overwrite: bool = False, sort_key: Callable[[dict], object] | None = None,
+                header: dict | None = None) -> int:
+    """Merges trajectory pairs into ``output`` (.h5 + .json), renumbering ``traj_<i>``.
+
+    All inputs must come from the same env id and env kwargs (else replay could not rebuild
+    one env for all of them). Top-level json keys come from the first input, updated with
+    ``header``; ``sort_key`` orders the merged episodes (default: input order). The output is
+    written under a temp name and renamed at the end. Returns the number of episodes."""
+    output = Path(output)
+    if not inputs:
+        raise DatasetError("nothing to merge: no input files")
+    json_path_of(output)
+    if existing_outputs(output) and not overwrite:
+        raise DatasetError(f"{output} exists; pass --overwrite to replace it")
+    sources = []  # (input path, episode entry)
+    first = None
+    for path in inputs:
+        data = check_pair(path)
+        if first is None:
+            first = data
+        elif _env_signature(data["env_info"]) != _env_signature(first["env_info"]):
+            raise DatasetError(f"{path}: env_info differs from {inputs[0]} "
+                               f"({_env_signature(data['env_info'])} vs {_env_signature(first['env_info'])}); "
+                               "only datasets of the same env and env kwargs can be merged")
+        sources.extend((Path(path), ep) for ep in data["episodes"])
+    if sort_key is not None:
+        sources.sort(key=lambda s: sort_key(s[1]))
+    merged = {k: v for k, v in first.items() if k != "episodes"}
+    merged.update(header or {})
+    merged["episodes"] = []
+    output.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_h5_path(output, ".merge")
+    handles: dict[Path, h5py.File] = {}
+    try:
+        with h5py.File(tmp, "w") as out:
+            for new_id, (path, ep) in enumerate(sources):
+                src = handles.get(path) or handles.setdefault(path, h5py.File(path, "r"))
+                src.copy(src[f"traj_{ep['episode_id']}"], out, f"traj_{new_id}")
+                merged["episodes"].append({**ep, "episode_id": new_id})
+        dump_json(json_path_of(tmp), merged)
+        finalize_pair(tmp, output)
+    except BaseException:
+        remove_pair(tmp)
+        raise
+    finally:
+        for f in handles.values():
+            f.close()
+    return len(merged["episodes"])

@@ -1,0 +1,136 @@
+"""The policy interface of the evaluator, and loading a user policy from ``module:factory``.
+
+A policy is anything with ``reset(instruction, obs)`` and ``act(obs) -> (T, action_dim)`` chunk.
+The runner calls ``reset`` once per episode with the instruction (after the instruction-mode
+ablation) and the first observation, then ``act``; it executes the T actions of the chunk in
+order and calls ``act`` again with the newest observation. Observations are the single-env
+observation as numpy arrays in the env's nested dict layout (leading env dim removed).
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any, Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """What ``rsb eval`` needs from a policy. An optional ``name`` attribute labels its records."""
+
+    def reset(self, instruction: str, obs: dict) -> None:
+        """Start an episode: ``instruction`` is the text the policy may use ("" in blank mode)."""
+
+    def act(self, obs: dict) -> np.ndarray:
+        """Action chunk of shape (T, action_dim), T >= 1, executed in order before the next call."""
+
+
+def policy_name(policy: Any) -> str:
+    """Label for records and tables: the policy's ``name`` attribute, else its class name."""
+    name = getattr(policy, "name", None)
+    return str(name) if name else type(policy).__name__
+
+
+def as_chunk(actions: Any, action_dim: int | None = None) -> np.ndarray:
+    """Check and normalise a policy's output to a float (T, action_dim) array.
+
+    A single action of shape (action_dim,) is accepted as a chunk of one. Errors say what came back,
+    since a wrong shape from a user policy is the most common integration bug.
+    """
+    a = np.asarray(actions, dtype=np.float64) if not isinstance(actions, np.ndarray) else actions
+    if a.ndim == 1:
+        a = a[None]
+    if a.ndim != 2 or a.shape[0] < 1:
+        raise ValueError(f"policy.act must return an array of shape (T, action_dim) with T >= 1, got shape {a.shape}")
+    if action_dim is not None and a.shape[1] != action_dim:
+        raise ValueError(f"policy.act returned actions of dim {a.shape[1]}, the env expects {action_dim}")
+    if not np.issubdtype(a.dtype, np.number):
+        raise ValueError(f"policy.act must return numbers, got dtype {a.dtype}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError("policy.act returned NaN or inf actions")
+    return a
+
+
+class RandomPolicy:
+    """Uniform random actions in [low, high]: the floor of the benchmark (no grasp expected)."""
+
+    name = "random"
+
+    def __init__(self, low: Any, high: Any, chunk_size: int = 1, seed: int = 0) -> None:
+        self.low = np.asarray(low, dtype=np.float32)
+        self.high = np.asarray(high, dtype=np.float32)
+        if self.low.shape != self.high.shape or self.low.ndim != 1:
+            raise ValueError(f"low and high must be 1-D of equal shape, got {self.low.shape} and {self.high.shape}")
+        self.chunk_size = int(chunk_size)
+        self.rng = np.random.default_rng(seed)
+
+    @classmethod
+    def from_action_space(cls, space: Any, **kwargs: Any) -> "RandomPolicy":
+        """From a gymnasium Box (batched spaces: the last axis is the action)."""
+        low, high = np.asarray(space.low), np.asarray(space.high)
+        return cls(low.reshape(-1, low.shape[-1])[0], high.reshape(-1, high.shape[-1])[0], **kwargs)
+
+    def reset(self, instruction: str, obs: dict) -> None:
+        pass
+
+    def act(self, obs: dict) -> np.ndarray:
+        return self.rng.uniform(self.low, self.high, size=(self.chunk_size, self.low.shape[0])).astype(np.float32)
+
+
+# Built-in policy names -> factories; the CLI registers env-dependent ones (oracle, blind).
+_REGISTRY: dict[str, Callable[..., Any]] = {"random": RandomPolicy.from_action_space}
+
+
+def register_policy(name: str, factory: Callable[..., Any]) -> None:
+    """Make ``load_policy(name)`` call ``factory``; names hold no ':' so they never clash with specs."""
+    if ":" in name:
+        raise ValueError(f"built-in policy names cannot contain ':', got {name!r}")
+    _REGISTRY[name] = factory
+
+
+def builtin_policies() -> tuple[str, ...]:
+    return tuple(sorted(_REGISTRY))
+
+
+def load_policy(spec: str, *, check: bool = True, **kwargs: Any) -> Policy:
+    """Build a policy from a built-in name or ``"package.module:factory"`` and ``kwargs``.
+
+    ``factory`` is any callable (a class or a function) returning an object with ``reset`` and
+    ``act`` (checked unless ``check=False``). Errors name the part of the spec that failed.
+    """
+    if not isinstance(spec, str) or not spec:
+        raise ValueError(f"policy spec must be a non-empty string, got {spec!r}")
+    if spec in _REGISTRY:
+        factory = _REGISTRY[spec]
+    elif ":" not in spec:
+        raise ValueError(
+            f"policy {spec!r} is neither a built-in ({', '.join(builtin_policies())}) nor of the form "
+            "'package.module:factory'"
+        )
+    else:
+        module_name, _, attr = spec.partition(":")
+        if not module_name or not attr:
+            raise ValueError(f"policy spec {spec!r} must be 'package.module:factory' with both parts non-empty")
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as err:
+            raise ImportError(f"policy spec {spec!r}: cannot import module {module_name!r}: {err}") from err
+        factory = module
+        for part in attr.split("."):
+            try:
+                factory = getattr(factory, part)
+            except AttributeError:
+                raise AttributeError(
+                    f"policy spec {spec!r}: module {module_name!r} has no attribute {attr!r}"
+                ) from None
+        if not callable(factory):
+            raise TypeError(f"policy spec {spec!r}: {attr!r} is not callable")
+    policy = factory(**kwargs)
+    if not check:
+        return policy
+    missing = [m for m in ("reset", "act") if not callable(getattr(policy, m, None))]
+    if missing:
+        raise TypeError(
+            f"policy spec {spec!r}: the factory returned {type(policy).__name__}, which lacks {' and '.join(missing)}()"
+        )
+    return policy

@@ -1,0 +1,91 @@
+"""The fixed evaluation protocol: which episodes every policy meets, and the instruction ablations.
+
+Paper section 4.3: 500 episodes per suite on the evaluation (test) split with unseen instruction
+templates. An episode is a pure function of (suite, split, seed) in the RSB tasks, so fixing the
+seeds fixes the 500 scenes (question, option->block binding, layout) for every model.
+
+Seeds are ``EVAL_SEED_BASE + i`` for i = 0..n-1, the same numbers for every suite. Demonstration
+collection uses small seeds (0, 1, ... and q + k*P) on the train split; the evaluation seeds start
+at ten million so that the two can never meet even if someone evaluates on the train split.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from rsb_maniskill.semantic.suites import SUITE_IDS
+
+from .metrics import PAPER_SUITES, num_choices
+from .records import INSTRUCTION_MODES
+
+EVAL_SEED_BASE = 10_000_000
+EPISODES_PER_SUITE = 500
+# gym.make kwargs of the evaluation split (disjoint questions, unseen instruction templates).
+EVAL_ENV_KWARGS: dict[str, str] = {"split": "test", "instructions": "unseen"}
+# Seed of the shuffled-instruction pairing; fixed so every policy gets the same mismatches.
+SHUFFLE_SEED = 0
+
+__all__ = [
+    "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "INSTRUCTION_MODES", "PAPER_SUITES", "SHUFFLE_SEED",
+    "SUITE_IDS", "apply_instruction_mode", "derangement", "eval_seeds", "num_choices", "shuffled_instruction",
+]
+
+
+def eval_seeds(suite_id: str, n: int = EPISODES_PER_SUITE) -> list[int]:
+    """Episode seeds of the evaluation protocol for ``suite_id``: ``[10_000_000, ..., 10_000_000 + n - 1]``.
+
+    The first n of a longer run are the same episodes, so a 100-episode smoke test is a prefix of
+    the full 500-episode evaluation.
+    """
+    if suite_id not in SUITE_IDS:
+        raise ValueError(f"unknown suite id {suite_id!r}; valid ids: {', '.join(SUITE_IDS)}")
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    return [EVAL_SEED_BASE + i for i in range(n)]
+
+
+def derangement(n: int, seed: int = SHUFFLE_SEED) -> list[int]:
+    """Deterministic permutation with no fixed point: element i maps to ``donor[i] != i``.
+
+    Built as one random cycle through all indices, so it depends only on (n, seed).
+    """
+    if n < 2:
+        raise ValueError(f"a derangement needs at least 2 elements, got {n}")
+    order = np.random.default_rng(seed).permutation(n)
+    donor = [0] * n
+    for k in range(n):
+        donor[int(order[k])] = int(order[(k + 1) % n])
+    return donor
+
+
+def shuffled_instruction(instructions: Sequence[str], seed: int = SHUFFLE_SEED) -> list[str]:
+    """Give episode i the instruction of another episode (``donor[i] != i``).
+
+    Where the donor's text happens to equal episode i's own (same question and mapping), the next
+    donor along the cycle is used, so no episode keeps its own instruction unless all texts are equal.
+    """
+    n = len(instructions)
+    donor = derangement(n, seed)
+    out = []
+    for i in range(n):
+        j = donor[i]
+        for _ in range(n - 1):
+            if instructions[j] != instructions[i]:
+                break
+            j = donor[j]
+        out.append(instructions[j])
+    return out
+
+
+def apply_instruction_mode(instruction: str, mode: str, donor_instruction: str | None = None) -> str:
+    """Instruction the policy sees: ``normal`` as is, ``blank`` empty, ``shuffled`` another episode's."""
+    if mode == "normal":
+        return instruction
+    if mode == "blank":
+        return ""
+    if mode == "shuffled":
+        if donor_instruction is None:
+            raise ValueError("instruction mode 'shuffled' needs the donor episode's instruction")
+        return donor_instruction
+    raise ValueError(f"instruction mode must be one of {INSTRUCTION_MODES}, got {mode!r}")

@@ -1,0 +1,184 @@
+"""Episode records: one JSON line per finished episode, written so that a killed run loses nothing.
+
+Each record is appended, flushed and fsync'ed as its episode ends. A run killed mid-write leaves
+at most one partial last line; the reader skips it and the writer cuts it off before appending, so
+resuming (skip ``completed_seeds``, run the rest) yields the same records as an uninterrupted run.
+"""
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+from typing import Any, Iterable, Iterator, Mapping
+
+# Fields every record carries (the runner fills them; extra fields are free).
+RECORD_FIELDS: tuple[str, ...] = (
+    "suite_id", "seed", "question_id", "instruction", "instruction_mode", "target_block", "correct_letter",
+    "first_grasped", "grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success", "steps",
+    "policy",
+)
+INSTRUCTION_MODES: tuple[str, ...] = ("normal", "blank", "shuffled")
+# A record's identity: the same episode of the same evaluation. Later duplicates are dropped.
+RECORD_KEY: tuple[str, ...] = ("policy", "suite_id", "instruction_mode", "seed")
+
+
+def validate_record(record: Mapping[str, Any]) -> None:
+    """Raise ValueError naming the missing fields or a bad instruction mode."""
+    missing = [k for k in RECORD_FIELDS if k not in record]
+    if missing:
+        raise ValueError(f"episode record lacks fields: {', '.join(missing)}")
+    if record["instruction_mode"] not in INSTRUCTION_MODES:
+        raise ValueError(f"instruction_mode must be one of {INSTRUCTION_MODES}, got {record['instruction_mode']!r}")
+
+
+def _json_default(obj: Any) -> Any:
+    # numpy / torch scalars and arrays coming straight from the env's info.
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if hasattr(obj, "item"):
+        return obj.item()
+    if isinstance(obj, (set, tuple)):
+        return list(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _parse_tail(tail: bytes) -> dict | None:
+    try:
+        value = json.loads(tail.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return value if isinstance(value, dict) else None
+
+
+def repair_tail(path: str | os.PathLike) -> bool:
+    """Make ``path`` end at a line boundary; True if it was changed.
+
+    A last line without its newline is either complete JSON cut before the newline (kept: a newline
+    is added, the reader already counts it) or a torn write (cut off: the reader skips it).
+    """
+    path = Path(path)
+    if not path.exists() or path.stat().st_size == 0:
+        return False
+    with open(path, "rb+") as f:
+        f.seek(0, os.SEEK_END)
+        size = f.tell()
+        # Find the last newline, reading backwards in blocks (records are a few hundred bytes).
+        pos, block, last_nl = size, 1 << 14, -1
+        while pos > 0 and last_nl < 0:
+            start = max(0, pos - block)
+            f.seek(start)
+            chunk = f.read(pos - start)
+            i = chunk.rfind(b"\n")
+            if i >= 0:
+                last_nl = start + i
+            pos = start
+        if last_nl == size - 1:
+            return False
+        f.seek(last_nl + 1)
+        tail = f.read()
+        if _parse_tail(tail) is not None:
+            f.seek(0, os.SEEK_END)
+            f.write(b"\n")
+        else:
+            f.truncate(last_nl + 1)
+        f.flush()
+        os.fsync(f.fileno())
+    return True
+
+
+class RecordWriter:
+    """Appends records to a JSON-lines file, durable per record (flush + fsync).
+
+    One writer per file: parallel workers send their records to the process that owns it.
+    """
+
+    def __init__(self, path: str | os.PathLike, validate: bool = True) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        repair_tail(self.path)
+        self.validate = validate
+        self._f = open(self.path, "a", encoding="utf-8")
+
+    def write(self, record: Mapping[str, Any]) -> None:
+        if self.validate:
+            validate_record(record)
+        line = json.dumps(dict(record), default=_json_default, ensure_ascii=False)
+        self._f.write(line + "\n")
+        self._f.flush()
+        os.fsync(self._f.fileno())
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
+
+    def __enter__(self) -> "RecordWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def iter_records(path: str | os.PathLike) -> Iterator[dict]:
+    """Records of ``path`` in file order; a torn last line is skipped with a warning.
+
+    A malformed line anywhere else means the file was edited or corrupted: ValueError with its
+    line number, rather than a silently wrong summary.
+    """
+    path = Path(path)
+    if not path.exists():
+        return
+    with open(path, "rb") as f:
+        lines = f.read().split(b"\n")
+    # After the last "\n" comes b"" (clean end) or an unterminated last line.
+    for lineno, raw in enumerate(lines, start=1):
+        if not raw.strip():
+            continue
+        record = _parse_tail(raw)
+        if record is None:
+            if lineno == len(lines):
+                warnings.warn(f"{path}: skipping a truncated last line (interrupted run)", stacklevel=2)
+                return
+            raise ValueError(f"{path}:{lineno}: not a JSON object record")
+        yield record
+
+
+def _key(record: Mapping[str, Any]) -> tuple:
+    return tuple(record.get(k) for k in RECORD_KEY)
+
+
+def dedupe(records: Iterable[Mapping[str, Any]]) -> list[dict]:
+    """Keep the first record of each (policy, suite, instruction mode, seed)."""
+    seen: set[tuple] = set()
+    out = []
+    for r in records:
+        k = _key(r)
+        if k not in seen:
+            seen.add(k)
+            out.append(dict(r))
+    return out
+
+
+def read_records(path: str | os.PathLike, unique: bool = True) -> list[dict]:
+    """All records of ``path`` (first of each duplicate when ``unique``)."""
+    records = list(iter_records(path))
+    return dedupe(records) if unique else records
+
+
+def completed_seeds(
+    path: str | os.PathLike,
+    suite_id: str | None = None,
+    instruction_mode: str | None = None,
+    policy: str | None = None,
+) -> set[int]:
+    """Seeds already recorded in ``path`` (optionally for one suite / mode / policy): skip them on resume."""
+    out = set()
+    for r in iter_records(path):
+        if suite_id is not None and r.get("suite_id") != suite_id:
+            continue
+        if instruction_mode is not None and r.get("instruction_mode") != instruction_mode:
+            continue
+        if policy is not None and r.get("policy") != policy:
+            continue
+        out.add(int(r["seed"]))
+    return out

@@ -1,0 +1,226 @@
+"""Client for policies served by an openpi-style websocket server (``RemotePolicy``).
+
+Wire protocol (openpi ``WebsocketPolicyServer`` / ``WebsocketClientPolicy``), all binary frames
+packed with msgpack + the msgpack-numpy scheme below:
+
+1. on connect the server sends its metadata dict;
+2. the client sends an observation dict, the server replies a dict holding ``"actions"`` (an
+   action chunk, shape (T, D)); repeat. A text frame instead of a reply is a server traceback.
+
+Arrays travel as ``{"__ndarray__": True, "data": raw bytes, "dtype": dtype.str, "shape": shape}``
+and numpy scalars as ``{"__npgeneric__": True, "data": value, "dtype": dtype.str}`` (bytes keys),
+exactly as ``openpi_client.msgpack_numpy``, so either side can be openpi's own code.
+"""
+from __future__ import annotations
+
+import inspect
+import time
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from .policy import as_chunk
+
+INSTALL_HINT = "the remote policy client needs `pip install websockets msgpack` (extra: rsb_maniskill[eval])"
+
+
+def _msgpack():
+    try:
+        import msgpack
+    except ImportError as err:  # pragma: no cover - depends on the install
+        raise ImportError(INSTALL_HINT) from err
+    return msgpack
+
+
+# ---------------------------------------------------------------- msgpack-numpy (openpi scheme)
+def pack_array(obj: Any) -> Any:
+    """msgpack ``default`` hook: numpy arrays / scalars -> tagged dicts; other objects pass through."""
+    if isinstance(obj, (np.ndarray, np.generic)) and obj.dtype.kind in ("V", "O", "c"):
+        raise ValueError(f"unsupported dtype for msgpack-numpy: {obj.dtype}")
+    if isinstance(obj, np.ndarray):
+        return {b"__ndarray__": True, b"data": obj.tobytes(), b"dtype": obj.dtype.str, b"shape": obj.shape}
+    if isinstance(obj, np.generic):
+        return {b"__npgeneric__": True, b"data": obj.item(), b"dtype": obj.dtype.str}
+    return obj
+
+
+def unpack_array(obj: dict) -> Any:
+    """msgpack ``object_hook``: tagged dicts -> numpy arrays (read-only views) / scalars."""
+    if b"__ndarray__" in obj:
+        return np.ndarray(buffer=obj[b"data"], dtype=np.dtype(obj[b"dtype"]), shape=obj[b"shape"])
+    if b"__npgeneric__" in obj:
+        return np.dtype(obj[b"dtype"]).type(obj[b"data"])
+    return obj
+
+
+def packb(obj: Any) -> bytes:
+    """Pack a (nested) structure holding numpy arrays."""
+    return _msgpack().packb(obj, default=pack_array)
+
+
+def unpackb(data: bytes) -> Any:
+    """Inverse of :func:`packb`."""
+    return _msgpack().unpackb(data, object_hook=unpack_array)
+
+
+# ---------------------------------------------------------------- observation keys
+def _to_numpy(x: Any) -> Any:
+    if hasattr(x, "detach") and hasattr(x, "cpu"):  # torch tensor, without importing torch
+        return x.detach().cpu().numpy()
+    if isinstance(x, (np.ndarray, np.generic, str, bytes, bool, int, float)) or x is None:
+        return x
+    return np.asarray(x)
+
+
+def flatten_obs(obs: Mapping[str, Any], prefix: str = "observation") -> dict[str, Any]:
+    """Nested obs -> flat dict with "/"-joined keys under ``prefix``.
+
+    ``{"agent": {"qpos": a}, "sensor_data": {"head": {"rgb": b}}}`` ->
+    ``{"observation/agent/qpos": a, "observation/sensor_data/head/rgb": b}``.
+    """
+    out: dict[str, Any] = {}
+    if not isinstance(obs, Mapping):  # a flat "state" observation: one array under the prefix
+        return {prefix or "observation": _to_numpy(obs)}
+
+    def walk(node: Mapping[str, Any], path: str) -> None:
+        for key, value in node.items():
+            p = f"{path}/{key}" if path else str(key)
+            if isinstance(value, Mapping):
+                walk(value, p)
+            else:
+                out[p] = _to_numpy(value)
+
+    walk(obs, prefix)
+    return out
+
+
+def unflatten_obs(flat: Mapping[str, Any], prefix: str = "observation") -> dict[str, Any]:
+    """Inverse of :func:`flatten_obs`; keys outside ``prefix`` stay at the top level as they are."""
+    out: dict[str, Any] = {}
+    head = f"{prefix}/" if prefix else ""
+    for key, value in flat.items():
+        if head and not key.startswith(head):
+            out[key] = value
+            continue
+        node = out
+        *parents, leaf = key[len(head):].split("/")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return out
+
+
+# ---------------------------------------------------------------- client
+class RemotePolicy:
+    """A :class:`~rsb_maniskill.evaluation.policy.Policy` whose actions come from a websocket server.
+
+    Each ``act`` sends ``flatten_obs(obs) | {"prompt": instruction}`` (or ``obs_transform(obs,
+    instruction)`` when given, to match a server that expects other keys) and returns the reply's
+    ``"actions"`` as a (T, D) array, cut to ``action_horizon`` steps when set.
+
+    Args:
+        host: server host, or a full ``ws://`` / ``wss://`` URI.
+        port: server port (None when ``host`` is a URI that holds it).
+        api_key: sent as ``Authorization: Api-Key ...`` as openpi's client does.
+        action_horizon: execute only the first k actions of each chunk before asking again.
+        mark_episode_start: add ``"episode_start": True`` to the first request of each episode so
+            that ``serve.py``'s server resets the wrapped policy; off by default because other
+            servers do not expect the key.
+        connect_timeout: seconds to keep retrying a refused connection (openpi's client waits forever).
+    """
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int | None = 8000,
+        api_key: str | None = None,
+        prompt_key: str = "prompt",
+        obs_prefix: str = "observation",
+        obs_transform: Callable[[dict, str], dict] | None = None,
+        action_horizon: int | None = None,
+        mark_episode_start: bool = False,
+        connect_timeout: float = 60.0,
+        request_timeout: float | None = 300.0,
+        name: str = "remote",
+    ) -> None:
+        self.uri = host if host.startswith(("ws://", "wss://")) else f"ws://{host}"
+        if port is not None and not host.startswith(("ws://", "wss://")):
+            self.uri += f":{port}"
+        self.api_key = api_key
+        self.prompt_key = prompt_key
+        self.obs_prefix = obs_prefix
+        self.obs_transform = obs_transform
+        self.action_horizon = action_horizon
+        self.mark_episode_start = mark_episode_start
+        self.request_timeout = request_timeout
+        self.name = name
+        self.instruction = ""
+        self._episode_start = False
+        self._ws, self.server_metadata = self._connect(connect_timeout)
+
+    def _connect(self, timeout: float) -> tuple[Any, dict]:
+        try:
+            from websockets.sync.client import connect
+        except ImportError as err:  # pragma: no cover - depends on the install
+            raise ImportError(INSTALL_HINT) from err
+        kwargs: dict[str, Any] = {"compression": None, "max_size": None, "open_timeout": max(1.0, min(timeout, 30.0))}
+        if self.api_key:
+            kwargs["additional_headers"] = {"Authorization": f"Api-Key {self.api_key}"}
+        params = inspect.signature(connect).parameters
+        if "proxy" in params:
+            kwargs["proxy"] = None  # a policy server is reached directly, as with websockets < 15
+        if "legacy" in params:
+            kwargs["legacy"] = True  # websockets >= 17: a plain connection object, as openpi's client uses
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                ws = connect(self.uri, **kwargs)
+                break
+            except (ConnectionRefusedError, OSError) as err:
+                if time.monotonic() >= deadline:
+                    raise ConnectionError(f"no policy server at {self.uri} after {timeout:.0f} s: {err}") from err
+                time.sleep(0.5)
+        metadata = self._recv(ws)
+        return ws, metadata
+
+    def _recv(self, ws: Any) -> Any:
+        msg = ws.recv(timeout=self.request_timeout)
+        if isinstance(msg, str):  # openpi servers send their traceback as text before closing
+            raise RuntimeError(f"error in policy server {self.uri}:\n{msg}")
+        return unpackb(msg)
+
+    def infer(self, payload: dict) -> dict:
+        """One raw request/response round trip (openpi's ``infer``)."""
+        self._ws.send(packb(payload))
+        reply = self._recv(self._ws)
+        if not isinstance(reply, dict):
+            raise RuntimeError(f"policy server {self.uri} replied {type(reply).__name__}, expected a dict")
+        return reply
+
+    def reset(self, instruction: str, obs: dict) -> None:
+        self.instruction = instruction
+        self._episode_start = True
+
+    def act(self, obs: dict) -> np.ndarray:
+        if self.obs_transform is not None:
+            payload = dict(self.obs_transform(obs, self.instruction))
+        else:
+            payload = flatten_obs(obs, self.obs_prefix)
+            payload[self.prompt_key] = self.instruction
+        if self.mark_episode_start and self._episode_start:
+            payload["episode_start"] = True
+        self._episode_start = False
+        reply = self.infer(payload)
+        if "actions" not in reply:
+            raise RuntimeError(f"policy server {self.uri} reply has no 'actions' (keys: {sorted(map(str, reply))})")
+        chunk = as_chunk(np.array(reply["actions"]))
+        return chunk[: self.action_horizon] if self.action_horizon else chunk
+
+    def close(self) -> None:
+        self._ws.close()
+
+    def __enter__(self) -> "RemotePolicy":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,170 @@
+"""A minimal openpi-compatible websocket policy server.
+
+Serves either an openpi-style object (``infer(obs: dict) -> dict`` with ``"actions"``) or an RSB
+:class:`~rsb_maniskill.evaluation.policy.Policy` (``reset``/``act``), the latter through
+:class:`PolicyAdapter`. Same wire protocol as openpi's ``WebsocketPolicyServer`` (see
+``remote.py``), so openpi's client can talk to it and :class:`RemotePolicy` can talk to openpi.
+
+Run one from the shell: ``python -m rsb_maniskill.evaluation.serve pkg.mod:make_policy --port 8000``.
+"""
+from __future__ import annotations
+
+import argparse
+import http
+import logging
+import threading
+import time
+import traceback
+from typing import Any
+
+from .policy import as_chunk, load_policy
+from .remote import INSTALL_HINT, packb, unflatten_obs, unpackb
+
+logger = logging.getLogger(__name__)
+
+
+class PolicyAdapter:
+    """openpi ``infer`` on top of an RSB Policy.
+
+    The request's ``prompt`` is the instruction and the ``observation/...`` keys are un-flattened
+    into the nested obs. The policy is reset on a connection's first request, when the request
+    carries ``episode_start`` (``RemotePolicy(mark_episode_start=True)``), or when the prompt changes.
+    """
+
+    def __init__(self, policy: Any, prompt_key: str = "prompt", obs_prefix: str = "observation") -> None:
+        self.policy = policy
+        self.prompt_key = prompt_key
+        self.obs_prefix = obs_prefix
+        self._prompt: str | None = None
+
+    def infer(self, request: dict) -> dict:
+        request = dict(request)
+        prompt = str(request.pop(self.prompt_key, ""))
+        start = bool(request.pop("episode_start", False))
+        obs = unflatten_obs(request, self.obs_prefix)
+        if start or prompt != self._prompt:
+            self.policy.reset(prompt, obs)
+            self._prompt = prompt
+        return {"actions": as_chunk(self.policy.act(obs))}
+
+
+def _health_check(connection: Any, request: Any) -> Any:
+    # `GET /healthz` -> 200, as openpi's server does; everything else goes on to the handshake.
+    if getattr(request, "path", None) == "/healthz":
+        return connection.respond(http.HTTPStatus.OK, "OK\n")
+    return None
+
+
+class PolicyServer:
+    """Serve ``policy`` over websocket; ``port=0`` picks a free port (read it from ``.port``).
+
+    ``start()`` serves from a background thread (tests, notebooks); ``serve_forever()`` blocks.
+    Requests are handled one at a time, as one policy object holds one episode's state.
+    """
+
+    def __init__(
+        self,
+        policy: Any,
+        host: str = "0.0.0.0",
+        port: int = 8000,
+        metadata: dict | None = None,
+        prompt_key: str = "prompt",
+        obs_prefix: str = "observation",
+    ) -> None:
+        try:
+            from websockets.sync.server import serve
+        except ImportError as err:  # pragma: no cover - depends on the install
+            raise ImportError(INSTALL_HINT) from err
+        self.policy = policy
+        self.metadata = dict(metadata or {})
+        self.prompt_key = prompt_key
+        self.obs_prefix = obs_prefix
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._server = serve(
+            self._handle, host, port, compression=None, max_size=None, process_request=_health_check
+        )
+        self.host = host
+        self.port = int(self._server.socket.getsockname()[1])
+
+    def _infer_fn(self) -> Any:
+        if callable(getattr(self.policy, "infer", None)):
+            return self.policy.infer
+        # One adapter per connection: a new client starts a new episode.
+        return PolicyAdapter(self.policy, self.prompt_key, self.obs_prefix).infer
+
+    def _handle(self, ws: Any) -> None:
+        from websockets.exceptions import ConnectionClosed
+
+        infer = self._infer_fn()
+        ws.send(packb(self.metadata))
+        while True:
+            try:
+                request = unpackb(ws.recv())
+                t0 = time.monotonic()
+                with self._lock:
+                    reply = dict(infer(request))
+                reply["server_timing"] = {"infer_ms": 1000.0 * (time.monotonic() - t0)}
+                ws.send(packb(reply))
+            except ConnectionClosed:
+                return
+            except Exception:
+                # Like openpi: the traceback as a text frame, then close with 1011 (internal error).
+                logger.exception("policy server: request failed")
+                try:
+                    ws.send(traceback.format_exc())
+                    ws.close(code=1011, reason="Internal server error. Traceback included in previous frame.")
+                except ConnectionClosed:
+                    pass
+                return
+
+    def serve_forever(self) -> None:
+        self._server.serve_forever()
+
+    def start(self) -> "PolicyServer":
+        self._thread = threading.Thread(target=self.serve_forever, name="rsb-policy-server", daemon=True)
+        self._thread.start()
+        return self
+
+    def shutdown(self) -> None:
+        self._server.shutdown()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+
+    def __enter__(self) -> "PolicyServer":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
+
+def serve_policy(policy: Any, host: str = "0.0.0.0", port: int = 8000, metadata: dict | None = None) -> None:
+    """Serve ``policy`` until interrupted (blocks)."""
+    server = PolicyServer(policy, host, port, metadata)
+    logger.info("serving %s on ws://%s:%d", type(policy).__name__, host, server.port)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.shutdown()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description="Serve an RSB policy (module:factory) over openpi's websocket protocol")
+    p.add_argument("policy", help="'package.module:factory' returning an object with reset/act (or infer)")
+    p.add_argument("--host", default="0.0.0.0")
+    p.add_argument("--port", type=int, default=8000)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO)
+    policy = load_policy(args.policy, check=False)
+    if not callable(getattr(policy, "infer", None)) and not all(
+        callable(getattr(policy, m, None)) for m in ("reset", "act")
+    ):
+        p.error(f"{args.policy} built a {type(policy).__name__}, which has neither infer() nor reset()/act()")
+    serve_policy(policy, args.host, args.port)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

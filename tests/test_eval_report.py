@@ -1,0 +1,88 @@
+"""Summary files: JSON, CSV, Markdown tables in the paper's layout, and the PNG bar chart."""
+from __future__ import annotations
+
+import csv
+import json
+import struct
+
+import pytest
+
+from rsb_maniskill.evaluation.metrics import PAPER_SUITES
+from rsb_maniskill.evaluation.report import (
+    markdown_tables,
+    plot_summary,
+    results_from_records,
+    write_report,
+)
+
+
+def records(policy, suite, n_success, n_wrong, n_none, mode="normal"):
+    out = []
+    for i in range(n_success + n_wrong + n_none):
+        ok, grasped = i < n_success, i < n_success + n_wrong
+        out.append({"policy": policy, "suite_id": suite, "seed": i, "instruction_mode": mode,
+                    "grasped_any": grasped, "grasped_correct": ok, "placed_correct": ok, "placed_wrong": False,
+                    "success": ok})
+    return out
+
+
+@pytest.fixture
+def results():
+    recs = []
+    for k, s in enumerate(PAPER_SUITES):  # "good" on all six suites
+        recs += records("good", s, 30 + k, 60 - k, 10)  # 100 episodes each
+    recs += records("good", "RSB-Direct-4", 95, 5, 0)
+    recs += records("clumsy", "RSB-Math-4", 0, 0, 50)  # never grasps: nSG undefined
+    recs += records("good", "RSB-Math-4", 25, 75, 0, mode="blank")
+    return results_from_records(recs)
+
+
+def test_results_rows(results):
+    assert list(results) == ["good", "clumsy", "good (blank)"]
+    assert list(results["good"]) == list(PAPER_SUITES) + ["RSB-Direct-4"]
+
+
+def test_markdown_layout(results):
+    md = markdown_tables(results)
+    tsr = md.split("### ")[1]
+    header = tsr.splitlines()[2]
+    # paper Table 3: suites as columns in the paper's order, the control suite after, then Avg
+    cols = [c.strip() for c in header.strip("|").split("|")]
+    assert cols == ["Policy"] + list(PAPER_SUITES) + ["RSB-Direct-4", "**Avg\\***"]
+    good = next(line for line in tsr.splitlines() if line.startswith("| good |"))
+    cells = [c.strip() for c in good.strip("|").split("|")]
+    assert cells[1] == "30.0" and cells[7] == "95.0"
+    avg_tsr = sum(30 + k for k in range(6)) / 6
+    assert cells[-1] == f"**{avg_tsr:.1f}**"  # Direct stays out of Avg
+    assert "not all six" in tsr  # partial Avg is flagged (clumsy ran one suite)
+    nsg_table = md.split("### ")[2]
+    clumsy = next(line for line in nsg_table.splitlines() if line.startswith("| clumsy |"))
+    assert "n/a" in clumsy
+    assert "RSB-Math-4 GSR | RSB-Math-4 TSR" in md  # Table 6 pairs
+    assert "Wrong target after grasp" in md and "Grasped correct block but not placed" in md
+    assert "[" in md.split("per suite with Wilson")[1]  # intervals in the detail tables
+
+
+def test_write_report_files(tmp_path, results):
+    paths = write_report(results, tmp_path)
+    data = json.loads(paths["json"].read_text())
+    good = data["rows"]["good"]
+    assert good["avg"]["complete"] is True and good["suites"]["RSB-Math-4"]["tsr"]["value"] == pytest.approx(0.3)
+    assert data["rows"]["clumsy"]["suites"]["RSB-Math-4"]["nsg"]["value"] is None
+    rows = list(csv.DictReader(paths["csv"].open()))
+    math4 = next(r for r in rows if r["row"] == "good" and r["suite_id"] == "RSB-Math-4")
+    assert float(math4["gsr"]) == pytest.approx(0.9) and float(math4["tsr_low"]) < 0.3 < float(math4["tsr_high"])
+    assert next(r for r in rows if r["row"] == "clumsy" and r["suite_id"] == "RSB-Math-4")["nsg"] == ""
+    assert {r["row"] for r in rows if r["suite_id"] == "Avg"} == {"good", "clumsy", "good (blank)"}
+    assert paths["markdown"].read_text().startswith("### Task Success Rate")
+    assert {k for k in paths if k.startswith("png:")} == {"png:good", "png:clumsy", "png:good (blank)"}
+
+
+def test_plot_is_a_valid_png(tmp_path, results):
+    path = plot_summary(results["good"], tmp_path / "chart.png", title="good")
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR"
+    width, height = struct.unpack(">II", data[16:24])
+    assert 600 <= width <= 2000 and 300 <= height <= 1200
+    assert 10_000 < len(data) < 2_000_000
+    assert data.endswith(b"IEND\xaeB`\x82")

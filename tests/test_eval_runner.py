@@ -1,0 +1,211 @@
+"""run_episodes against a tiny fake env exposing the RSB task contract (no simulator)."""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from rsb_maniskill.evaluation.protocol import shuffled_instruction
+from rsb_maniskill.evaluation.records import read_records
+from rsb_maniskill.evaluation.report import results_from_records, summary_dict
+from rsb_maniskill.evaluation.runner import run_episodes
+
+SUITE = "RSB-Math-4"
+HORIZON = 20
+SEEDS = [10_000_000 + i for i in range(12)]
+# seed % 4 -> outcome: success at step 8 / wrong block placed (fail) at step 6 /
+# correct block grasped, never placed (time limit) / nothing grasped (time limit)
+OUTCOMES = ("success", "wrong_target", "not_placed", "no_grasp")
+
+
+class FakeSpec:
+    def __init__(self, seed):
+        self.seed, self.question_id, self.target_block = seed, seed % 7, seed % 4
+        self.correct_letter = "ABCD"[(seed // 4) % 4]
+
+    def to_dict(self):
+        return {"seed": self.seed, "question_id": self.question_id, "correct_letter": self.correct_letter}
+
+
+class FakeRSBEnv(gym.Env):
+    """One-env batch like ManiSkill: torch obs / info with a leading env dim, latched flags."""
+
+    def __init__(self):
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (14,), np.float32)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (14,), np.float32)
+        self.episode_specs = []
+        self.reset_seeds, self.n_steps, self.closed = [], 0, False
+
+    def get_language_instruction(self):
+        return [f"which block answers question {self.seed}?"]
+
+    def _obs(self):
+        return {"agent": {"qpos": torch.full((1, 14), float(self.t))},
+                "sensor_data": {"head": {"rgb": torch.zeros((1, 6, 8, 3), dtype=torch.uint8)}}}
+
+    def _info(self):
+        kind = OUTCOMES[self.seed % 4]
+        target, wrong = self.seed % 4, (self.seed + 1) % 4
+        grasp_t = {"success": 3, "wrong_target": 3, "not_placed": 4, "no_grasp": None}[kind]
+        grasped = grasp_t is not None and self.t >= grasp_t
+        placed_c = kind == "success" and self.t >= 8
+        placed_w = kind == "wrong_target" and self.t >= 6
+        b = lambda v: torch.tensor([bool(v)])  # noqa: E731
+        return {
+            "grasped_any": b(grasped), "grasped_correct": b(grasped and kind in ("success", "not_placed")),
+            "grasped_wrong": b(grasped and kind == "wrong_target"), "placed_correct": b(placed_c),
+            "placed_wrong": b(placed_w), "success": b(placed_c and not placed_w), "fail": b(placed_w),
+            "first_grasped": torch.tensor([(wrong if kind == "wrong_target" else target) if grasped else -1]),
+        }
+
+    def reset(self, seed=None, options=None):
+        self.seed, self.t = seed, 0
+        self.reset_seeds.append(seed)
+        self.episode_specs = [FakeSpec(seed)]
+        return self._obs(), self._info()
+
+    def step(self, action):
+        assert np.asarray(action).shape == (14,)
+        self.t += 1
+        self.n_steps += 1
+        info = self._info()
+        terminated = info["success"] | info["fail"]
+        truncated = torch.tensor([self.t >= HORIZON])
+        return self._obs(), torch.zeros(1), terminated, truncated, info
+
+    def close(self):
+        self.closed = True
+
+
+class ScriptedPolicy:
+    """Returns chunks of ``horizon`` actions; records what it was given."""
+
+    name = "scripted"
+
+    def __init__(self, horizon=3):
+        self.horizon, self.instructions, self.obs, self.acts = horizon, [], [], 0
+
+    def reset(self, instruction, obs):
+        self.instructions.append(instruction)
+        self.obs.append(obs)
+
+    def act(self, obs):
+        self.acts += 1
+        assert isinstance(obs["agent"]["qpos"], np.ndarray) and obs["agent"]["qpos"].shape == (14,)
+        return np.zeros((self.horizon, 14), dtype=np.float32)
+
+
+def run(tmp_path, seeds=SEEDS, mode="normal", policy=None, env=None, name="e.jsonl", **kw):
+    env = env or FakeRSBEnv()
+    policy = policy or ScriptedPolicy()
+    records = run_episodes(lambda: env, policy, SUITE, seeds, tmp_path / name, mode, max_steps=kw.pop("max_steps", 300),
+                           progress=False, **kw)
+    return records, env, policy
+
+
+def test_records_follow_the_scripted_outcomes(tmp_path):
+    records, env, policy = run(tmp_path)
+    assert [r["seed"] for r in records] == SEEDS and env.closed
+    for r in records:
+        kind = OUTCOMES[r["seed"] % 4]
+        assert r["policy"] == "scripted" and r["suite_id"] == SUITE and r["instruction_mode"] == "normal"
+        assert r["question_id"] == r["seed"] % 7 and r["target_block"] == r["seed"] % 4
+        assert r["correct_letter"] == "ABCD"[(r["seed"] // 4) % 4]
+        assert r["instruction"] == f"which block answers question {r['seed']}?"
+        assert r["success"] == (kind == "success") and r["placed_wrong"] == (kind == "wrong_target")
+        assert r["grasped_any"] == (kind != "no_grasp")
+        assert r["grasped_correct"] == (kind in ("success", "not_placed"))
+        assert r["first_grasped"] == {"success": r["seed"] % 4, "wrong_target": (r["seed"] + 1) % 4,
+                                      "not_placed": r["seed"] % 4, "no_grasp": -1}[kind]
+        assert r["steps"] == {"success": 8, "wrong_target": 6, "not_placed": HORIZON, "no_grasp": HORIZON}[kind]
+        assert r["episode"]["seed"] == r["seed"] and r["fail"] == (kind == "wrong_target")
+    # the policy got the instruction and numpy obs without the env dim, at t = 0
+    assert policy.instructions == [r["instruction"] for r in records]
+    assert policy.obs[0]["sensor_data"]["head"]["rgb"].shape == (6, 8, 3) and policy.obs[0]["agent"]["qpos"][0] == 0
+    m = results_from_records(records)["scripted"][SUITE]
+    assert (m.n_episodes, m.n_grasped, m.n_success) == (12, 9, 3)
+    assert (m.errors.not_placed, m.errors.wrong_target, m.errors.no_grasp) == (3, 3, 3)
+
+
+def test_chunks_are_executed_in_order_and_cut_at_the_end(tmp_path):
+    policy = ScriptedPolicy(horizon=3)
+    records, env, _ = run(tmp_path, seeds=[SEEDS[0]], policy=policy)  # success at step 8
+    assert records[0]["steps"] == 8 and env.n_steps == 8 and policy.acts == 3  # 3 + 3 + 2
+
+
+def test_max_steps_caps_the_episode(tmp_path):
+    records, env, _ = run(tmp_path, seeds=[SEEDS[3]], max_steps=5)  # would run to the time limit
+    assert records[0]["steps"] == 5 and env.n_steps == 5 and not records[0]["grasped_any"]
+
+
+def test_resume_after_interruption_gives_the_same_summary(tmp_path):
+    full, _, _ = run(tmp_path, name="full.jsonl")
+
+    class Interrupting(ScriptedPolicy):
+        def reset(self, instruction, obs):
+            if len(self.instructions) == 7:
+                raise KeyboardInterrupt  # killed during the 8th episode
+            super().reset(instruction, obs)
+
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path, policy=Interrupting(), name="part.jsonl")
+    path = tmp_path / "part.jsonl"
+    assert len(read_records(path)) == 7
+    # and the process died while writing the 7th record: a torn last line
+    text = path.read_text()
+    path.write_text(text[: len(text) - 30])
+
+    env = FakeRSBEnv()
+    with pytest.warns(UserWarning, match="truncated"):
+        resumed, env, _ = run(tmp_path, env=env, name="part.jsonl")
+    assert env.reset_seeds == SEEDS[6:]  # only the missing episodes ran
+    assert [r["seed"] for r in resumed] == SEEDS
+    assert summary_dict(results_from_records(resumed)) == summary_dict(results_from_records(full))
+
+
+def test_nothing_left_builds_no_env(tmp_path):
+    run(tmp_path)
+    built = []
+    records = run_episodes(lambda: built.append(1), ScriptedPolicy(), SUITE, SEEDS, tmp_path / "e.jsonl",
+                           progress=False)
+    assert built == [] and len(records) == len(SEEDS)
+
+
+def test_blank_instruction(tmp_path):
+    records, _, policy = run(tmp_path, mode="blank")
+    assert policy.instructions == [""] * len(SEEDS)
+    assert all(r["instruction"] == "" and r["original_instruction"].endswith(f"{r['seed']}?") for r in records)
+
+
+def test_shuffled_instruction_is_another_episodes(tmp_path):
+    records, env, policy = run(tmp_path, mode="shuffled")
+    own = [f"which block answers question {s}?" for s in SEEDS]
+    assert policy.instructions == shuffled_instruction(own)  # same pairing as the documented helper
+    assert all(r["instruction"] != r["original_instruction"] for r in records)
+    assert all(r["instruction"] == own[SEEDS.index(r["donor_seed"])] for r in records)
+    # the donor lookup resets the env on other seeds, but each episode is run from its own reset
+    assert [r["steps"] for r in records] == [{0: 8, 1: 6}.get(s % 4, HORIZON) for s in SEEDS]
+
+    # with a lookup: no extra resets, same pairing
+    records2, env2, _ = run(tmp_path, mode="shuffled", name="lookup.jsonl",
+                            instruction_lookup=lambda s: f"which block answers question {s}?")
+    assert env2.reset_seeds == SEEDS
+    assert [r["instruction"] for r in records2] == [r["instruction"] for r in records]
+
+
+def test_modes_and_policies_are_recorded_side_by_side(tmp_path):
+    run(tmp_path, mode="normal")
+    records, env, _ = run(tmp_path, mode="blank")
+    assert env.reset_seeds == SEEDS  # the blank run does not count the normal run's seeds as done
+    rows = results_from_records(read_records(tmp_path / "e.jsonl"))
+    assert set(rows) == {"scripted", "scripted (blank)"}
+
+
+def test_wrong_action_dim_is_reported(tmp_path):
+    class Wrong(ScriptedPolicy):
+        def act(self, obs):
+            return np.zeros((2, 16))
+
+    with pytest.raises(ValueError, match="dim 16"):
+        run(tmp_path, policy=Wrong())

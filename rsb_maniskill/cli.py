@@ -2,7 +2,7 @@
 
 Each module listed in ``_COMMAND_MODULES`` exposes ``register(subparsers)`` that adds its
 sub-commands with ``set_defaults(func=...)``; ``func(args) -> int`` is the exit status.
-Modules are imported lazily per invocation so that ``rsb questions`` never loads the simulator.
+The modules keep their heavy imports inside the commands, so ``rsb questions`` never loads the simulator.
 """
 from __future__ import annotations
 
@@ -22,13 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rsb", description="RoboSemanticBench on ManiSkill3")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as err:
-            if err.name == name:  # sub-command module not part of this build
-                continue
-            raise
-        module.register(sub)
+        importlib.import_module(name).register(sub)
     return parser
 
 

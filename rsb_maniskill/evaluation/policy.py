@@ -77,8 +77,15 @@ class RandomPolicy:
         return self.rng.uniform(self.low, self.high, size=(self.chunk_size, self.low.shape[0])).astype(np.float32)
 
 
-# Built-in policy names -> factories; the CLI registers env-dependent ones (oracle, blind).
-_REGISTRY: dict[str, Callable[..., Any]] = {"random": RandomPolicy.from_action_space}
+def _remote(**kwargs: Any) -> Any:
+    from .remote import RemotePolicy  # needs the `eval` extra (websockets, msgpack)
+
+    return RemotePolicy(**kwargs)
+
+
+# Built-in policy names -> factories. The privileged ones (oracle, blind) need the env and are
+# built by ``jobs.make_policy``.
+_REGISTRY: dict[str, Callable[..., Any]] = {"random": RandomPolicy.from_action_space, "remote": _remote}
 
 
 def register_policy(name: str, factory: Callable[..., Any]) -> None:

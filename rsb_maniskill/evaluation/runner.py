@@ -1,9 +1,13 @@
 """Run a policy on a list of episode seeds of one suite, one env, recording each episode as it ends.
 
 The runner knows the env only through the RSB task contract (no task import here):
-``env.unwrapped.get_language_instruction()``, ``env.unwrapped.episode_specs`` and the latched
+``env.unwrapped.get_language_instruction()``, ``env.unwrapped.episode_specs``, optionally
+``env.unwrapped.episode_spec(seed)`` (an episode's semantics without a reset), and the latched
 grasp / placement flags in ``info`` (torch or numpy, leading env dim). It resumes by skipping the
 seeds already in the records file, so an interrupted run loses at most the episode in flight.
+
+:func:`episode_loop` is the loop itself; it hands each record to a ``write`` callable, so worker
+processes (``jobs.py``) can send their records to the one process that owns the file.
 """
 from __future__ import annotations
 
@@ -22,6 +26,7 @@ from .records import INSTRUCTION_MODES, RecordWriter, completed_seeds, read_reco
 RECORD_FLAGS = ("grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success")
 EXTRA_FLAGS = ("grasped_wrong", "fail")
 DEFAULT_MAX_STEPS = 300  # the tasks' max_episode_steps (12 s at 25 Hz)
+VIDEO_FPS = 25  # the control rate: videos play in real time
 
 
 def _first(x: Any) -> Any:
@@ -112,6 +117,19 @@ def _action_dim(env: Any) -> int:
     return int(space.shape[-1])
 
 
+def default_instruction_lookup(env: Any, reset_options: dict | None = None) -> Callable[[int], str]:
+    """seed -> instruction: from the task's ``episode_spec(seed)`` if it has one, else by a reset."""
+    base = env.unwrapped
+    if callable(getattr(base, "episode_spec", None)):
+        return lambda seed: base.episode_spec(seed).instruction
+
+    def by_reset(seed: int) -> str:
+        env.reset(seed=seed, options=reset_options)
+        return base.get_language_instruction()[0]
+
+    return by_reset
+
+
 def run_episodes(
     env_factory: Callable[[], Any] | Any,
     policy: Any,
@@ -127,6 +145,8 @@ def run_episodes(
     instruction_lookup: Callable[[int], str] | None = None,
     shuffle_seed: int = SHUFFLE_SEED,
     keep_spec: bool = True,
+    video_dir: str | os.PathLike | None = None,
+    num_videos: int = 0,
 ) -> list[dict]:
     """Evaluate ``policy`` on ``seeds`` of ``suite_id``, appending one record per episode to ``out_path``.
 
@@ -139,8 +159,10 @@ def run_episodes(
         instruction_mode: ``normal``, ``blank`` ("" for the policy) or ``shuffled`` (another
             episode's instruction, fixed pairing over ``seeds``).
         max_steps: cap on env steps, on top of the env's own time limit.
-        instruction_lookup: seed -> instruction, to find shuffled donors without resetting the env
-            on the donor's seed (the default).
+        instruction_lookup: seed -> instruction, to find shuffled donors (default:
+            :func:`default_instruction_lookup`).
+        video_dir, num_videos: an mp4 of each of the first ``num_videos`` seeds of ``seeds``, from
+            ``env.render()`` (make the env with ``render_mode="rgb_array"``).
     Returns:
         Every record of this (policy, suite, mode) in ``out_path``, old and new, in file order.
     """
@@ -156,10 +178,19 @@ def run_episodes(
     if todo:
         own_env = not hasattr(env_factory, "step")
         env = env_factory() if own_env else env_factory
+        bar = progress_bar(label, suite_id, instruction_mode, len(seeds), len(seeds) - len(todo), progress)
         try:
-            _run(env, policy, suite_id, seeds, todo, out_path, instruction_mode, max_steps, progress, label,
-                 reset_options, instruction_lookup, shuffle_seed, keep_spec, len(seeds) - len(todo))
+            with RecordWriter(out_path) as writer:
+                def write(record: dict) -> None:
+                    writer.write(record)
+                    bar.add(record)
+
+                episode_loop(env, policy, suite_id, seeds, todo, write, instruction_mode=instruction_mode,
+                             max_steps=max_steps, label=label, reset_options=reset_options,
+                             instruction_lookup=instruction_lookup, shuffle_seed=shuffle_seed,
+                             keep_spec=keep_spec, video_dir=video_dir, num_videos=num_videos)
         finally:
+            bar.close()
             if own_env:
                 env.close()
     return [r for r in read_records(out_path)
@@ -167,76 +198,113 @@ def run_episodes(
             and r.get("policy") == label]
 
 
-def _run(env: Any, policy: Any, suite_id: str, seeds: Sequence[int], todo: Sequence[int], out_path: Path,
-         instruction_mode: str, max_steps: int, progress: bool, label: str, reset_options: dict | None,
-         instruction_lookup: Callable[[int], str] | None, shuffle_seed: int, keep_spec: bool, n_done: int) -> None:
+class progress_bar:  # noqa: N801  (used like a function)
+    """tqdm bar over a suite's episodes with the running GSR / TSR; a no-op when disabled."""
+
+    def __init__(self, label: str, suite_id: str, mode: str, total: int, initial: int, enabled: bool) -> None:
+        self.bar = None
+        self.n = self.grasped = self.success = 0
+        if enabled:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, initial=initial, desc=f"{label} {suite_id} [{mode}]", unit="ep")
+
+    def add(self, record: Mapping[str, Any]) -> None:
+        self.n += 1
+        self.grasped += bool(record["grasped_any"] or record["success"])
+        self.success += bool(record["success"])
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(GSR=f"{self.grasped / self.n:.0%}", TSR=f"{self.success / self.n:.0%}", refresh=False)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _frame(env: Any) -> np.ndarray:
+    img = env.render()
+    if hasattr(img, "detach"):
+        img = img.detach().cpu().numpy()
+    img = np.asarray(img)
+    return img[0] if img.ndim == 4 else img
+
+
+def write_video(frames: Sequence[np.ndarray], video_dir: str | os.PathLike, name: str) -> Path:
+    """mp4 at the control rate, with ManiSkill's writer."""
+    from mani_skill.utils.visualization.misc import images_to_video
+
+    images_to_video(list(frames), str(video_dir), name, fps=VIDEO_FPS, verbose=False)
+    return Path(video_dir) / f"{name}.mp4"
+
+
+def episode_loop(
+    env: Any,
+    policy: Any,
+    suite_id: str,
+    seeds: Sequence[int],
+    todo: Sequence[int],
+    write: Callable[[dict], None],
+    *,
+    instruction_mode: str = "normal",
+    max_steps: int = DEFAULT_MAX_STEPS,
+    label: str,
+    reset_options: dict | None = None,
+    instruction_lookup: Callable[[int], str] | None = None,
+    shuffle_seed: int = SHUFFLE_SEED,
+    keep_spec: bool = True,
+    video_dir: str | os.PathLike | None = None,
+    num_videos: int = 0,
+) -> None:
+    """Run the episodes ``todo`` (a subset of ``seeds``) and ``write`` each record as it ends.
+
+    ``seeds`` is the whole evaluation: it fixes the shuffled-mode donors and which episodes
+    (the first ``num_videos``) get a video, whichever process runs them.
+    """
     base = env.unwrapped
     action_dim = _action_dim(env)
     batched_actions = len(env.action_space.shape) == 2
-
-    def instruction_of(seed: int) -> str:
-        env.reset(seed=seed, options=reset_options)
-        return base.get_language_instruction()[0]
-
     donors = None
     if instruction_mode == "shuffled":
-        donors = _Donors(seeds, instruction_lookup or instruction_of, shuffle_seed)
+        donors = _Donors(seeds, instruction_lookup or default_instruction_lookup(env, reset_options), shuffle_seed)
+    filmed = set(seeds[:num_videos]) if video_dir is not None else set()
 
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
+    for seed in todo:
+        t0 = time.monotonic()
+        extra: dict[str, Any] = {}
+        donor_text = None
+        if donors is not None:
+            # Before this episode's own reset: a reset-based lookup resets the env on other seeds.
+            extra["donor_seed"], donor_text = donors(seed, donors.text(seed))
+        obs, info = env.reset(seed=seed, options=reset_options)
+        instructions = base.get_language_instruction()
+        if len(instructions) != 1:
+            raise ValueError(f"the runner drives one env, this one has {len(instructions)}; "
+                             "use jobs.run_batched for parallel envs")
+        instruction = instructions[0]
+        spec = base.episode_specs[0]
+        given = apply_instruction_mode(instruction, instruction_mode, donor_text)
+        if instruction_mode != "normal":
+            extra["original_instruction"] = instruction
+        frames = [_frame(env)] if seed in filmed else None
 
-        bar = tqdm(total=len(seeds), initial=n_done, desc=f"{label} {suite_id} [{instruction_mode}]", unit="ep")
-    try:
-        _loop(env, base, policy, suite_id, todo, out_path, instruction_mode, max_steps, label, reset_options,
-              donors, keep_spec, action_dim, batched_actions, bar)
-    finally:
-        if bar is not None:
-            bar.close()
-
-
-def _loop(env: Any, base: Any, policy: Any, suite_id: str, todo: Sequence[int], out_path: Path,
-          instruction_mode: str, max_steps: int, label: str, reset_options: dict | None, donors: _Donors | None,
-          keep_spec: bool, action_dim: int, batched_actions: bool, bar: Any) -> None:
-    n_grasp = n_success = 0
-    with RecordWriter(out_path) as writer:
-        for i, seed in enumerate(todo, start=1):
-            t0 = time.monotonic()
-            extra: dict[str, Any] = {}
-            donor_text = None
-            if donors is not None:
-                # Before this episode's own reset: the default lookup resets the env on other seeds.
-                extra["donor_seed"], donor_text = donors(seed, donors.text(seed))
-            obs, info = env.reset(seed=seed, options=reset_options)
-            instructions = base.get_language_instruction()
-            if len(instructions) != 1:
-                raise ValueError(f"run_episodes drives one env, this one has {len(instructions)}")
-            instruction = instructions[0]
-            spec = base.episode_specs[0]
-            given = apply_instruction_mode(instruction, instruction_mode, donor_text)
-            if instruction_mode != "normal":
-                extra["original_instruction"] = instruction
-
-            policy.reset(given, single_env_obs(obs))
-            steps, finished = 0, False
-            while not finished and steps < max_steps:
-                chunk = as_chunk(policy.act(single_env_obs(obs)), action_dim)
-                for action in chunk:
-                    a = action[None] if batched_actions else action
-                    obs, _, terminated, truncated, info = env.step(a)
-                    steps += 1
-                    finished = bool(_first(terminated)) or bool(_first(truncated))
-                    if finished or steps >= max_steps:
-                        break
-            extra["wall_s"] = round(time.monotonic() - t0, 3)
-            if keep_spec and hasattr(spec, "to_dict"):
-                extra["episode"] = spec.to_dict()
-            record = build_record(suite_id=suite_id, seed=seed, spec=spec, instruction=given,
-                                  instruction_mode=instruction_mode, info=info, steps=steps, policy=label,
-                                  extra=extra)
-            writer.write(record)
-            n_grasp += record["grasped_any"] or record["success"]
-            n_success += record["success"]
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(GSR=f"{n_grasp / i:.0%}", TSR=f"{n_success / i:.0%}", refresh=False)
+        policy.reset(given, single_env_obs(obs))
+        steps, finished = 0, False
+        while not finished and steps < max_steps:
+            chunk = as_chunk(policy.act(single_env_obs(obs)), action_dim)
+            for action in chunk:
+                a = action[None] if batched_actions else action
+                obs, _, terminated, truncated, info = env.step(a)
+                steps += 1
+                if frames is not None:
+                    frames.append(_frame(env))
+                finished = bool(_first(terminated)) or bool(_first(truncated))
+                if finished or steps >= max_steps:
+                    break
+        extra["wall_s"] = round(time.monotonic() - t0, 3)
+        if frames is not None:
+            extra["video"] = write_video(frames, video_dir, f"{suite_id}_{instruction_mode}_seed{seed}").name
+        if keep_spec and hasattr(spec, "to_dict"):
+            extra["episode"] = spec.to_dict()
+        write(build_record(suite_id=suite_id, seed=seed, spec=spec, instruction=given,
+                           instruction_mode=instruction_mode, info=info, steps=steps, policy=label, extra=extra))

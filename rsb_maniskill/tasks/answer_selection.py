@@ -134,8 +134,7 @@ class AnswerSelectionEnv(BaseEnv):
         self.table_scene.initialize(env_idx)
         idx = env_idx.cpu().numpy()
         for i in idx:
-            seed = int(self._episode_seed[i])
-            spec = self.sampler.sample(seed, question_index=seed % self.sampler.num_questions)
+            spec = self.episode_spec(int(self._episode_seed[i]))
             self.episode_specs[i] = spec
             self.target_block[i] = spec.target_block
             self.answer_slot[i] = spec.answer_slot
@@ -168,6 +167,10 @@ class AnswerSelectionEnv(BaseEnv):
             block.set_linear_velocity(torch.zeros((len(env_idx), 3), device=self.device))
             block.set_angular_velocity(torch.zeros((len(env_idx), 3), device=self.device))
         self._block_pose_cache = self._tcp_cache = None
+
+    def episode_spec(self, seed: int) -> EpisodeSpec:
+        """The semantics of the episode ``seed`` (question ``seed mod pool size``), without a reset."""
+        return self.sampler.sample(seed, question_index=seed % self.sampler.num_questions)
 
     def get_language_instruction(self) -> list[str]:
         """The instruction of each parallel env (strings can't live in observations)."""

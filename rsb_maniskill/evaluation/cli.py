@@ -1,0 +1,240 @@
+"""`rsb eval`: a policy on RSB suites with the paper's protocol; GSR / TSR / nSG tables.
+
+    rsb eval oracle --suites RSB-Math-4 -n 100
+    rsb eval my_policies:make_policy -a checkpoint=ckpt/last --num-procs 2 --videos 5
+    rsb eval remote -a host=gpu-box -a port=8000 --name pi05 --instruction normal blank shuffled
+
+Output directory (``--out``, default ``results/<name>``): ``episodes.jsonl`` (one record per
+finished episode; rerunning the same command resumes), ``run.json`` (the settings each policy row
+was run with; a resumed run must use the same ones), ``summary.{json,csv,md}``, one
+``summary_<row>.png`` per row, and ``videos/``. See docs/evaluation.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+EPISODES_FILE = "episodes.jsonl"
+MANIFEST_FILE = "run.json"
+# Settings that change what an episode of a row means: a resumed run must keep them.
+MANIFEST_KEYS = ("policy", "policy_kwargs", "obs_mode", "control_mode", "max_steps", "env_kwargs")
+PROTOCOL_KEYS = ("split", "instructions")  # fixed by the protocol; not settable with --env-arg
+
+
+class EvalError(RuntimeError):
+    """Bad arguments or a results directory that does not fit this run."""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
+    from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
+
+    p = subparsers.add_parser(
+        "eval", help="evaluate a policy: GSR / TSR / nSG per suite (paper protocol)",
+        description="Runs POLICY on the evaluation split (unseen instructions, fixed seeds 10,000,000 + i) "
+                    "of each suite and writes per-episode records and GSR / TSR / nSG summaries. "
+                    "Rerunning the same command resumes an interrupted run.")
+    p.add_argument("policy", help="built-in (oracle, blind, random, remote) or package.module:factory")
+    p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="keyword argument of the policy factory (VALUE parsed as JSON, else a string); repeatable")
+    p.add_argument("--suites", nargs="+", default=["paper"], metavar="SUITE",
+                   help="suite ids, 'paper' (the six of the paper, default) or 'all' (with the Direct controls)")
+    p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
+                   help=f"episodes per suite (default {EPISODES_PER_SUITE}); the first n are a prefix of any longer run")
+    p.add_argument("--instruction", nargs="+", default=["normal"], choices=INSTRUCTION_MODES,
+                   help="instruction given to the policy: normal, blank or shuffled (another episode's); "
+                        "several run one after the other")
+    p.add_argument("--name", default=None, help="row label in records and tables (default: the policy spec)")
+    p.add_argument("--out", default=None, help="results directory (default: results/<name>)")
+    p.add_argument("-o", "--obs-mode", default=None,
+                   help="observations (default: rgb; state for oracle, blind and random)")
+    p.add_argument("-c", "--control-mode", default=None, help="controller (default: the robot's pd_joint_pos)")
+    p.add_argument("-e", "--env-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="extra gym.make keyword, e.g. camera_size=[224,224] (VALUE as JSON, else a string)")
+    p.add_argument("--data-dir", default=None, help="GSM8K / MMLU directory (else $RSB_DATA_DIR, else the hub cache)")
+    p.add_argument("--num-procs", type=int, default=1, help="CPU worker processes (default 1)")
+    p.add_argument("--num-envs", type=int, default=1,
+                   help="parallel envs on the GPU backend (physx_cuda), one policy instance each (default 1)")
+    p.add_argument("--max-steps", type=int, default=None, help="step cap per episode (default: the task's 300)")
+    p.add_argument("--videos", type=int, default=0, metavar="K", help="mp4 of the first K episodes of each suite")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run_eval)
+
+
+def parse_kv(items: list[str], what: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise EvalError(f"{what} {item!r} must look like KEY=VALUE")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def resolve_suites(names: list[str]) -> list[str]:
+    from rsb_maniskill.evaluation.metrics import PAPER_SUITES
+    from rsb_maniskill.semantic.suites import SUITE_IDS
+
+    out: list[str] = []
+    for name in names:
+        group = PAPER_SUITES if name == "paper" else SUITE_IDS if name == "all" else (name,)
+        for s in group:
+            if s not in SUITE_IDS:
+                raise EvalError(f"unknown suite {s!r}; valid: {', '.join(SUITE_IDS)}, 'paper' or 'all'")
+            if s not in out:
+                out.append(s)
+    return out
+
+
+def check_policy_spec(spec: str) -> None:
+    """Fail before any env is built when a ``module:factory`` spec cannot resolve."""
+    import importlib
+
+    from rsb_maniskill.evaluation.jobs import PRIVILEGED_POLICIES
+    from rsb_maniskill.evaluation.policy import builtin_policies
+
+    if spec in PRIVILEGED_POLICIES or spec in builtin_policies():
+        return
+    module_name, sep, attr = spec.partition(":")
+    if not sep or not module_name or not attr:
+        raise EvalError(f"policy {spec!r} is neither a built-in ({', '.join((*PRIVILEGED_POLICIES, *builtin_policies()))}) "
+                        "nor of the form package.module:factory")
+    try:
+        obj = importlib.import_module(module_name)
+    except ImportError as err:
+        raise EvalError(f"policy {spec!r}: cannot import module {module_name!r} ({err}); "
+                        "is it installed or on PYTHONPATH?") from err
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise EvalError(f"policy {spec!r}: module {module_name!r} has no attribute {attr!r}")
+        obj = getattr(obj, part)
+
+
+def check_data(suites: list[str], data_dir: str | None) -> None:
+    """Load each suite's evaluation pool now: missing GSM8K / MMLU fails before any episode runs."""
+    from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
+    from rsb_maniskill.semantic import EpisodeSampler
+    from rsb_maniskill.semantic.errors import SemanticError
+
+    for suite in suites:
+        try:
+            EpisodeSampler(suite, data_dir=data_dir, **EVAL_ENV_KWARGS)
+        except SemanticError as err:
+            raise EvalError(f"{suite}: {err}") from err
+
+
+def check_manifest(out: Path, label: str, settings: dict[str, Any]) -> None:
+    """Record this row's settings in run.json, or check they match those it was started with."""
+    from rsb_maniskill import __version__
+
+    path = out / MANIFEST_FILE
+    manifest = json.loads(path.read_text()) if path.exists() else {"runs": {}}
+    old = manifest["runs"].get(label)
+    if old is not None:
+        diff = [k for k in MANIFEST_KEYS if old.get(k) != settings.get(k)]
+        if diff:
+            shown = ", ".join(f"{k}: {old.get(k)!r} before, {settings.get(k)!r} now" for k in diff)
+            raise EvalError(f"{out} already holds episodes of {label!r} run with other settings ({shown}). "
+                            "Use the same settings to resume, or another --out / --name for a new run.")
+        return
+    manifest["runs"][label] = {**settings, "rsb_version": __version__}
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(manifest, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    try:
+        return _run_eval(args)
+    except EvalError as err:
+        print(f"rsb eval: error: {err}", file=sys.stderr)
+        return 2
+
+
+def _run_eval(args: argparse.Namespace) -> int:
+    from rsb_maniskill.evaluation.jobs import STATE_ONLY_POLICIES, EvalJob, run_job
+    from rsb_maniskill.evaluation.protocol import eval_seeds
+    from rsb_maniskill.evaluation.records import read_records
+    from rsb_maniskill.evaluation.report import markdown_tables, results_from_records, write_report
+
+    suites = resolve_suites(args.suites)
+    for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-procs", args.num_procs, 1),
+                             ("--num-envs", args.num_envs, 1), ("--videos", args.videos, 0)):
+        if value < low:
+            raise EvalError(f"{flag} must be >= {low}, got {value}")
+    if args.max_steps is not None and args.max_steps < 1:
+        raise EvalError(f"--max-steps must be >= 1, got {args.max_steps}")
+    if args.num_envs > 1 and args.num_procs > 1:
+        raise EvalError("use either --num-envs (GPU) or --num-procs (CPU), not both")
+    if args.num_envs > 1:
+        import torch
+
+        if not torch.cuda.is_available():
+            raise EvalError("--num-envs > 1 runs the GPU backend (physx_cuda), and no CUDA device is visible; "
+                            "use --num-procs on a CPU machine")
+    policy_kwargs = parse_kv(args.policy_arg, "--policy-arg")
+    env_kwargs = parse_kv(args.env_arg, "--env-arg")
+    fixed = [k for k in PROTOCOL_KEYS if k in env_kwargs]
+    if fixed:
+        raise EvalError(f"--env-arg cannot set {', '.join(fixed)}: the protocol fixes split=test, instructions=unseen")
+    if args.data_dir:
+        env_kwargs["data_dir"] = args.data_dir
+    check_policy_spec(args.policy)
+    check_data(suites, env_kwargs.get("data_dir"))
+
+    label = args.name or args.policy
+    out = Path(args.out or Path("results") / label.replace(":", "_").replace("/", "_"))
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".write-probe{os.getpid()}"
+        probe.touch()
+        probe.unlink()
+    except OSError as err:
+        raise EvalError(f"cannot write to results directory {out}: {err.strerror or err}; choose another --out") from err
+    obs_mode = args.obs_mode or ("state" if args.policy in STATE_ONLY_POLICIES else "rgb")
+    max_steps = args.max_steps or 300
+    settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
+                    control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs)
+    check_manifest(out, label, settings)
+
+    records_path = out / EPISODES_FILE
+    interrupted = False
+    try:
+        for suite in suites:
+            for mode in args.instruction:
+                job = EvalJob(
+                    suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
+                    label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
+                    control_mode=args.control_mode, num_envs=args.num_envs,
+                    sim_backend="physx_cuda" if args.num_envs > 1 else "physx_cpu", max_steps=max_steps,
+                    env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
+                    num_videos=args.videos)
+                run_job(job, records_path, num_procs=args.num_procs, progress=not args.quiet)
+    except KeyboardInterrupt:
+        interrupted = True
+
+    wanted = {(s, m) for s in suites for m in args.instruction}
+    all_records = read_records(records_path)
+    results = results_from_records(all_records)
+    if results:
+        paths = write_report(results, out)
+        print(markdown_tables(results))
+        print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}")
+    if interrupted:
+        print(f"rsb eval: interrupted; finished episodes are in {records_path}. "
+              "Rerun the same command to resume.", file=sys.stderr)
+        return 130
+    n_run = sum(1 for r in all_records if r["policy"] == label and (r["suite_id"], r["instruction_mode"]) in wanted
+                and int(r["seed"]) - eval_seeds(r["suite_id"], 1)[0] < args.num_episodes)
+    expected = len(wanted) * args.num_episodes
+    if n_run != expected:
+        print(f"rsb eval: warning: {n_run} of {expected} episodes recorded", file=sys.stderr)
+        return 1
+    return 0

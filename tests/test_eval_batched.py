@@ -7,8 +7,7 @@ import pytest
 import torch
 from test_eval_runner import HORIZON, SUITE, FakeRSBEnv, ScriptedPolicy
 
-from rsb_maniskill.evaluation.jobs import batched_loop
-from rsb_maniskill.evaluation.runner import episode_loop
+from rsb_maniskill.evaluation.runner import batched_loop, episode_loop
 
 SEEDS = [10_000_000 + i for i in range(8)]
 

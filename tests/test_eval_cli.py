@@ -3,7 +3,6 @@ errors that leave results untouched, and the remote client serving the oracle.""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys

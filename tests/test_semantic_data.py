@@ -81,7 +81,7 @@ def test_gsm8k_malformed_names_file_and_line(tmp_path, line, reason):
     (d / "train.jsonl").write_text(f"{good}\n{good}\n{line}\n")
     with pytest.raises(SemanticDataError) as err:
         gsm8k_pool("train", tmp_path)
-    assert f"train.jsonl, line 3" in str(err.value) and reason in str(err.value)
+    assert "train.jsonl, line 3" in str(err.value) and reason in str(err.value)
     assert err.value.line == 3
 
 

@@ -238,6 +238,18 @@ def write_video(frames: Sequence[np.ndarray], video_dir: str | os.PathLike, name
     return Path(video_dir) / f"{name}.mp4"
 
 
+def _finish_record(*, suite_id: str, seed: int, spec: Any, given: str, instruction_mode: str, info: Mapping[str, Any],
+                   steps: int, label: str, extra: dict[str, Any], frames: list | None, video_dir: Any,
+                   keep_spec: bool) -> dict[str, Any]:
+    """The record of a finished episode; writes its video first when it was filmed."""
+    if frames is not None:
+        extra["video"] = write_video(frames, video_dir, f"{suite_id}_{instruction_mode}_seed{seed}").name
+    if keep_spec and hasattr(spec, "to_dict"):
+        extra["episode"] = spec.to_dict()
+    return build_record(suite_id=suite_id, seed=seed, spec=spec, instruction=given,
+                        instruction_mode=instruction_mode, info=info, steps=steps, policy=label, extra=extra)
+
+
 def episode_loop(
     env: Any,
     policy: Any,
@@ -279,8 +291,8 @@ def episode_loop(
         obs, info = env.reset(seed=seed, options=reset_options)
         instructions = base.get_language_instruction()
         if len(instructions) != 1:
-            raise ValueError(f"the runner drives one env, this one has {len(instructions)}; "
-                             "use jobs.run_batched for parallel envs")
+            raise ValueError(f"episode_loop drives one env, this one has {len(instructions)}; "
+                             "use batched_loop for parallel envs")
         instruction = instructions[0]
         spec = base.episode_specs[0]
         given = apply_instruction_mode(instruction, instruction_mode, donor_text)
@@ -302,9 +314,113 @@ def episode_loop(
                 if finished or steps >= max_steps:
                     break
         extra["wall_s"] = round(time.monotonic() - t0, 3)
-        if frames is not None:
-            extra["video"] = write_video(frames, video_dir, f"{suite_id}_{instruction_mode}_seed{seed}").name
-        if keep_spec and hasattr(spec, "to_dict"):
-            extra["episode"] = spec.to_dict()
-        write(build_record(suite_id=suite_id, seed=seed, spec=spec, instruction=given,
-                           instruction_mode=instruction_mode, info=info, steps=steps, policy=label, extra=extra))
+        write(_finish_record(suite_id=suite_id, seed=seed, spec=spec, given=given, instruction_mode=instruction_mode,
+                             info=info, steps=steps, label=label, extra=extra, frames=frames, video_dir=video_dir,
+                             keep_spec=keep_spec))
+
+
+def _env_row(x: Any, i: int) -> Any:
+    """Row ``i`` of a batched (nested) obs, as numpy."""
+    if isinstance(x, Mapping):
+        return {k: _env_row(v, i) for k, v in x.items()}
+    if hasattr(x, "detach"):
+        return x[i].detach().cpu().numpy()
+    return np.asarray(x)[i]
+
+
+def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:
+    return {k: _env_row(v, i) for k, v in info.items() if hasattr(v, "__len__") or hasattr(v, "detach")}
+
+
+def batched_loop(
+    env: Any,
+    policies: Sequence[Any],
+    suite_id: str,
+    seeds: Sequence[int],
+    todo: Sequence[int],
+    write: Callable[[dict], None],
+    *,
+    instruction_mode: str = "normal",
+    max_steps: int = DEFAULT_MAX_STEPS,
+    label: str,
+    shuffle_seed: int = SHUFFLE_SEED,
+    keep_spec: bool = True,
+    video_dir: str | os.PathLike | None = None,
+    num_videos: int = 0,
+) -> None:
+    """Episodes in waves of ``num_envs``: env i of a wave runs one seed with ``policies[i]``.
+
+    All envs of a wave are reset together with their seeds (a list); each env's record is taken at
+    the step it terminates or truncates, and it then holds its last action until the wave ends. The
+    last wave is padded with repeats of its last seed whose outcome is discarded. Records equal
+    those of :func:`~rsb_maniskill.evaluation.runner.episode_loop`, episode for episode.
+    """
+    import torch
+
+    base = env.unwrapped
+    b = base.num_envs
+    if len(policies) != b:
+        raise ValueError(f"need one policy per env: {b} envs, {len(policies)} policies")
+    space = getattr(base, "single_action_space", None) or env.action_space
+    action_dim = int(space.shape[-1])
+    donors = None
+    if instruction_mode == "shuffled":
+        if not callable(getattr(base, "episode_spec", None)):
+            raise ValueError("shuffled mode on parallel envs needs the task's episode_spec(seed)")
+        donors = _Donors(seeds, default_instruction_lookup(env), shuffle_seed)
+    filmed = set(seeds[:num_videos]) if video_dir is not None else set()
+
+    for start in range(0, len(todo), b):
+        wave = list(todo[start:start + b])
+        n = len(wave)
+        obs, info = env.reset(seed=wave + [wave[-1]] * (b - n))
+        specs = list(base.episode_specs)
+        instructions = base.get_language_instruction()
+        given, extras = [], []
+        for i, seed in enumerate(wave):
+            extra: dict[str, Any] = {}
+            donor_text = None
+            if donors is not None:
+                extra["donor_seed"], donor_text = donors(seed, instructions[i])
+            if instruction_mode != "normal":
+                extra["original_instruction"] = instructions[i]
+            given.append(apply_instruction_mode(instructions[i], instruction_mode, donor_text))
+            extras.append(extra)
+            policies[i].reset(given[i], _env_row(obs, i))
+        frames = {i: [] for i, s in enumerate(wave) if s in filmed}
+        _collect_frames(env, frames)
+        pending: list[list[np.ndarray]] = [[] for _ in range(b)]
+        last = np.zeros((b, action_dim), dtype=np.float32)
+        steps = [0] * b
+        active = [i < n for i in range(b)]
+        while any(active):
+            for i in range(b):
+                if active[i] and not pending[i]:
+                    pending[i] = list(as_chunk(policies[i].act(_env_row(obs, i)), action_dim))
+                if active[i]:
+                    last[i] = pending[i].pop(0)
+            action = torch.as_tensor(last, device=base.device)
+            obs, _, terminated, truncated, info = env.step(action)
+            _collect_frames(env, frames, active)
+            for i in range(n):
+                if not active[i]:
+                    continue
+                steps[i] += 1
+                done = bool(_first(terminated[i:i + 1])) or bool(_first(truncated[i:i + 1])) or steps[i] >= max_steps
+                if done:
+                    active[i] = False
+                    row = {k: v[None] if isinstance(v, np.ndarray) else v for k, v in _row_info(info, i).items()}
+                    write(_finish_record(suite_id=suite_id, seed=wave[i], spec=specs[i], given=given[i],
+                                         instruction_mode=instruction_mode, info=row, steps=steps[i], label=label,
+                                         extra=extras[i], frames=frames.pop(i, None), video_dir=video_dir,
+                                         keep_spec=keep_spec))
+
+
+def _collect_frames(env: Any, frames: dict[int, list], active: Sequence[bool] | None = None) -> None:
+    if not frames:
+        return
+    img = env.render()
+    img = img.detach().cpu().numpy() if hasattr(img, "detach") else np.asarray(img)
+    for i, f in frames.items():
+        if active is None or active[i]:
+            f.append(img[i])

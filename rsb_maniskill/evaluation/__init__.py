@@ -30,10 +30,11 @@ from .protocol import (
 )
 from .records import INSTRUCTION_MODES, RECORD_FIELDS, RecordWriter, completed_seeds, read_records
 from .report import markdown_tables, plot_summary, results_from_records, summary_dict, write_report
-from .runner import build_record, run_episodes
+from .jobs import EvalJob, run_job
+from .runner import batched_loop, build_record, episode_loop, run_episodes
 
 __all__ = [
-    "Average", "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "ErrorAnalysis", "INSTRUCTION_MODES",
+    "Average", "EPISODES_PER_SUITE", "EvalJob", "batched_loop", "episode_loop", "run_job", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "ErrorAnalysis", "INSTRUCTION_MODES",
     "PAPER_SUITES", "Policy", "RECORD_FIELDS", "RandomPolicy", "Rate", "RecordWriter", "SuiteMetrics",
     "apply_instruction_mode", "as_chunk", "average", "build_record", "builtin_policies", "completed_seeds",
     "derangement", "eval_seeds", "load_policy", "markdown_tables", "nsg", "num_choices", "plot_summary",

@@ -79,6 +79,40 @@ def test_resume_after_a_killed_run_gives_the_same_summary(tmp_path):
     assert summary(part) == summary(full)
 
 
+def _workers(pid: int) -> set[int]:
+    """Spawned worker processes of ``pid`` (not multiprocessing's resource tracker)."""
+    out = set()
+    for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
+        cmdline = Path(f"/proc/{c}/cmdline").read_bytes()
+        if b"spawn_main" in cmdline and b"resource_tracker" not in cmdline:
+            out.add(int(c))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="reads child processes from /proc (Linux)")
+def test_sigterm_stops_workers_and_keeps_finished_episodes(tmp_path):
+    out = tmp_path / "res"
+    cmd = [sys.executable, "-m", "rsb_maniskill.cli", "eval", "blind", "--suites", SUITE, "-n", "12",
+           "--num-procs", "2", "--out", str(out), "-q"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    records = out / "episodes.jsonl"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if records.exists() and records.read_text().count("\n") >= 2:
+            break
+        time.sleep(0.05)
+    workers = _workers(proc.pid)
+    assert proc.poll() is None and len(workers) >= 2
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Rerun the same command to resume" in err
+    time.sleep(0.5)
+    assert not [w for w in workers if Path(f"/proc/{w}").exists()], "worker processes outlived the run"
+    assert (out / "summary.json").exists()  # the finished episodes are summarised
+    assert rsb_eval("blind", "--suites", SUITE, "-n", "12", "--num-procs", "2", "--out", str(out)) == 0
+    assert sorted(r["seed"] for r in read_records(records)) == eval_seeds(SUITE, 12)
+
+
 def test_videos_of_the_first_episodes(tmp_path):
     out = tmp_path / "res"
     assert rsb_eval("oracle", "--suites", "RSB-Math-10", "-n", "2", "--videos", "1", "--out", str(out)) == 0

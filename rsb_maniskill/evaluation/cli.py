@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -150,12 +151,20 @@ def check_manifest(out: Path, label: str, settings: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
 def run_eval(args: argparse.Namespace) -> int:
+    # SIGTERM (a scheduler's stop) ends the run like Ctrl-C: workers stopped, summary written.
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         return _run_eval(args)
     except EvalError as err:
         print(f"rsb eval: error: {err}", file=sys.stderr)
         return 2
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _run_eval(args: argparse.Namespace) -> int:

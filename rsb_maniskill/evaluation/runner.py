@@ -409,9 +409,9 @@ def batched_loop(
                 done = bool(_first(terminated[i:i + 1])) or bool(_first(truncated[i:i + 1])) or steps[i] >= max_steps
                 if done:
                     active[i] = False
-                    row = {k: v[None] if isinstance(v, np.ndarray) else v for k, v in _row_info(info, i).items()}
                     write(_finish_record(suite_id=suite_id, seed=wave[i], spec=specs[i], given=given[i],
-                                         instruction_mode=instruction_mode, info=row, steps=steps[i], label=label,
+                                         instruction_mode=instruction_mode, info=_row_info(info, i),
+                                         steps=steps[i], label=label,
                                          extra=extras[i], frames=frames.pop(i, None), video_dir=video_dir,
                                          keep_spec=keep_spec))
 

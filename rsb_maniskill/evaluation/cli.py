@@ -96,26 +96,20 @@ def resolve_suites(names: list[str]) -> list[str]:
 
 def check_policy_spec(spec: str) -> None:
     """Fail before any env is built when a ``module:factory`` spec cannot resolve."""
-    import importlib
-
     from rsb_maniskill.evaluation.jobs import PRIVILEGED_POLICIES
-    from rsb_maniskill.evaluation.policy import builtin_policies
+    from rsb_maniskill.evaluation.policy import builtin_policies, resolve_factory
 
-    if spec in PRIVILEGED_POLICIES or spec in builtin_policies():
+    if spec in PRIVILEGED_POLICIES:
         return
-    module_name, sep, attr = spec.partition(":")
-    if not sep or not module_name or not attr:
-        raise EvalError(f"policy {spec!r} is neither a built-in ({', '.join((*PRIVILEGED_POLICIES, *builtin_policies()))}) "
-                        "nor of the form package.module:factory")
+    if ":" not in spec and spec not in builtin_policies():
+        names = ", ".join(sorted((*PRIVILEGED_POLICIES, *builtin_policies())))
+        raise EvalError(f"policy {spec!r} is neither a built-in ({names}) nor of the form package.module:factory")
     try:
-        obj = importlib.import_module(module_name)
+        resolve_factory(spec)
     except ImportError as err:
-        raise EvalError(f"policy {spec!r}: cannot import module {module_name!r} ({err}); "
-                        "is it installed or on PYTHONPATH?") from err
-    for part in attr.split("."):
-        if not hasattr(obj, part):
-            raise EvalError(f"policy {spec!r}: module {module_name!r} has no attribute {attr!r}")
-        obj = getattr(obj, part)
+        raise EvalError(f"{err}; is the module installed or on PYTHONPATH?") from err
+    except (ValueError, AttributeError, TypeError) as err:
+        raise EvalError(str(err)) from err
 
 
 def check_data(suites: list[str], data_dir: str | None) -> None:

@@ -16,7 +16,7 @@ from typing import Any, Mapping
 from .policy import RandomPolicy, load_policy
 from .protocol import EVAL_ENV_KWARGS
 from .records import RecordWriter, completed_seeds, read_records
-from .runner import DEFAULT_MAX_STEPS, batched_loop, episode_loop, progress_bar, run_episodes
+from .runner import DEFAULT_MAX_STEPS, batched_loop, episode_loop, ProgressBar, run_episodes
 
 # Built-in policies that read the simulator's ground truth: built with the env, one env each.
 PRIVILEGED_POLICIES = ("oracle", "blind")
@@ -140,7 +140,7 @@ def _run_processes(job: EvalJob, todo: list[int], out_path: str | os.PathLike, n
     q = ctx.Queue()
     k = min(num_procs, len(todo))
     procs = [ctx.Process(target=_worker, args=(job, todo[i::k], i, q), daemon=True) for i in range(k)]
-    bar = progress_bar(job.label, job.suite_id, job.instruction_mode, len(job.seeds), len(job.seeds) - len(todo),
+    bar = ProgressBar(job.label, job.suite_id, job.instruction_mode, len(job.seeds), len(job.seeds) - len(todo),
                        progress)
     errors: dict[int, str] = {}
     finished: set[int] = set()
@@ -181,7 +181,7 @@ def _run_batched_job(job: EvalJob, todo: list[int], out_path: str | os.PathLike,
     if job.policy in PRIVILEGED_POLICIES:
         raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs")
     env = make_env(job)
-    bar = progress_bar(job.label, job.suite_id, job.instruction_mode, len(job.seeds), len(job.seeds) - len(todo),
+    bar = ProgressBar(job.label, job.suite_id, job.instruction_mode, len(job.seeds), len(job.seeds) - len(todo),
                        progress)
     try:
         policies = [make_policy(job.policy, env, job.policy_kwargs) for _ in range(env.unwrapped.num_envs)]

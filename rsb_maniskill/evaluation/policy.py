@@ -99,40 +99,44 @@ def builtin_policies() -> tuple[str, ...]:
     return tuple(sorted(_REGISTRY))
 
 
+def resolve_factory(spec: str) -> Callable[..., Any]:
+    """The factory a built-in name or ``"package.module:factory"`` names, without calling it.
+
+    Errors name the part of the spec that failed (no ':', a module that does not import, a
+    missing or non-callable attribute)."""
+    if not isinstance(spec, str) or not spec:
+        raise ValueError(f"policy spec must be a non-empty string, got {spec!r}")
+    if spec in _REGISTRY:
+        return _REGISTRY[spec]
+    if ":" not in spec:
+        raise ValueError(
+            f"policy {spec!r} is neither a built-in ({', '.join(builtin_policies())}) nor of the form "
+            "'package.module:factory'"
+        )
+    module_name, _, attr = spec.partition(":")
+    if not module_name or not attr:
+        raise ValueError(f"policy spec {spec!r} must be 'package.module:factory' with both parts non-empty")
+    try:
+        factory = importlib.import_module(module_name)
+    except ImportError as err:
+        raise ImportError(f"policy spec {spec!r}: cannot import module {module_name!r}: {err}") from err
+    for part in attr.split("."):
+        try:
+            factory = getattr(factory, part)
+        except AttributeError:
+            raise AttributeError(f"policy spec {spec!r}: module {module_name!r} has no attribute {attr!r}") from None
+    if not callable(factory):
+        raise TypeError(f"policy spec {spec!r}: {attr!r} is not callable")
+    return factory
+
+
 def load_policy(spec: str, *, check: bool = True, **kwargs: Any) -> Policy:
     """Build a policy from a built-in name or ``"package.module:factory"`` and ``kwargs``.
 
     ``factory`` is any callable (a class or a function) returning an object with ``reset`` and
     ``act`` (checked unless ``check=False``). Errors name the part of the spec that failed.
     """
-    if not isinstance(spec, str) or not spec:
-        raise ValueError(f"policy spec must be a non-empty string, got {spec!r}")
-    if spec in _REGISTRY:
-        factory = _REGISTRY[spec]
-    elif ":" not in spec:
-        raise ValueError(
-            f"policy {spec!r} is neither a built-in ({', '.join(builtin_policies())}) nor of the form "
-            "'package.module:factory'"
-        )
-    else:
-        module_name, _, attr = spec.partition(":")
-        if not module_name or not attr:
-            raise ValueError(f"policy spec {spec!r} must be 'package.module:factory' with both parts non-empty")
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError as err:
-            raise ImportError(f"policy spec {spec!r}: cannot import module {module_name!r}: {err}") from err
-        factory = module
-        for part in attr.split("."):
-            try:
-                factory = getattr(factory, part)
-            except AttributeError:
-                raise AttributeError(
-                    f"policy spec {spec!r}: module {module_name!r} has no attribute {attr!r}"
-                ) from None
-        if not callable(factory):
-            raise TypeError(f"policy spec {spec!r}: {attr!r} is not callable")
-    policy = factory(**kwargs)
+    policy = resolve_factory(spec)(**kwargs)
     if not check:
         return policy
     missing = [m for m in ("reset", "act") if not callable(getattr(policy, m, None))]

@@ -178,7 +178,7 @@ def run_episodes(
     if todo:
         own_env = not hasattr(env_factory, "step")
         env = env_factory() if own_env else env_factory
-        bar = progress_bar(label, suite_id, instruction_mode, len(seeds), len(seeds) - len(todo), progress)
+        bar = ProgressBar(label, suite_id, instruction_mode, len(seeds), len(seeds) - len(todo), progress)
         try:
             with RecordWriter(out_path) as writer:
                 def write(record: dict) -> None:
@@ -198,7 +198,7 @@ def run_episodes(
             and r.get("policy") == label]
 
 
-class progress_bar:  # noqa: N801  (used like a function)
+class ProgressBar:
     """tqdm bar over a suite's episodes with the running GSR / TSR; a no-op when disabled."""
 
     def __init__(self, label: str, suite_id: str, mode: str, total: int, initial: int, enabled: bool) -> None:
@@ -222,12 +222,11 @@ class progress_bar:  # noqa: N801  (used like a function)
             self.bar.close()
 
 
-def _frame(env: Any) -> np.ndarray:
+def _render(env: Any) -> np.ndarray:
+    """``env.render()`` of every env as a (B, H, W, 3) numpy array."""
     img = env.render()
-    if hasattr(img, "detach"):
-        img = img.detach().cpu().numpy()
-    img = np.asarray(img)
-    return img[0] if img.ndim == 4 else img
+    img = img.detach().cpu().numpy() if hasattr(img, "detach") else np.asarray(img)
+    return img if img.ndim == 4 else img[None]
 
 
 def write_video(frames: Sequence[np.ndarray], video_dir: str | os.PathLike, name: str) -> Path:
@@ -298,7 +297,7 @@ def episode_loop(
         given = apply_instruction_mode(instruction, instruction_mode, donor_text)
         if instruction_mode != "normal":
             extra["original_instruction"] = instruction
-        frames = [_frame(env)] if seed in filmed else None
+        frames = [_render(env)[0]] if seed in filmed else None
 
         policy.reset(given, single_env_obs(obs))
         steps, finished = 0, False
@@ -309,7 +308,7 @@ def episode_loop(
                 obs, _, terminated, truncated, info = env.step(a)
                 steps += 1
                 if frames is not None:
-                    frames.append(_frame(env))
+                    frames.append(_render(env)[0])
                 finished = bool(_first(terminated)) or bool(_first(truncated))
                 if finished or steps >= max_steps:
                     break
@@ -419,8 +418,7 @@ def batched_loop(
 def _collect_frames(env: Any, frames: dict[int, list], active: Sequence[bool] | None = None) -> None:
     if not frames:
         return
-    img = env.render()
-    img = img.detach().cpu().numpy() if hasattr(img, "detach") else np.asarray(img)
+    img = _render(env)
     for i, f in frames.items():
         if active is None or active[i]:
             f.append(img[i])

@@ -1,8 +1,17 @@
-"""Picks a Vulkan driver before SAPIEN starts and turns "no renderer" into a clear error.
+"""Picks a Vulkan driver before SAPIEN starts, keeps one render engine alive per process, and
+turns "no renderer" into a clear error.
 
 On machines without a GPU Vulkan driver, SAPIEN needs Mesa's software driver (lavapipe) at
 24.3 or newer (it uses VK_KHR_external_semaphore_fd). Where both a GPU and lavapipe drivers are
 installed the Vulkan loader chooses itself, so we only pin lavapipe when no NVIDIA driver exists.
+
+Render engine: every SAPIEN render object made while no render system is alive (URDF link
+materials, block and zone materials, letter textures) starts a Vulkan instance of its own, and
+with ``render_backend="none"`` nothing else keeps one alive. NVIDIA drivers refuse new instances
+after a few dozen (``vk::createInstanceUnique: ErrorIncompatibleDriver`` from the third env on);
+lavapipe doesn't, but its loader log shows the same churn. :func:`hold_render_engine` makes one
+render system at first need (not at import: imports stay light and work without Vulkan) and
+keeps it for the life of the process, so every later render object reuses its instance.
 """
 from __future__ import annotations
 
@@ -19,7 +28,8 @@ _PROBE_ENV = "RSB_RENDERER_OK"  # inherited by worker processes so that they ski
 FIX = ("Install a Vulkan driver: an NVIDIA driver on GPU machines, or Mesa lavapipe >= 24.3 "
        "without one (Debian 12: `apt-get install -t bookworm-backports mesa-vulkan-drivers`; "
        "`bash scripts/setup.sh` does this). State-only use needs no renderer: pass "
-       "obs_mode='state' and render_backend='none'.")
+       "obs_mode='state' and render_backend='none'. `rsb doctor` shows what this machine has.")
+_HELD: dict[str, object] = {}  # "engine" -> the process's render system (None: none could be made)
 
 
 class RendererUnavailableError(RuntimeError):
@@ -54,6 +64,27 @@ def ensure_renderer() -> None:
         detail = (out.stderr.strip().splitlines() or [f"exit code {out.returncode}"])[-1]
         raise RendererUnavailableError(f"SAPIEN found no usable Vulkan device ({detail}). {FIX}")
     os.environ[_PROBE_ENV] = "1"
+
+
+def hold_render_engine(device: object | None = None) -> bool:
+    """Makes (once) and keeps the process's SAPIEN render system; True if one is held.
+
+    ``device`` is the env's render device (a ``sapien.Device``); None (``render_backend="none"``)
+    means the device ManiSkill renders on by default, so that later envs with a renderer use the
+    same one: SAPIEN's render engine is one per process and serves one device. Where no Vulkan
+    device exists nothing is held and state-only envs behave as before."""
+    if "engine" not in _HELD:
+        import sapien
+
+        try:
+            if device is None:
+                from mani_skill.envs.utils.system.backend import parse_sim_and_render_backend
+
+                device = parse_sim_and_render_backend("physx_cpu", "gpu").render_device
+            _HELD["engine"] = sapien.render.RenderSystem(device)
+        except Exception:  # no usable Vulkan device here; rendering would fail the same way later
+            _HELD["engine"] = None
+    return _HELD["engine"] is not None
 
 
 select_vulkan_driver()

@@ -12,7 +12,9 @@ import sys
 
 _COMMAND_MODULES = (
     "rsb_maniskill.demo",
+    "rsb_maniskill.doctor",
     "rsb_maniskill.semantic.cli",
+    "rsb_maniskill.audit.cli",
     "rsb_maniskill.motionplan.cli",
     "rsb_maniskill.evaluation.cli",
 )

@@ -61,4 +61,9 @@ if ! $VENV/bin/python -c "import torch" 2>/dev/null; then
   fi
 fi
 $PIP install -q -e ".[dev,eval,hub]"
+if have_nvidia; then
+  # GPU physics needs SAPIEN's PhysX GPU library, fetched from GitHub: stage it now, while there
+  # is network (compute nodes often have none). Prints where it went.
+  $VENV/bin/python -m rsb_maniskill.physx_gpu || echo "setup: warning: PhysX GPU library not staged; GPU physics (physx_cuda) will need it (see docs/gpu.md)" >&2
+fi
 echo "setup: done ($($VENV/bin/python -c 'import mani_skill, sapien, torch; print("mani_skill", mani_skill.__version__, "sapien", sapien.__version__, "torch", torch.__version__)'))"

@@ -1,6 +1,8 @@
 """Blocks as answer targets: four coloured cubes (4-choice) or ten lettered cubes (10-choice)."""
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import sapien
 import torch
@@ -23,6 +25,17 @@ LETTER_PLATE_Q = [0.7071068, 0.0, -0.7071068, 0.0]
 LETTERS_10 = ("A", "B", "C", "D", "E", "F", "G", "H", "I", "K")
 
 
+@lru_cache(maxsize=None)
+def _letter_render_texture(letter: str) -> sapien.render.RenderTexture2D:
+    """One GPU texture per letter and process, shared by every env (the process holds its
+    render engine, see _render.py, so the texture stays valid)."""
+    # The plane's UVs show the texture transposed and turned half a turn when seen from the
+    # robot; undo both so the letter reads upright in the head camera.
+    tex = letter_texture(letter, LETTER_BLOCK_RGB)
+    tex = np.ascontiguousarray(np.transpose(tex[::-1, ::-1], (1, 0, 2)))
+    return sapien.render.RenderTexture2D(tex, "R8G8B8A8Unorm", mipmap_levels=4, srgb=True)
+
+
 class Blocks:
     """N cubes with identical geometry; identity shows as colour (N = 4) or a letter (N = 10)."""
 
@@ -41,12 +54,8 @@ class Blocks:
         return sapien.render.RenderMaterial(base_color=[*rgb, 1.0], roughness=0.6, specular=0.3)
 
     def _letter_material(self, i: int) -> sapien.render.RenderMaterial:
-        # The plane's UVs show the texture transposed and turned half a turn when seen from
-        # the robot; undo both so the letter reads upright in the head camera.
-        tex = letter_texture(LETTERS_10[i], LETTER_BLOCK_RGB)
-        tex = np.ascontiguousarray(np.transpose(tex[::-1, ::-1], (1, 0, 2)))
         mat = sapien.render.RenderMaterial(base_color=[1.0, 1.0, 1.0, 1.0], roughness=0.7, specular=0.2)
-        mat.base_color_texture = sapien.render.RenderTexture2D(tex, "R8G8B8A8Unorm", mipmap_levels=4, srgb=True)
+        mat.base_color_texture = _letter_render_texture(LETTERS_10[i])
         return mat
 
     def build(self, scene: ManiSkillScene) -> list[Actor]:

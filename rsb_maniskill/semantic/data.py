@@ -45,7 +45,8 @@ def _how_to_provide(what: str) -> str:
             f"--data-dir or in ${ENV_VAR}, holding gsm8k/{{train,test}}.jsonl and "
             f"mmlu/{{dev,test}}/<subject>_<split>.csv (original formats); or (2) the Hugging Face hub "
             f"copy ({GSM8K_REPO}@{GSM8K_REVISION[:12]}, {MMLU_REPO}@{MMLU_REVISION[:12]}): run "
-            f"`rsb data download` once on a machine with network (needs pip install 'rsb_maniskill[hub]').")
+            f"`rsb data download` once on a machine with network (needs pip install 'rsb_maniskill[hub]'). "
+            f"`rsb doctor` shows what this machine has.")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,153 +1,137 @@
-"""Distractor generation without surface shortcuts.
+"""Option sets in which the answer is exchangeable with its distractors.
 
-Numbers: the answer's rank among the N option values is drawn first (uniform over the pool, see
-:func:`rank_weights`), then that many distractors are drawn below and the rest above. They come
-from typical slips (off by one or ten, digit swap, wrong operation, partial results) and, when
-those run out, from near values of the same sign and magnitude. Hence "largest", "smallest" and
-"median value" rules stay at chance.
+The principle (docs/semantic.md): every option of a set is a draw from the *same* distribution,
+the distribution the answer itself comes from, and the set is chosen without looking at where the
+answer sits in it. Then any rule that sees only the options (centre, rank, digits, parity,
+roundness, length, how common a value is) finds the answer with probability 1/N.
 
-Text: the answer's rank by length among the options is controlled the same way (commonsense),
-or, for MMLU with 10 choices, the six added options are picked so that the answer is the longest
-option with probability 1/N (MMLU's own answers are more often the longest of their four).
+Construction: the population (e.g. the answers of the split's addition questions, each value
+weighted by how many questions have it) is cut once into fixed bins of neighbouring values. An
+episode draws N members of the answer's bin by systematic sampling with inclusion probability
+proportional to weight, conditioned on containing the answer. Because bin and inclusion
+probabilities do not depend on which member is the answer, P(answer = x | set) = 1/N for every
+member x (exactly, when no value's weight exceeds 1/N of its bin; the bins are cut so).
 """
 from __future__ import annotations
 
-import bisect
-from typing import Sequence
+from collections import Counter
+from dataclasses import dataclass
+from typing import Hashable, Iterable, Sequence
 
 import numpy as np
 
-
-def length_key(text: str) -> tuple[int, str]:
-    """Total order used for "longer than": length, then text."""
-    return (len(text), text)
+LATTICE_SPREAD = 3  # fallback sets span about this many times N units around the answer
 
 
-# ---------------------------------------------------------------------------------------------
-# numbers (values in integer units)
+def inclusion_probabilities(weights: np.ndarray, n: int) -> np.ndarray:
+    """pi_i proportional to weight with sum n and every pi_i <= 1 (largest ones capped at 1)."""
+    w = np.asarray(weights, dtype=float)
+    if len(w) < n:
+        raise ValueError(f"need at least {n} members, got {len(w)}")
+    pi = np.zeros_like(w)
+    free = np.ones(len(w), dtype=bool)
+    left = float(n)
+    while True:
+        pi[free] = left * w[free] / w[free].sum()
+        over = free & (pi > 1.0)
+        if not over.any():
+            return pi
+        pi[over] = 1.0
+        free &= ~over
+        left = n - float((~free).sum())
 
 
-def rank_range(value: int, n: int) -> tuple[int, int]:
-    """Feasible numbers of distractors *below* the answer keeping every option's sign."""
-    below_cap = value if value >= 0 else n  # non-negative answers: only 0..value-1 below
-    above_cap = -value - 1 if value < 0 else n  # negative answers: only value+1..-1 above
-    return max(0, n - 1 - above_cap), min(n - 1, below_cap)
+def systematic_sample(pi: np.ndarray, must: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices of a systematic PPS sample (inclusion probabilities ``pi``, sum = sample size),
+    conditioned on containing index ``must``; ``pi`` is laid out in a random order first."""
+    order = rng.permutation(len(pi))
+    cum = np.concatenate([[0.0], np.cumsum(pi[order])])
+    pos = int(np.flatnonzero(order == must)[0])
+    start = (cum[pos] + rng.random() * pi[must]) % 1.0
+    points = start + np.arange(int(round(cum[-1])))
+    return order[np.searchsorted(cum, points, side="right") - 1]
 
 
-def rank_weights(values: Sequence[int], n: int) -> np.ndarray:
-    """Rank distribution for unconstrained answers so that the pool-wide marginal is uniform.
+@dataclass(frozen=True)
+class Bins:
+    """A weighted population cut into bins of neighbouring members (in the given order)."""
 
-    Small answers (e.g. GSM8K's "3") cannot have nine smaller non-negative distractors; they get
-    a uniform rank over what is feasible, and the other questions compensate.
-    """
-    deficit = np.zeros(n)
-    free = 0
-    for v in values:
-        lo, hi = rank_range(v, n)
-        if lo == 0 and hi == n - 1:
-            free += 1
-        else:
-            deficit[lo:hi + 1] += 1.0 / (hi - lo + 1)
-    if free == 0:
-        return np.full(n, 1.0 / n)
-    w = (len(values) / n - deficit) / free
-    w = np.clip(w, 0.0, None)
-    return w / w.sum()
+    members: tuple[Hashable, ...]
+    weights: np.ndarray
+    edges: tuple[int, ...]  # bin k holds members[edges[k]:edges[k + 1]]
+
+    @classmethod
+    def cut(cls, counts: Sequence[tuple[Hashable, int]], n: int, min_members: int | None = None) -> "Bins":
+        """Greedy cut of ordered (member, weight) pairs: each bin gets at least ``min_members``
+        members (default 2N) and enough weight that no member's share exceeds 1/N."""
+        if len(counts) < n:
+            raise ValueError(f"a population of {len(counts)} members cannot give {n} distinct options")
+        k_min = max(n, 2 * n if min_members is None else min_members)
+        members = tuple(m for m, _ in counts)
+        w = np.array([c for _, c in counts], dtype=float)
+        edges, start = [0], 0
+        for i in range(len(w)):
+            size, mass, top = i + 1 - start, w[start:i + 1].sum(), w[start:i + 1].max()
+            if size >= k_min and mass >= n * top:
+                edges.append(i + 1)
+                start = i + 1
+        if edges[-1] != len(w):
+            if len(edges) > 1:
+                edges[-1] = len(w)  # the short tail joins the last bin
+            else:
+                edges.append(len(w))
+        return cls(members, w, tuple(edges))
+
+    def bin_of(self, member: Hashable) -> int:
+        i = self.members.index(member)
+        return int(np.searchsorted(self.edges, i, side="right") - 1)
+
+    def draw(self, member: Hashable, n: int, rng: np.random.Generator) -> list:
+        """N distinct members of ``member``'s bin, ``member`` first."""
+        k = self.bin_of(member)
+        lo, hi = self.edges[k], self.edges[k + 1]
+        pi = inclusion_probabilities(self.weights[lo:hi], n)
+        idx = systematic_sample(pi, self.members.index(member) - lo, rng)
+        out = [self.members[lo + int(i)] for i in idx]
+        out.remove(member)
+        return [member, *out]
 
 
-def _digit_swaps(v: int) -> list[int]:
-    s = str(abs(v))
-    out = []
-    for i in range(len(s) - 1):
-        if s[i] != s[i + 1]:
-            t = s[:i] + s[i + 1] + s[i] + s[i + 2:]
-            if not (t[0] == "0" and len(t) > 1):
-                out.append(int(t) * (1 if v >= 0 else -1))
-    return out
+def value_bins(values: Iterable[int], n: int) -> Bins:
+    """Bins over the magnitudes of a pool's numeric answers (weighted by question count)."""
+    counts = Counter(abs(int(v)) for v in values)
+    return Bins.cut(sorted(counts.items()), n)
 
 
-def numeric_distractors(value: int, hints: Sequence[int], n: int, rank: int, rng: np.random.Generator) -> list[int]:
-    """``n - 1`` distinct values, ``rank`` of them below ``value``, same sign, same magnitude."""
-    need_below, need_above = rank, n - 1 - rank
-    spread = max(10, abs(value) // 2)
-    lo, hi = value - spread, value + spread
-    if value >= 0:
-        lo = max(lo, 0)
-    else:
-        hi = min(hi, -1)
-    digits = len(str(abs(value)))
-    step = 10 ** max(0, digits - 2)
-    generic = [value + d for d in (1, -1, 2, -2, 10, -10, step, -step, 10 * step, -10 * step)] + _digit_swaps(value)
-    slips = [s for s in dict.fromkeys(list(hints) + generic) if lo <= s <= hi and s != value]
-    chosen: list[int] = []
-    K_offsets = sorted(set(range(1, n + 4)) | {step * j for j in range(1, n + 4)})
-    for need, sgn in ((need_below, -1), (need_above, 1)):
-        if need == 0:
+def numeric_options(value: int, bins: Bins | None, n: int, rng: np.random.Generator) -> list[int]:
+    """N distinct values, ``value`` first, all of its sign (negative answers mirror the bins of
+    their magnitude). Populations too small for bins fall back to :func:`lattice_options`."""
+    if bins is None or abs(value) not in bins.members:
+        return lattice_options(value, n, rng)
+    drawn = bins.draw(abs(value), n, rng)
+    if value < 0 and 0 in drawn:  # zero has no negative mirror
+        return lattice_options(value, n, rng)
+    return [-int(m) if value < 0 else int(m) for m in drawn]
+
+
+def lattice_options(value: int, n: int, rng: np.random.Generator) -> list[int]:
+    """N distinct values on a random lattice around ``value`` (fallback for rare formats): the
+    offsets are drawn around a latent centre and the answer is a uniformly chosen member, so
+    rank and spread are exchangeable (digit features only as far as the lattice step allows)."""
+    span = max(LATTICE_SPREAD * n, abs(value) // 2)
+    while True:
+        offs = rng.choice(2 * span + 1, size=n, replace=False) - span
+        vals = [int(value + o - offs[0]) for o in offs]
+        if value >= 0 and min(vals) < 0 or value < 0 and max(vals) >= 0:
             continue
-        side = [s for s in slips if (s - value) * sgn > 0]
-        k = min(need, len(side))
-        picked = [side[i] for i in rng.choice(len(side), size=k, replace=False)] if k else []
-        rest = need - k
-        if rest > 0:  # near values: small offsets and offsets in steps of the answer's magnitude
-            near = [value + sgn * off for off in K_offsets
-                    if lo <= value + sgn * off <= hi and value + sgn * off not in picked]
-            if len(near) < rest:  # tight window (small answers): every value on that side
-                rng_side = range(value - 1, lo - 1, -1) if sgn < 0 else range(value + 1, hi + 1)
-                near = [c for c in rng_side if c not in picked]
-            picked += [near[i] for i in sorted(rng.choice(len(near), size=rest, replace=False))]
-        chosen += picked
-    return chosen
+        return vals
 
 
-# ---------------------------------------------------------------------------------------------
-# text
-
-
-def pick_by_length(answer: str, candidates: Sequence[str], k: int, rng: np.random.Generator) -> list[str]:
-    """``k`` distractors with the answer's length rank among all k+1 options uniform (clipped
-    to what the candidates allow)."""
-    ak = length_key(answer)
-    shorter = [c for c in candidates if length_key(c) < ak]
-    longer = [c for c in candidates if length_key(c) > ak]
-    r = int(rng.integers(0, k + 1))  # number of distractors shorter than the answer
-    r = min(max(r, k - len(longer)), len(shorter))
-    out = [shorter[i] for i in rng.choice(len(shorter), size=r, replace=False)] if r else []
-    if k - r:
-        out += [longer[i] for i in rng.choice(len(longer), size=k - r, replace=False)]
-    return out
-
-
-class SortedAnswers:
-    """A subject's answer texts sorted by :func:`length_key`, for fast shorter/longer draws."""
-
-    def __init__(self, texts: Sequence[str]) -> None:
-        uniq: dict[str, str] = {}
-        for t in texts:
-            uniq.setdefault(t.casefold(), t)
-        self.texts = sorted(uniq.values(), key=length_key)
-        self.keys = [length_key(t) for t in self.texts]
-
-    def draw(self, answer: str, exclude: set[str], n_longer: int, n_shorter: int,
-             rng: np.random.Generator) -> list[str] | None:
-        """Draw the requested numbers of texts longer / shorter than ``answer`` (None if impossible)."""
-        cut = bisect.bisect_left(self.keys, length_key(answer))
-        out: list[str] = []
-        for lo, hi, need in ((cut, len(self.texts), n_longer), (0, cut, n_shorter)):
-            if need == 0:
-                continue
-            if hi - lo < need:
-                return None
-            got: list[str] = []
-            tries = 0
-            while len(got) < need and tries < 8 * need + 20:
-                tries += 1
-                t = self.texts[int(rng.integers(lo, hi))]
-                if t.casefold() not in exclude and t not in got and t != answer:
-                    got.append(t)
-            if len(got) < need:
-                pool = [t for t in self.texts[lo:hi] if t.casefold() not in exclude and t not in got and t != answer]
-                if len(pool) < need - len(got):
-                    return None
-                got += [pool[i] for i in rng.choice(len(pool), size=need - len(got), replace=False)]
-            out += got
-        return out
+def weighted_options(answer: Hashable, candidates: Sequence[tuple[Hashable, float]], answer_weight: float,
+                     n: int, rng: np.random.Generator) -> list:
+    """N distinct members, ``answer`` first: a PPS draw from the answer and the candidates, each
+    weighted by how often it is an answer itself, conditioned on containing the answer."""
+    members = [answer, *(c for c, _ in candidates)]
+    pi = inclusion_probabilities(np.array([answer_weight, *(w for _, w in candidates)], dtype=float), n)
+    idx = systematic_sample(pi, 0, rng)
+    return [answer, *(members[int(i)] for i in idx if i != 0)]

@@ -6,12 +6,11 @@ import re
 
 from .data import gsm8k_rows
 from .errors import SemanticDataError
+from .normalize import question_key
 from .records import Question, format_number, normalize_text
 
 _ANNOTATION = re.compile(r"<<[^>]*>>")
-_CALC_RESULT = re.compile(r"<<[^>]*=\s*(-?[\d,]*\.?\d+)\s*>>")
 _FINAL = re.compile(r"^(-?)(\d{1,3}(?:,\d{3})+|\d+)(?:\.(\d+))?$")
-_NUMBER = re.compile(r"(?<![\d.])-?\d[\d,]*(?:\.\d+)?")
 
 
 def parse_final_answer(answer_field: str) -> tuple[int, int]:
@@ -27,19 +26,6 @@ def parse_final_answer(answer_field: str) -> tuple[int, int]:
     frac = frac.rstrip("0")
     units = int(whole + frac) if frac else int(whole)
     return (-units if sign else units), len(frac)
-
-
-def _to_units(text: str, decimals: int) -> int | None:
-    try:
-        t = text.replace(",", "")
-        if "." in t:
-            whole, frac = t.split(".", 1)
-            if len(frac) > decimals:
-                return None
-            return int(whole + frac.ljust(decimals, "0")) if decimals else None
-        return int(t) * 10 ** decimals
-    except ValueError:
-        return None
 
 
 def clean_solution(answer_field: str) -> str:
@@ -60,24 +46,16 @@ def question_from_row(row: dict) -> Question:
         units, decimals = parse_final_answer(row["answer"])
     except ValueError as err:
         raise SemanticDataError(path, lineno, str(err)) from None
-    hints: list[int] = []
-    for m in _CALC_RESULT.finditer(row["answer"]):  # partial results of the worked solution
-        u = _to_units(m.group(1), decimals)
-        if u is not None:
-            hints.append(u)
-    for m in _NUMBER.finditer(row["question"]):  # quantities of the problem (a typical slip)
-        u = _to_units(m.group(0), decimals)
-        if u is not None:
-            hints.append(u)
+    text = normalize_text(row["question"])
     return Question(
-        text=normalize_text(row["question"]),
+        text=text,
         answer=format_number(units, decimals),
         source="gsm8k",
         value=units,
         decimals=decimals,
-        hints=tuple(dict.fromkeys(h for h in hints if h != units)),
         solution=clean_solution(row["answer"]),
         origin=origin,
+        fact=question_key(text),
     )
 
 

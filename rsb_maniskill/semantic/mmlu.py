@@ -1,11 +1,16 @@
-"""MMLU questions for RSB-General: filtering, the train/evaluation split, length balance."""
+"""MMLU questions for RSB-General: filtering, the train/evaluation split, length balance.
+
+The split is by *question*, up to wording: questions whose normal forms are equal or
+near-duplicates (normalize.py, duplicates.py) form one group, and a group lands in one split.
+"""
 from __future__ import annotations
 
 import re
 from collections import Counter
 from typing import Iterable
 
-from .distractors import length_key
+from .duplicates import duplicate_groups
+from .normalize import numeric_values, option_key, overlap, question_key, question_stems
 from .records import Question, normalize_text
 from .stable import stable_bucket, stable_key
 
@@ -29,10 +34,17 @@ def exclusion_reason(row: dict) -> str | None:
         return "empty option"
     if max(len(o) for o in opts) > MAX_OPTION_CHARS:
         return "option too long"
-    if len({o.casefold() for o in opts}) != 4:
+    if len({option_key(o) for o in opts}) != 4:
         return "duplicate options"
     if any(_REFERENTIAL.search(o) or _LETTER_REF.search(o) for o in opts):
         return "option refers to other options"
+    if numeric_values(opts) is not None:
+        # MMLU writes numeric distractors around the answer: closest-to-the-mean picks it ~34 %
+        return "numeric options centred on the answer"
+    stems = question_stems(q)
+    if any(overlap(o, stems) for o in opts):
+        # an option repeating a question word points at the question's own options among ten
+        return "option shares a word with the question"
     return None
 
 
@@ -43,26 +55,33 @@ def longest_credit(options: tuple[str, ...], answer_index: int) -> float:
     return 1.0 / lens.count(m) if lens[answer_index] == m else 0.0
 
 
-def to_question(row: dict) -> Question:
+def to_question(row: dict, fact: str = "") -> Question:
     opts = tuple(normalize_text(o) for o in row["choices"])
     return Question(text=normalize_text(row["question"]), answer=opts[row["answer"]], source="mmlu",
-                    group=row.get("subject", ""), choices=opts, origin=row.get("origin", ""))
+                    group=row.get("subject", ""), choices=opts, origin=row.get("origin", ""), fact=fact)
 
 
 def split_mmlu(rows: Iterable[dict]) -> tuple[dict[str, list[Question]], Counter]:
     """Kept questions per split ("train"/"test") in stable hash order, plus exclusion counts.
 
-    Split by a hash of the question text, so identical texts share a split (disjoint by text).
+    A question's ``fact`` is the representative of its group of (near-)duplicates; the split
+    hashes the fact, so a question and its near-duplicates always share a split.
     """
-    out: dict[str, list[tuple[bytes, Question]]] = {"train": [], "test": []}
+    kept: list[dict] = []
     excluded: Counter = Counter()
     for row in rows:
         why = exclusion_reason(row)
         if why:
             excluded[why] += 1
-            continue
+        else:
+            kept.append(row)
+    group = duplicate_groups(normalize_text(r["question"]) for r in kept)
+    out: dict[str, list[tuple[bytes, Question]]] = {"train": [], "test": []}
+    for row in kept:
         q = to_question(row)
-        split = "train" if stable_bucket("rsb-mmlu", q.text) < TRAIN_PERCENT else "test"
+        fact = group[question_key(q.text)]
+        q = to_question(row, fact)
+        split = "train" if stable_bucket("rsb-mmlu", fact) < TRAIN_PERCENT else "test"
         out[split].append((stable_key("rsb-mmlu-order", q.text, q.choices), q))
     return {s: [q for _, q in sorted(v, key=lambda kv: kv[0])] for s, v in out.items()}, excluded
 
@@ -85,6 +104,3 @@ def balanced_selection(questions: list[Question], limit: int | None, n_choices: 
     return chosen
 
 
-def answer_is_longest(q: Question) -> bool:
-    """Answer is the maximum of its four options under :func:`length_key`."""
-    return max(q.choices, key=length_key) == q.answer

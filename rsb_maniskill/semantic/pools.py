@@ -8,13 +8,13 @@ import os
 from collections import Counter
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from . import commonsense, mmlu
 from .data import mmlu_rows, resolve_data_dir
-from .distractors import SortedAnswers, rank_weights
+from .distractors import Bins, value_bins
 from .gsm8k import gsm8k_pool
 from .math_source import math_pool
+from .mmlu_padding import Padding
+from .normalize import option_key, question_key
 from .records import Question
 from .suites import SUITES, check_split
 
@@ -23,55 +23,45 @@ GENERAL_TRAIN_SIZE = 10_000
 
 @dataclass
 class Pool:
-    """Questions of one suite and split, with what distractor generation needs precomputed."""
+    """Questions of one suite and split, with what option generation needs precomputed."""
 
     suite: str
     split: str
     questions: tuple[Question, ...]
-    candidates: tuple[tuple[str, ...] | None, ...] = ()  # commonsense: distractor texts per question
+    # commonsense: (weighted distractor candidates, answer weight) per question; None elsewhere
+    candidates: tuple[tuple[tuple[tuple[str, float], ...], float] | None, ...] = ()
     source_counts: dict[str, int] = field(default_factory=dict)
     excluded: Counter = field(default_factory=Counter)
-    _subject_answers: dict[str, SortedAnswers] = field(default_factory=dict, repr=False)
-    _all_answers: SortedAnswers | None = field(default=None, repr=False)
-    _rank_w: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
-    _p_longest: float | None = field(default=None, repr=False)
-    fallback_answers: tuple[str, ...] = ()  # MMLU answers of both splits, for tiny subjects/pools
-    _fallback: SortedAnswers | None = field(default=None, repr=False)
+    _bins: dict[tuple[int, str, int], Bins | None] = field(default_factory=dict, repr=False)
+    answers_by_question: dict[str, set[str]] = field(default_factory=dict, repr=False)  # MMLU, both splits
+    _padding: Padding | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.questions)
 
-    def rank_weights(self, n: int) -> np.ndarray:
-        if n not in self._rank_w:
-            self._rank_w[n] = rank_weights([q.value for q in self.questions if q.numeric], n)
-        return self._rank_w[n]
+    def value_bins(self, n: int, group: str, decimals: int) -> Bins | None:
+        """Bins of this pool's numeric answers of one group (Math: operation) and format; None
+        when there are fewer than N distinct magnitudes (the sampler then uses a lattice)."""
+        key = (n, group, decimals)
+        if key not in self._bins:
+            vals = [q.value for q in self.questions if q.numeric and q.group == group and q.decimals == decimals]
+            try:
+                self._bins[key] = value_bins(vals, n)
+            except ValueError:
+                self._bins[key] = None
+        return self._bins[key]
 
-    def subject_answers(self, subject: str) -> SortedAnswers:
-        """Answers of this pool's MMLU questions of ``subject`` (10-choice distractors)."""
-        if not self._subject_answers:
-            by: dict[str, list[str]] = {}
-            for q in self.questions:
-                if q.source == "mmlu":
-                    by.setdefault(q.group, []).append(q.answer)
-            self._subject_answers = {s: SortedAnswers(v) for s, v in by.items()}
-        return self._subject_answers[subject]
 
-    def all_answers(self) -> SortedAnswers:
-        if self._all_answers is None:
-            self._all_answers = SortedAnswers([q.answer for q in self.questions if q.source == "mmlu"])
-        return self._all_answers
-
-    def fallback(self) -> SortedAnswers:
-        if self._fallback is None:
-            self._fallback = SortedAnswers(self.fallback_answers)
-        return self._fallback
-
-    def p_longest(self) -> float:
-        """Share of MMLU questions whose answer is the longest of its own four options."""
-        if self._p_longest is None:
-            m = [mmlu.answer_is_longest(q) for q in self.questions if q.source == "mmlu"]
-            self._p_longest = float(np.mean(m)) if m else 0.25
-        return self._p_longest
+    def mmlu_options(self, qi: int, n: int, rng) -> list[str]:
+        """N options of the MMLU question ``qi`` (answer first): its own four, or for N > 4 the
+        option groups of three questions (mmlu_padding.py)."""
+        q = self.questions[qi]
+        if n <= len(q.choices):
+            return [q.answer, *(c for c in q.choices if c != q.answer)]
+        if self._padding is None:
+            self._first_mmlu = next(i for i, x in enumerate(self.questions) if x.source == "mmlu")
+            self._padding = Padding(self.questions[self._first_mmlu:], self.answers_by_question)
+        return self._padding.options(qi - self._first_mmlu, n, rng)
 
 
 _POOLS: dict[tuple[str, str, str], Pool] = {}
@@ -95,11 +85,14 @@ def _general(split: str, data_dir: str | os.PathLike | None) -> Pool:
     by_split, excluded = _mmlu_split(data_dir)
     limit = GENERAL_TRAIN_SIZE - len(cs) if split == "train" else None
     mq = mmlu.balanced_selection(by_split[split], limit)
-    questions = tuple(q for q, _ in cs) + tuple(mq)
-    cands = tuple(c for _, c in cs) + (None,) * len(mq)
-    everything = tuple(q.answer for qs in by_split.values() for q in qs)
+    questions = tuple(item.question for item in cs) + tuple(mq)
+    cands = tuple((item.candidates, item.answer_weight) for item in cs) + (None,) * len(mq)
+    answers: dict[str, set[str]] = {}
+    for qs in by_split.values():
+        for q in qs:
+            answers.setdefault(question_key(q.text), set()).add(option_key(q.answer))
     return Pool("General", split, questions, cands, {"commonsense": len(cs), "mmlu": len(mq)}, excluded,
-                fallback_answers=everything)
+                answers_by_question=answers)
 
 
 def get_pool(suite: str, split: str, data_dir: str | os.PathLike | None = None) -> Pool:
@@ -127,4 +120,3 @@ def clear_cache() -> None:
     _MMLU.clear()
     math_pool.cache_clear()
     commonsense.commonsense_pool.cache_clear()
-

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 class Question:
     """One question of a pool.
 
-    Numeric questions (Math, GSM8K) carry ``value`` (the answer in units of 10**-decimals) and
-    ``hints`` (plausible wrong values: slips, partial results) for distractor generation.
+    Numeric questions (Math, GSM8K) carry ``value``, the answer in units of 10**-decimals; their
+    distractors are answers of other questions of the same ``group`` (Math: the operation).
     Text questions carry ``choices`` (MMLU's own options, answer included) and/or ``group``
-    (subject or knowledge category) whose other answers serve as distractors.
+    (subject or knowledge category).
     """
 
     text: str
@@ -20,10 +20,10 @@ class Question:
     group: str = ""
     value: int | None = None
     decimals: int = 0
-    hints: tuple[int, ...] = ()
     choices: tuple[str, ...] | None = None
     solution: str = ""
     origin: str = ""  # "file, line N" or generator description, for error reports
+    fact: str = ""  # what the question asks about; train and test never share one (rsb audit checks)
 
     @property
     def numeric(self) -> bool:

@@ -5,8 +5,7 @@ import os
 
 import numpy as np
 
-from .errors import SemanticDataError
-from .distractors import length_key, numeric_distractors, pick_by_length, rank_range
+from .distractors import numeric_options, weighted_options
 from .pools import Pool, get_pool
 from .records import Question, format_number
 from .spec import EpisodeSpec
@@ -14,7 +13,6 @@ from .stable import episode_rng
 from .suites import COLOR_MAPS, INSTRUCTION_SETS, block_names_for, check_split, letters_for, parse_suite_id
 from .templates import render_direct, render_instruction, template_ids
 
-_MMLU_EXTRA = 6  # 10-choice MMLU: four own options + six answers of other questions of the subject
 
 
 def _sentence(text: str) -> str:
@@ -64,6 +62,11 @@ class EpisodeSampler:
         if self.pool is None:
             raise ValueError("Direct suites have no question records")
         return self.pool.questions[index]
+
+    def episode(self, seed: int) -> EpisodeSpec:
+        """The episode of the RSB tasks for ``seed``: question ``seed mod pool size`` (seeds
+        0..P-1 visit every question once), everything else drawn from ``seed``."""
+        return self.sample(seed, question_index=int(seed) % self.num_questions)
 
     def sample(self, seed: int, question_index: int | None = None) -> EpisodeSpec:
         """Episode of ``seed``; ``question_index`` forces the question (one demo per question),
@@ -121,37 +124,9 @@ class EpisodeSampler:
     def _options(self, qi: int, q: Question, rng: np.random.Generator) -> list[str]:
         n = self.n_choices
         if q.numeric:
-            lo, hi = rank_range(q.value, n)
-            if lo == 0 and hi == n - 1:
-                rank = int(rng.choice(n, p=self.pool.rank_weights(n)))
-            else:
-                rank = int(rng.integers(lo, hi + 1))
-            values = numeric_distractors(q.value, q.hints, n, rank, rng)
-            return [format_number(v, q.decimals) for v in [q.value, *values]]
+            values = numeric_options(q.value, self.pool.value_bins(n, q.group, q.decimals), n, rng)
+            return [format_number(v, q.decimals) for v in values]
         if q.source == "mmlu":
-            others = [c for c in q.choices if c != q.answer]
-            if n == 4:
-                return [q.answer, *others]
-            return [q.answer, *others, *self._mmlu_extra(q, rng)]
-        cands = self.pool.candidates[qi]
-        return [q.answer, *pick_by_length(q.answer, cands, n - 1, rng)]
-
-    def _mmlu_extra(self, q: Question, rng: np.random.Generator) -> list[str]:
-        """Six answers of other questions of the subject, keeping "longest option" at chance:
-        when the answer is already the longest of its four, it stays the longest with the
-        probability that makes the pool-wide rate 1/10."""
-        n = self.n_choices
-        ak = length_key(q.answer)
-        k_longer = sum(length_key(c) > ak for c in q.choices)
-        if k_longer == 0:
-            keep = min(1.0, (1.0 / n) / max(self.pool.p_longest(), 1e-9))
-            m = 0 if rng.random() < keep else int(rng.integers(1, _MMLU_EXTRA + 1))
-        else:
-            m = int(rng.integers(0, _MMLU_EXTRA + 1))
-        exclude = {c.casefold() for c in q.choices}
-        for source in (self.pool.subject_answers(q.group), self.pool.all_answers(), self.pool.fallback()):
-            for mm in sorted(range(_MMLU_EXTRA + 1), key=lambda x: (abs(x - m), x)):  # nearest feasible m
-                got = source.draw(q.answer, exclude, mm, _MMLU_EXTRA - mm, rng)
-                if got is not None:
-                    return got
-        raise SemanticDataError(q.origin, None, f"{self.suite_id}: not enough MMLU answers for 10 distinct options")
+            return self.pool.mmlu_options(qi, n, rng)
+        cands, weight = self.pool.candidates[qi]
+        return weighted_options(q.answer, cands, weight, n, rng)

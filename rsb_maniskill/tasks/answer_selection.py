@@ -15,7 +15,6 @@ import numpy as np
 import sapien
 import torch
 
-from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
@@ -23,6 +22,7 @@ from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 from rsb_maniskill.agents.aloha import ARMS, AlohaAgilex
 from rsb_maniskill.objects import AnswerTargets, Blocks
 from rsb_maniskill.semantic import SUITE_IDS, EpisodeSampler, EpisodeSpec, parse_suite_id
+from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.contacts import PairContacts
 from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
 from rsb_maniskill.tasks.tabletop import CONTROL_FREQ, SIM_FREQ
@@ -46,7 +46,7 @@ REST_SPEED = 0.05  # m/s: a placed block must be at rest
 MAX_EPISODE_STEPS = 300  # 12 s at 25 Hz; the expert needs about 7 s (see docs/tasks.md)
 
 
-class AnswerSelectionEnv(BaseEnv):
+class AnswerSelectionEnv(RSBEnv):
     """Aloha-AgileX at a table with N candidate blocks and a gray answer zone.
 
     Args:
@@ -170,7 +170,7 @@ class AnswerSelectionEnv(BaseEnv):
 
     def episode_spec(self, seed: int) -> EpisodeSpec:
         """The semantics of the episode ``seed`` (question ``seed mod pool size``), without a reset."""
-        return self.sampler.sample(seed, question_index=seed % self.sampler.num_questions)
+        return self.sampler.episode(seed)
 
     def get_language_instruction(self) -> list[str]:
         """The instruction of each parallel env (strings can't live in observations)."""

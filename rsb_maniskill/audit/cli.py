@@ -1,0 +1,103 @@
+"""`rsb audit`: can a guesser that never solves the question beat chance? (no simulator imports)"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "audit", help="shortcut audit: answer-blind guessers and a learned probe against chance",
+        description="Score answer-blind guessers (position, block, value rules, digits, length, word overlap with "
+                    "the question, ...) and a learned probe trained on the train split to pick the answer from the "
+                    "options alone. Also counts option sets with two answers and questions or facts shared by the "
+                    "splits. Exit status 1 when a suite fails (a guesser's 95 %% interval wholly above chance + 3 "
+                    "points, an ambiguous set, or split overlap).")
+    p.add_argument("suites", nargs="*", metavar="SUITE",
+                   help="suite ids, 'paper' (the six paper suites) or 'all'; omit with --specs")
+    p.add_argument("--split", default="test", choices=("train", "test"), help="split to audit (default test)")
+    p.add_argument("-n", "--episodes", type=int, default=3000, help="audited episodes per suite (default 3000)")
+    p.add_argument("--train-episodes", type=int, default=None, help="train-split episodes for the probe (default: -n)")
+    p.add_argument("--specs", nargs="+", default=None, metavar="FILE.jsonl",
+                   help="audit your own episodes: EpisodeSpec JSON lines (e.g. `rsb questions --json`) with "
+                        "split train (probe training) and test (audited), grouped by suite_id")
+    p.add_argument("--data-dir", default=None, help="directory with gsm8k/ and mmlu/ (else $RSB_DATA_DIR, else hub cache)")
+    p.add_argument("--out", default=None, metavar="DIR", help="write audit.json and audit.md there")
+    p.add_argument("--json", action="store_true", help="print JSON instead of the Markdown tables")
+    p.set_defaults(func=cmd_audit)
+
+
+def _suite_ids(names: list[str]) -> list[str]:
+    from rsb_maniskill.evaluation.metrics import PAPER_SUITES
+    from rsb_maniskill.semantic.suites import SUITE_IDS
+
+    out: list[str] = []
+    for name in names:
+        if name == "all":
+            out += list(SUITE_IDS)
+        elif name == "paper":
+            out += list(PAPER_SUITES)
+        elif name in SUITE_IDS:
+            out.append(name)
+        else:
+            raise ValueError(f"unknown suite {name!r}; valid: {', '.join(SUITE_IDS)}, paper, all")
+    return list(dict.fromkeys(out))
+
+
+def _read_specs(paths: list[str]) -> dict[str, dict[str, list]]:
+    """suite_id -> split -> EpisodeSpecs, from JSON-lines files; errors name file and line."""
+    from rsb_maniskill.semantic.spec import EpisodeSpec
+
+    by: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    for path in paths:
+        p = Path(path)
+        if not p.is_file():
+            raise ValueError(f"--specs: no such file {path}")
+        with open(p, encoding="utf-8") as fh:
+            for lineno, line in enumerate(fh, 1):
+                if not line.strip():
+                    continue
+                try:
+                    sp = EpisodeSpec.from_dict(json.loads(line))
+                except (ValueError, TypeError) as err:
+                    raise ValueError(f"{path}, line {lineno}: not an episode spec ({err})") from None
+                by[sp.suite_id][sp.split].append(sp)
+    return by
+
+
+def cmd_audit(args: argparse.Namespace) -> int:
+    from rsb_maniskill.semantic.errors import SemanticError
+
+    from . import report
+    from .run import audit_specs, audit_suite
+
+    if args.episodes < 1:
+        print("rsb audit: error: -n must be >= 1", file=sys.stderr)
+        return 2
+    audits = []
+    try:
+        if args.specs:
+            for suite_id, splits in sorted(_read_specs(args.specs).items()):
+                if not splits.get(args.split):
+                    raise ValueError(f"--specs: no {args.split}-split episodes of {suite_id}")
+                audits.append(audit_specs(suite_id, splits.get("train", []), splits[args.split], split=args.split))
+        else:
+            suites = _suite_ids(args.suites)
+            if not suites:
+                print("rsb audit: error: name at least one SUITE (or 'paper', 'all'), or pass --specs", file=sys.stderr)
+                return 2
+            for sid in suites:
+                print(f"rsb audit: {sid} ...", file=sys.stderr, flush=True)
+                audits.append(audit_suite(sid, args.split, args.episodes, n_train=args.train_episodes,
+                                          data_dir=args.data_dir))
+    except (ValueError, SemanticError) as err:
+        print(f"rsb audit: error: {err}", file=sys.stderr)
+        return 2
+    if args.out:
+        js, md = report.write(audits, args.out)
+        print(f"rsb audit: wrote {js} and {md}", file=sys.stderr)
+    print(json.dumps([a.to_dict() for a in audits], indent=1) if args.json else report.markdown(audits))
+    return 0 if all(a.passed for a in audits) else 1

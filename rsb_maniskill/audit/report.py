@@ -1,0 +1,82 @@
+"""`rsb audit` output: a summary table, one table per suite, JSON beside Markdown."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Sequence
+
+from .run import SuiteAudit
+
+
+def _pct(x: float | None) -> str:
+    return "" if x is None else f"{100 * x:.1f}"
+
+
+def _ci(lo: float | None, hi: float | None) -> str:
+    return "" if lo is None else f"[{100 * lo:.1f}, {100 * hi:.1f}]"
+
+
+def _split_cell(a: SuiteAudit) -> str:
+    o = a.overlap
+    return "clean" if o.clean else f"{len(o.exact)} same, {len(o.near)} near-duplicate, {len(o.facts)} facts"
+
+
+def summary_markdown(audits: Sequence[SuiteAudit]) -> str:
+    """One row per suite: the worst named guesser, the learned probe, ambiguity, split overlap."""
+    lines = ["| suite | episodes | chance % | worst named guesser | % [95 % CI] | learned probe % [95 % CI] "
+             "| ambiguous sets | train/test overlap | verdict |", "|---|---:|---:|---|---|---|---:|---|---|"]
+    for a in audits:
+        named = [g for g in a.guessers if g.kind == "named"]
+        worst = max(named, key=lambda g: g.low)
+        probe = next((g for g in a.guessers if g.kind == "learned"), None)
+        probe_cell = f"{_pct(probe.accuracy)} {_ci(probe.low, probe.high)}" if probe else "n/a (too few train episodes)"
+        verdict = "pass" if a.passed else "**FAIL**"
+        lines.append(f"| {a.suite_id} | {a.episodes:,} | {_pct(a.chance)} | {worst.name} | {_pct(worst.accuracy)} "
+                     f"{_ci(worst.low, worst.high)} | {probe_cell} | {a.ambiguous} | {_split_cell(a)} | {verdict} |")
+    return "\n".join(lines)
+
+
+def suite_markdown(a: SuiteAudit) -> str:
+    """Every guesser of one suite, furthest above chance first."""
+    out = [f"### {a.suite_id} ({a.split} split, {a.episodes:,} episodes, chance {_pct(a.chance)} %)", "",
+           "| guesser | reads question | % | 95 % CI | vs chance (points) | applies to | % where it applies | flag |",
+           "|---|---|---:|---|---:|---:|---|---|"]
+    for g in sorted(a.guessers, key=lambda g: -g.accuracy):
+        where = "" if g.applies_accuracy is None else f"{_pct(g.applies_accuracy)} {_ci(g.applies_low, g.applies_high)}"
+        out.append(f"| {g.name} | {'yes' if g.reads_question else ''} | {_pct(g.accuracy)} | {_ci(g.low, g.high)} | "
+                   f"{100 * (g.accuracy - a.chance):+.1f} | {g.applies:,} | {where} | {'**above chance**' if g.flagged else ''} |")
+    if a.probe_features:
+        feats = ", ".join(f"{name} ({imp:.3f})" for name, imp in a.probe_features)
+        out += ["", f"Learned probe leans on: {feats} (permutation importance, log-loss)."]
+    if a.ambiguous:
+        out += ["", f"{a.ambiguous} option sets hold a second option equal to the answer (normal form), e.g.:"]
+        out += [f"- {' / '.join(s)}" for s in a.ambiguous_examples]
+    if not a.overlap.clean:
+        o = a.overlap
+        out += ["", "Shared by train and test:"] + [f"- same question: {t}" for t in o.exact[:5]]
+        out += [f"- near-duplicates ({j}): {x} / {y}" for x, y, j in o.near[:5]] + [f"- fact: {f}" for f in o.facts[:5]]
+    return "\n".join(out)
+
+
+def markdown(audits: Sequence[SuiteAudit]) -> str:
+    margin = audits[0].margin if audits else 0.03
+    head = ["# RSB shortcut audit", "",
+            "Answer-blind guessers pick an option without solving the question; the learned probe is trained on "
+            "the train split to pick the answer from the options alone. A suite fails when a guesser's whole 95 % "
+            f"interval lies above chance + {100 * margin:.0f} points (overall, or on the episodes it applies to), "
+            "when an option set holds two answers, or when train and test share a question or fact.", "",
+            summary_markdown(audits), ""]
+    return "\n".join(head + [suite_markdown(a) + "\n" for a in audits])
+
+
+def write(audits: Sequence[SuiteAudit], out_dir: str | os.PathLike) -> tuple[Path, Path]:
+    """``audit.json`` and ``audit.md`` under ``out_dir`` (created); returns their paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    js, md = out / "audit.json", out / "audit.md"
+    tmp = js.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps([a.to_dict() for a in audits], indent=1), encoding="utf-8")
+    os.replace(tmp, js)
+    md.write_text(markdown(audits), encoding="utf-8")
+    return js, md

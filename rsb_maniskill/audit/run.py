@@ -1,0 +1,166 @@
+"""Audit of one suite: named guessers, the learned probe, ambiguous option sets, split overlap."""
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from rsb_maniskill.evaluation.metrics import wilson_interval
+from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+from rsb_maniskill.semantic.normalize import option_key
+from rsb_maniskill.semantic.sampler import EpisodeSampler
+from rsb_maniskill.semantic.spec import EpisodeSpec
+
+from .guessers import credit, named_guessers
+from .probe import learned_probe
+from .splits import SplitOverlap, split_overlap
+
+MARGIN = 0.03  # a guesser fails the audit when its whole 95 % interval lies above chance + 3 points
+MIN_SUBSET = 100  # smallest number of episodes a guesser must apply to for its own verdict
+_EXAMPLES = 5
+
+
+@dataclass
+class GuesserResult:
+    name: str
+    description: str
+    kind: str  # "named" | "learned"
+    reads_question: bool
+    accuracy: float
+    low: float
+    high: float
+    applies: int  # episodes where the rule could tell options apart (others: uniform guess)
+    applies_accuracy: float | None = None
+    applies_low: float | None = None
+    applies_high: float | None = None
+    flagged: bool = False
+
+
+@dataclass
+class SuiteAudit:
+    suite_id: str
+    split: str
+    n_choices: int
+    episodes: int
+    train_episodes: int
+    margin: float
+    guessers: list[GuesserResult]
+    probe_features: list[tuple[str, float]]
+    ambiguous: int
+    ambiguous_examples: list[list[str]]
+    overlap: SplitOverlap = field(default_factory=SplitOverlap)
+
+    @property
+    def chance(self) -> float:
+        return 1.0 / self.n_choices
+
+    @property
+    def flagged(self) -> list[GuesserResult]:
+        return [g for g in self.guessers if g.flagged]
+
+    @property
+    def passed(self) -> bool:
+        return not self.flagged and self.ambiguous == 0 and self.overlap.clean
+
+    @property
+    def worst(self) -> GuesserResult:
+        """The guesser furthest above chance (by interval low end)."""
+        return max(self.guessers, key=lambda g: g.low)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d.update(chance=self.chance, passed=self.passed,
+                 overlap=dict(exact=len(self.overlap.exact), near=len(self.overlap.near), facts=len(self.overlap.facts),
+                              examples=dict(exact=self.overlap.exact[:_EXAMPLES], near=self.overlap.near[:_EXAMPLES],
+                                            facts=self.overlap.facts[:_EXAMPLES])))
+        return d
+
+
+def _rate(credits: np.ndarray) -> tuple[float, float, float]:
+    """Mean credit and its Wilson 95 % interval (credit is a 0/1 outcome or a tie share, whose
+    variance is at most the binomial one, so the interval is conservative)."""
+    n = len(credits)
+    s = float(credits.sum())
+    lo, hi = wilson_interval(int(round(s)), n)
+    return s / n, lo, hi
+
+
+def _result(name: str, desc: str, kind: str, reads_q: bool, credits: np.ndarray, applies: np.ndarray,
+            chance: float, margin: float) -> GuesserResult:
+    acc, lo, hi = _rate(credits)
+    r = GuesserResult(name, desc, kind, reads_q, acc, lo, hi, int(applies.sum()))
+    flagged = lo > chance + margin
+    if MIN_SUBSET <= r.applies < len(credits):
+        r.applies_accuracy, r.applies_low, r.applies_high = _rate(credits[applies])
+        flagged = flagged or r.applies_low > chance + margin
+    r.flagged = bool(flagged)
+    return r
+
+
+def ambiguous_sets(specs: Sequence[EpisodeSpec]) -> list[list[str]]:
+    """Option sets where another option has the answer's normal form (two correct members)."""
+    out = []
+    for sp in specs:
+        keys = [option_key(o) for o in sp.options]
+        if keys.count(keys[sp.answer_slot]) > 1:
+            out.append(list(sp.options))
+    return out
+
+
+def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[EpisodeSpec], *,
+                split: str = "test", margin: float = MARGIN, overlap: SplitOverlap | None = None,
+                seed: int = 0) -> SuiteAudit:
+    """Audit ``test`` episodes; the learned probe is fit on ``train`` episodes (never the same seeds)."""
+    if not test:
+        raise ValueError(f"{suite_id}: no episodes to audit")
+    n = test[0].n_choices
+    if any(sp.n_choices != n for sp in list(train) + list(test)):
+        raise ValueError(f"{suite_id}: episodes with different numbers of choices cannot be audited together")
+    chance = 1.0 / n
+    results = []
+    for g in named_guessers(n, test[0].letters):
+        cr, ap = np.empty(len(test)), np.zeros(len(test), dtype=bool)
+        for i, sp in enumerate(test):
+            s = g.score(sp)
+            if s is None or len(set(s)) == 1:
+                cr[i] = chance
+            else:
+                cr[i], ap[i] = credit(s, sp.answer_slot), True
+        results.append(_result(g.name, g.description, "named", g.reads_question, cr, ap, chance, margin))
+    features: list[tuple[str, float]] = []
+    if len(train) >= 200:
+        probe = learned_probe(train, test, seed=seed, use_prior=split != "train")
+        features = probe.top_features
+        results.append(_result("learned probe", "gradient-boosted trees on per-option features relative to the set, "
+                               f"fit on {probe.train_episodes:,} train-split episodes; never sees the question",
+                               "learned", False, probe.credits, np.ones(len(test), dtype=bool), chance, margin))
+    amb = ambiguous_sets(test)
+    return SuiteAudit(suite_id, split, n, len(test), len(train), margin, results, features, len(amb),
+                      amb[:_EXAMPLES], overlap or SplitOverlap())
+
+
+def suite_overlap(train: EpisodeSampler, test: EpisodeSampler) -> SplitOverlap:
+    """Questions and facts the two pools of a suite share (Direct suites have no questions)."""
+    if train.pool is None or test.pool is None:
+        return SplitOverlap()
+    tr, te = train.pool.questions, test.pool.questions
+    return split_overlap([q.text for q in tr], [q.text for q in te], [q.fact for q in tr], [q.fact for q in te])
+
+
+def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: int | None = None,
+                data_dir: str | os.PathLike | None = None, margin: float = MARGIN) -> SuiteAudit:
+    """Audit ``n`` episodes of ``split`` (the evaluation protocol's seeds) of a suite.
+
+    The probe trains on ``n_train`` (default ``n``) train-split episodes of seeds 0, 1, ...; the
+    audited episodes use seeds from ``EVAL_SEED_BASE`` on, so the two never share a seed.
+    """
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    train_s = EpisodeSampler(suite_id, "train", data_dir=data_dir)
+    test_s = train_s if split == "train" else EpisodeSampler(suite_id, split, data_dir=data_dir)
+    train = [train_s.episode(s) for s in range(n if n_train is None else n_train)]
+    test = [test_s.episode(EVAL_SEED_BASE + i) for i in range(n)]
+    overlap = suite_overlap(train_s, EpisodeSampler(suite_id, "test", data_dir=data_dir))
+    return audit_specs(suite_id, train, test, split=split, margin=margin, overlap=overlap)

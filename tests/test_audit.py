@@ -1,0 +1,147 @@
+"""`rsb audit`: every suite passes; a known shortcut, injected, makes it fail."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rsb_maniskill.audit import audit_specs, audit_suite, credit
+from rsb_maniskill.audit.guessers import named_guessers
+from rsb_maniskill.audit.text import digit_string, edit_distance
+from rsb_maniskill.cli import main
+from rsb_maniskill.semantic import EpisodeSampler
+
+REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")
+# About +-2 points at 95 % on 4 choices (+-1.3 on 10): the sample size the issue asks CI to use.
+CI_EPISODES = 2000
+
+
+def _data(suite_id: str):
+    if suite_id.split("-")[1] in ("Math", "Direct"):
+        return None
+    if not REAL_DATA_DIR or not Path(REAL_DATA_DIR, "gsm8k", "test.jsonl").is_file():
+        pytest.skip("RSB_DATA_DIR is not set (CI sets RSB_DATA_DIR=../shared/data)")
+    return REAL_DATA_DIR
+
+
+@pytest.mark.parametrize("suite_id", ["RSB-Math-4", "RSB-Math-10", "RSB-HardMath-4", "RSB-HardMath-10",
+                                      "RSB-General-4", "RSB-General-10", "RSB-Direct-4", "RSB-Direct-10"])
+def test_every_suite_passes_the_audit(suite_id):
+    a = audit_suite(suite_id, "test", CI_EPISODES, data_dir=_data(suite_id))
+    probe = next(g for g in a.guessers if g.kind == "learned")
+    assert probe.high < a.chance + 0.05  # the learned probe finds nothing either
+    assert a.passed, [(g.name, round(g.accuracy, 3), round(g.low, 3)) for g in a.flagged]
+    assert a.ambiguous == 0 and a.overlap.clean
+
+
+@pytest.mark.parametrize("suite_id", ["RSB-General-4", "RSB-General-10"])
+def test_commonsense_questions_alone_pass_the_audit(suite_id):
+    """The commonsense table (where "the trash can" once answered "Where is trash kept?") on its
+    own; built into the project, so the MMLU part comes from the test fixtures."""
+    fixtures = Path(__file__).parent / "fixtures" / "semantic_data"
+    tr, te = (EpisodeSampler(suite_id, split, data_dir=fixtures) for split in ("train", "test"))
+    idx = {s: [i for i, q in enumerate(x.pool.questions) if q.source == "commonsense"] for s, x in (("tr", tr), ("te", te))}
+    train = [tr.sample(k, question_index=idx["tr"][k % len(idx["tr"])]) for k in range(CI_EPISODES)]
+    test = [te.sample(10_000_000 + k, question_index=idx["te"][k % len(idx["te"])]) for k in range(CI_EPISODES)]
+    a = audit_specs(suite_id, train, test)
+    assert a.passed, [(g.name, round(g.accuracy, 3), round(g.low, 3)) for g in a.flagged]
+
+
+def _with_answer(sp, pick):
+    j = pick(sp)
+    return dataclasses.replace(sp, answer_slot=j, correct_letter=sp.letters[j])
+
+
+def _medoid(sp):
+    ds = [digit_string(float(o)) for o in sp.options]
+    cost = [sum(edit_distance(a, b) for b in ds) for a in ds]
+    return int(np.argmin(cost))
+
+
+def test_injected_medoid_shortcut_fails_the_audit():
+    """A generator whose answer is always the digit-edit medoid (the old distractor scheme)."""
+    tr, te = EpisodeSampler("RSB-Math-4", "train"), EpisodeSampler("RSB-Math-4", "test")
+    train = [_with_answer(tr.episode(s), _medoid) for s in range(1000)]
+    test = [_with_answer(te.episode(10_000_000 + s), _medoid) for s in range(1000)]
+    a = audit_specs("RSB-Math-4", train, test)
+    flagged = {g.name for g in a.flagged}
+    assert not a.passed and {"digit-edit medoid", "learned probe"} <= flagged
+
+
+def test_injected_longest_shortcut_fails_the_audit():
+    tr, te = EpisodeSampler("RSB-Direct-10", "train"), EpisodeSampler("RSB-Direct-10", "test")
+
+    def longest(sp):
+        return max(range(sp.n_choices), key=lambda i: (len(sp.options[i]), sp.options[i]))
+    # Direct options are block names: make them text of different lengths first
+    def lengthen(sp):
+        return dataclasses.replace(sp, options=tuple(o + " x" * ((i * 7 + sp.seed) % 10) for i, o in enumerate(sp.options)))
+    train = [_with_answer(lengthen(tr.episode(s)), longest) for s in range(1000)]
+    test = [_with_answer(lengthen(te.episode(10_000_000 + s)), longest) for s in range(1000)]
+    a = audit_specs("RSB-Direct-10", train, test)
+    assert not a.passed and {"longest", "learned probe"} <= {g.name for g in a.flagged}
+
+
+def test_learned_probe_finds_a_shortcut_no_named_guesser_has():
+    """Answer = the option whose value is 3 mod 7: no named rule looks at that, the trees must."""
+    s = EpisodeSampler("RSB-Math-10", "train")
+
+    def pick(sp):
+        hits = [i for i, o in enumerate(sp.options) if int(o) % 7 == 3]
+        return hits[0] if hits else sp.answer_slot
+    specs = [_with_answer(s.episode(x), pick) for x in range(3000)]
+    a = audit_specs("RSB-Math-10", specs[:2000], specs[2000:])
+    assert "learned probe" in {g.name for g in a.flagged}
+
+
+def test_credit_splits_ties():
+    assert credit([1, 3, 3, 0], 1) == 0.5 and credit([1, 3, 3, 0], 0) == 0.0 and credit([2, 2, 2, 2], 3) == 0.25
+
+
+def test_guessers_score_every_option():
+    sp = EpisodeSampler("RSB-Math-4", "test").episode(10_000_000)
+    for g in named_guessers(4, sp.letters):
+        s = g.score(sp)
+        assert s is None or len(s) == 4, g.name
+
+
+def test_cli_writes_json_and_markdown(tmp_path, capsys):
+    rc = main(["audit", "RSB-Direct-4", "RSB-Math-10", "-n", "400", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 0 and "| RSB-Math-10 | 400 |" in out
+    data = json.loads((tmp_path / "audit.json").read_text())
+    assert [d["suite_id"] for d in data] == ["RSB-Direct-4", "RSB-Math-10"] and all(d["passed"] for d in data)
+    assert "### RSB-Math-10" in (tmp_path / "audit.md").read_text()
+
+
+def test_cli_exit_1_on_a_shortcut_in_user_specs(tmp_path, capsys):
+    """Users audit their own option sets from spec files; a shortcut there gives exit status 1."""
+    tr, te = EpisodeSampler("RSB-Math-4", "train"), EpisodeSampler("RSB-Math-4", "test")
+    path = tmp_path / "specs.jsonl"
+    with open(path, "w") as fh:
+        for sp in [_with_answer(tr.episode(s), _medoid) for s in range(600)] + \
+                  [_with_answer(te.episode(10_000_000 + s), _medoid) for s in range(600)]:
+            fh.write(json.dumps(sp.to_dict()) + "\n")
+    assert main(["audit", "--specs", str(path)]) == 1
+    assert "**FAIL**" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["audit", "RSB-Nope-4"], "unknown suite 'RSB-Nope-4'"),
+    (["audit"], "name at least one SUITE"),
+    (["audit", "--specs", "/nonexistent/specs.jsonl"], "no such file /nonexistent/specs.jsonl"),
+])
+def test_cli_bad_input(argv, message, capsys):
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_cli_bad_spec_line(tmp_path, capsys):
+    p = tmp_path / "bad.jsonl"
+    p.write_text('{"suite_id": "x"}\n')
+    assert main(["audit", "--specs", str(p)]) == 2
+    assert f"{p}, line 1: not an episode spec" in capsys.readouterr().err

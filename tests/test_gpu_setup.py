@@ -1,0 +1,153 @@
+"""GPU physics without surprises: the PhysX GPU library is found, fetched with timeouts, or named
+in a clear error; `rsb doctor` reports what the machine can do. Runs on CPU machines: the
+library's download is pointed at 127.0.0.1 servers, never at the internet."""
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import requests
+
+from rsb_maniskill import physx_gpu
+from rsb_maniskill.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def home(tmp_path, monkeypatch):
+    """A home without the library; no offline switch; no proxy unless a test sets one."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    for var in (*physx_gpu.OFFLINE_VARS, "HTTPS_PROXY", "https_proxy", "HTTP_PROXY", "http_proxy", "NO_PROXY", "no_proxy"):
+        monkeypatch.delenv(var, raising=False)
+    assert not physx_gpu.library_path().exists()
+    return tmp_path
+
+
+@pytest.fixture
+def silent_proxy(monkeypatch):
+    """A proxy on 127.0.0.1 that accepts connections and never answers (a firewall that drops)."""
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    held, stop = [], threading.Event()
+
+    def accept():
+        srv.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                held.append(srv.accept()[0])
+            except OSError:
+                continue
+    t = threading.Thread(target=accept, daemon=True)
+    t.start()
+    url = f"http://127.0.0.1:{srv.getsockname()[1]}"
+    monkeypatch.setenv("HTTPS_PROXY", url)
+    monkeypatch.setenv("https_proxy", url)
+    yield url
+    stop.set()
+    t.join()
+    for c in held:
+        c.close()
+    srv.close()
+
+
+def _assert_clear(err: Exception, home: Path) -> None:
+    msg = str(err)
+    lib = home / ".sapien" / "physx" / physx_gpu.physx_version() / "libPhysXGpu_64.so"
+    assert str(lib) in msg and physx_gpu.library_url() in msg and str(lib.parent) in msg
+    assert physx_gpu.SETUP_COMMAND in msg and "rsb doctor" in msg
+
+
+@pytest.mark.parametrize("var", physx_gpu.OFFLINE_VARS)
+def test_offline_switch_gives_the_clear_error_without_network(home, var, monkeypatch):
+    monkeypatch.setenv(var, "1")
+    monkeypatch.setattr(requests, "get", lambda *a, **k: pytest.fail("no network call when offline"))
+    with pytest.raises(physx_gpu.PhysXGpuLibraryMissing) as err:
+        physx_gpu.check_for_sim_backend("physx_cuda", 1)
+    _assert_clear(err.value, home)
+
+
+@pytest.mark.timeout(60)
+def test_dropped_packets_give_the_clear_error_within_seconds(home, silent_proxy, monkeypatch):
+    monkeypatch.setenv(physx_gpu.READ_TIMEOUT_VAR, "2")
+    t0 = time.monotonic()
+    with pytest.raises(physx_gpu.PhysXGpuLibraryMissing) as err:
+        physx_gpu.fetch()
+    assert time.monotonic() - t0 < 30  # not SAPIEN's timeout-less hang
+    _assert_clear(err.value, home)
+    assert "Timeout" in str(err.value)
+
+
+def test_refused_connection_gives_the_clear_error(home, monkeypatch):
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()  # nothing listens there now
+    monkeypatch.setenv("HTTPS_PROXY", f"http://127.0.0.1:{port}")
+    with pytest.raises(physx_gpu.PhysXGpuLibraryMissing) as err:
+        physx_gpu.fetch(timeout=5)
+    _assert_clear(err.value, home)
+
+
+def test_present_library_makes_no_network_call(home, monkeypatch):
+    lib = physx_gpu.library_path()
+    lib.parent.mkdir(parents=True)
+    lib.write_bytes(b"\x7fELF stand-in")
+
+    def no_network(*args, **kwargs):
+        raise AssertionError("network used although the library is present")
+    monkeypatch.setattr(requests, "get", no_network)
+    monkeypatch.setattr(socket.socket, "connect", no_network)
+    assert physx_gpu.fetch() == lib
+    physx_gpu.check_for_sim_backend("physx_cuda", 16)  # returns: SAPIEN will load the file itself
+
+
+def test_gpu_env_fails_clearly_before_sapien_downloads(home, monkeypatch):
+    """gym.make on physx_cuda with the library missing and offline: our error, not requests'."""
+    import gymnasium as gym
+
+    import rsb_maniskill  # noqa: F401
+
+    monkeypatch.setenv("RSB_OFFLINE", "1")
+    with pytest.raises(physx_gpu.PhysXGpuLibraryMissing) as err:
+        gym.make("RSB-Math-4", num_envs=4, sim_backend="physx_cuda", obs_mode="state")
+    _assert_clear(err.value, home)
+
+
+@pytest.mark.parametrize("backend, n, gpu", [("auto", 1, False), ("auto", 8, True), ("physx_cpu", 1, False),
+                                              ("physx_cuda", 1, True), ("physx_cuda:1", 4, True), ("gpu", 2, True),
+                                              ("cpu", 1, False)])
+def test_uses_gpu_physics_like_maniskill(backend, n, gpu):
+    assert physx_gpu.uses_gpu_physics(backend, n) is gpu
+
+
+def test_module_entry_point_reports_the_error(home):
+    env = {"HOME": str(home), "RSB_OFFLINE": "1", "PATH": "/usr/bin:/bin", "PYTHONPATH": str(REPO)}
+    out = subprocess.run([sys.executable, "-m", "rsb_maniskill.physx_gpu"], capture_output=True, text=True, env=env)
+    assert out.returncode == 1 and "libPhysXGpu_64.so" in out.stderr
+
+
+def test_doctor_reports_every_area(capsys, monkeypatch, home):
+    monkeypatch.setenv("RSB_OFFLINE", "1")
+    rc = main(["doctor", "--json"])
+    report = json.loads(capsys.readouterr().out)
+    areas = {c["area"] for c in report["checks"]}
+    assert {"python", "packages", "render", "gpu", "data", "optional"} <= areas
+    by_name = {c["name"]: c for c in report["checks"]}
+    assert by_name["one-frame render"]["status"] == "ok"  # lavapipe or a GPU: the tests render elsewhere too
+    assert "libPhysXGpu_64.so" in by_name["PhysX GPU library"]["detail"]
+    assert report["demo_can_run"] is True and rc == 0
+
+
+def test_doctor_exit_1_when_the_renderer_is_missing(capsys, monkeypatch):
+    monkeypatch.setenv("VK_ICD_FILENAMES", "/nonexistent/no_icd.json")
+    rc = main(["doctor"])
+    out = capsys.readouterr().out
+    assert rc == 1 and "`make demo` cannot run here" in out and "lavapipe" in out

@@ -179,9 +179,15 @@ def _run_eval(args: argparse.Namespace) -> int:
     if args.num_envs > 1:
         import torch
 
+        from rsb_maniskill.physx_gpu import PhysXGpuLibraryMissing, check_for_sim_backend
+
         if not torch.cuda.is_available():
             raise EvalError("--num-envs > 1 runs the GPU backend (physx_cuda), and no CUDA device is visible; "
                             "use --num-procs on a CPU machine")
+        try:
+            check_for_sim_backend("physx_cuda", args.num_envs)  # before any episode, not in a worker
+        except PhysXGpuLibraryMissing as err:
+            raise EvalError(str(err)) from err
     policy_kwargs = parse_kv(args.policy_arg, "--policy-arg")
     env_kwargs = parse_kv(args.env_arg, "--env-arg")
     fixed = [k for k in PROTOCOL_KEYS if k in env_kwargs]

@@ -12,7 +12,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from rsb_maniskill.semantic.normalize import content_words, numeric_values, overlap, question_stems
+from rsb_maniskill.semantic.normalize import content_words, numeric_values, overlap
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
 from .text import digit_string, edit_distance, jaccard, trailing_zeros, trigrams
@@ -91,8 +91,7 @@ def _lexical_overlap(sp: EpisodeSpec) -> list[float]:
 
 
 def _stem_overlap(sp: EpisodeSpec) -> list[float]:
-    stems = question_stems(sp.question)
-    return [float(overlap(o, stems)) for o in sp.options]
+    return [float(overlap(o, sp.question)) for o in sp.options]
 
 
 def _negate(score: Callable[[EpisodeSpec], Scores]) -> Callable[[EpisodeSpec], Scores]:
@@ -132,7 +131,7 @@ def named_guessers(n_choices: int, letters: Sequence[str]) -> list[Guesser]:
         Guesser("text medoid", "most character trigrams shared with the other options", _text_medoid),
         Guesser("lexical overlap", "most content words shared with the question", _lexical_overlap, True),
         Guesser("least lexical overlap", "fewest content words shared with the question", _negate(_lexical_overlap), True),
-        Guesser("stem overlap", "most words whose stem (4 letters) is in the question", _stem_overlap, True),
+        Guesser("stem overlap", "most words related to a question word (same stem, or one inside the other)", _stem_overlap, True),
         Guesser("least stem overlap", "fewest words whose stem is in the question", _negate(_stem_overlap), True),
         Guesser("number in question", "value that appears in the question text", _in_question, True),
         Guesser("number not in question", "value that does not appear in the question text", _negate(_in_question), True),

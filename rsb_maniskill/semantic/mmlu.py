@@ -10,7 +10,7 @@ from collections import Counter
 from typing import Iterable
 
 from .duplicates import duplicate_groups
-from .normalize import numeric_values, option_key, overlap, question_key, question_stems
+from .normalize import numeric_values, option_key, overlap, question_key
 from .records import Question, normalize_text
 from .stable import stable_bucket, stable_key
 
@@ -41,8 +41,7 @@ def exclusion_reason(row: dict) -> str | None:
     if numeric_values(opts) is not None:
         # MMLU writes numeric distractors around the answer: closest-to-the-mean picks it ~34 %
         return "numeric options centred on the answer"
-    stems = question_stems(q)
-    if any(overlap(o, stems) for o in opts):
+    if any(overlap(o, q) for o in opts):
         # an option repeating a question word points at the question's own options among ten
         return "option shares a word with the question"
     return None

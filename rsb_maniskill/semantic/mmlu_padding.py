@@ -8,7 +8,7 @@ suite. Here every group shown is a whole MMLU option set, its own answer and dis
   of the same pool from other subject areas (a second right answer is less likely there); the
   group cut to two (its answer and one distractor) is the asked question's with probability
   2/10, so by group shape each option is the answer with probability 1/10;
-* the pool only holds questions whose options share no word stem with their question
+* the pool only holds questions whose options share no word or stem with their question
   (mmlu.exclusion_reason), and padding options share none with the asked question either, so
   word overlap with the question cannot single out the asked group;
 * no padding option has the normal form of an option of another group, or of an answer of any
@@ -22,7 +22,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .errors import SemanticDataError
-from .normalize import option_key, overlap, question_key, question_stems
+from .normalize import option_key, overlap, question_key
 from .records import Question
 
 GROUP = 4  # MMLU's own options per question
@@ -71,12 +71,11 @@ class Padding:
         q = self.questions[i]
         sizes = group_sizes(n)
         own_slot = int(rng.choice(len(sizes), p=np.array(sizes) / n))
-        stems = question_stems(q.text)
         blocked = set(self.keys[i]) | self.answers_by_question.get(question_key(q.text), set())
         used = {i}
         out = [q.answer]
         for slot, size in enumerate(sizes):
-            k = i if slot == own_slot else self._padding_question(i, stems, blocked, used, rng)
+            k = i if slot == own_slot else self._padding_question(i, blocked, used, rng)
             used.add(k)
             blocked |= self.keys[k]
             p = self.questions[k]
@@ -85,8 +84,7 @@ class Padding:
             out += picks if k == i else [p.answer, *picks]
         return out
 
-    def _padding_question(self, i: int, stems: frozenset[str], blocked: set[str], used: set[int],
-                          rng: np.random.Generator) -> int:
+    def _padding_question(self, i: int, blocked: set[str], used: set[int], rng: np.random.Generator) -> int:
         """A random question of another area whose options are all new and share no stem with
         the asked question."""
         areas = [a for a in sorted(self.by_area) if a != self.areas[i]] or [self.areas[i]]
@@ -95,7 +93,7 @@ class Padding:
             k = members[int(rng.integers(len(members)))]
             if k in used or blocked & self.keys[k]:
                 continue
-            if any(overlap(c, stems) for c in self.questions[k].choices):
+            if any(overlap(c, self.questions[i].text) for c in self.questions[k].choices):
                 continue
             return k
         raise SemanticDataError(self.questions[i].origin, None, "no other MMLU question of the pool can pad this "

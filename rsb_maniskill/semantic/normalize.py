@@ -80,34 +80,6 @@ def content_words(text: str) -> frozenset[str]:
     return frozenset(out)
 
 
-def _stems_meet(x: str, y: str) -> bool:
-    if x == y:
-        return True
-    short, long_ = sorted((x, y), key=len)
-    return len(short) >= 4 and (short in long_ or short[:4] == long_[:4])
-
-
-def related_words(a: str, b: str) -> bool:
-    """Whether two texts share a content word or a word stem ("juice" / "juicer", "cork" /
-    "corkscrew", "dish" / "dishwasher"): the surface link a lexical guesser would follow."""
-    wb = content_words(b)
-    return any(_stems_meet(x, y) for x in content_words(a) for y in wb)
-
-
-def word_stem(word: str) -> str:
-    """Crude stem: the first four letters ("juicer" -> "juic", "cork" -> "cork")."""
-    return word[:4] if len(word) >= 4 else word
-
-
-def overlap(option: str, question_stems: frozenset[str]) -> int:
-    """Content words of ``option`` whose stem (first four letters) is a stem of the question's."""
-    return sum(word_stem(w) in question_stems for w in content_words(option))
-
-
-def question_stems(text: str) -> frozenset[str]:
-    return frozenset(word_stem(w) for w in content_words(text))
-
-
 def numeric_values(options: Sequence[str]) -> list[float] | None:
     """Option values when every option is a number, alone or with one shared unit
     ("3 m/s", "5 m/s"); None for text options."""
@@ -122,3 +94,25 @@ def numeric_values(options: Sequence[str]) -> list[float] | None:
         vals.append(float(m.group(1).replace(",", "")))
         units.add(m.group(2).casefold())
     return vals if len(units) == 1 else None
+
+
+def _related(word: str, words: frozenset[str]) -> bool:
+    """``word`` equals one of ``words``, shares its first four letters with one, or one of the two
+    holds the other (4+ letters): "juice" / "juicer", "cork" / "corkscrew", "dish" / "dishwasher"."""
+    if word in words:
+        return True
+    if len(word) < 4:
+        return False
+    return any(len(w) >= 4 and (w[:4] == word[:4] or w in word or word in w) for w in words)
+
+
+def overlap(option: str, question: str) -> int:
+    """How many content words of ``option`` are related to a content word of ``question``: the
+    surface link a lexical guesser would follow."""
+    q = content_words(question)
+    return sum(_related(w, q) for w in content_words(option))
+
+
+def related_words(a: str, b: str) -> bool:
+    """Whether two texts share a content word or a word stem (see :func:`overlap`)."""
+    return overlap(a, b) > 0

@@ -8,6 +8,8 @@ import os
 from collections import Counter
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from . import commonsense, mmlu
 from .data import mmlu_rows, resolve_data_dir
 from .distractors import Bins, value_bins
@@ -34,6 +36,7 @@ class Pool:
     excluded: Counter = field(default_factory=Counter)
     _bins: dict[tuple[int, str, int], Bins | None] = field(default_factory=dict, repr=False)
     answers_by_question: dict[str, set[str]] = field(default_factory=dict, repr=False)  # MMLU, both splits
+    mmlu_start: int = 0  # General: the MMLU questions follow the commonsense ones
     _padding: Padding | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
@@ -51,17 +54,15 @@ class Pool:
                 self._bins[key] = None
         return self._bins[key]
 
-
-    def mmlu_options(self, qi: int, n: int, rng) -> list[str]:
+    def mmlu_options(self, qi: int, n: int, rng: np.random.Generator) -> list[str]:
         """N options of the MMLU question ``qi`` (answer first): its own four, or for N > 4 the
         option groups of three questions (mmlu_padding.py)."""
         q = self.questions[qi]
         if n <= len(q.choices):
             return [q.answer, *(c for c in q.choices if c != q.answer)]
         if self._padding is None:
-            self._first_mmlu = next(i for i, x in enumerate(self.questions) if x.source == "mmlu")
-            self._padding = Padding(self.questions[self._first_mmlu:], self.answers_by_question)
-        return self._padding.options(qi - self._first_mmlu, n, rng)
+            self._padding = Padding(self.questions[self.mmlu_start:], self.answers_by_question)
+        return self._padding.options(qi - self.mmlu_start, n, rng)
 
 
 _POOLS: dict[tuple[str, str, str], Pool] = {}
@@ -92,7 +93,7 @@ def _general(split: str, data_dir: str | os.PathLike | None) -> Pool:
         for q in qs:
             answers.setdefault(question_key(q.text), set()).add(option_key(q.answer))
     return Pool("General", split, questions, cands, {"commonsense": len(cs), "mmlu": len(mq)}, excluded,
-                answers_by_question=answers)
+                answers_by_question=answers, mmlu_start=len(cs))
 
 
 def get_pool(suite: str, split: str, data_dir: str | os.PathLike | None = None) -> Pool:

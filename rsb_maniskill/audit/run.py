@@ -162,5 +162,5 @@ def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: i
     test_s = train_s if split == "train" else EpisodeSampler(suite_id, split, data_dir=data_dir)
     train = [train_s.episode(s) for s in range(n if n_train is None else n_train)]
     test = [test_s.episode(EVAL_SEED_BASE + i) for i in range(n)]
-    overlap = suite_overlap(train_s, EpisodeSampler(suite_id, "test", data_dir=data_dir))
+    overlap = suite_overlap(train_s, test_s if split == "test" else EpisodeSampler(suite_id, "test", data_dir=data_dir))
     return audit_specs(suite_id, train, test, split=split, margin=margin, overlap=overlap)

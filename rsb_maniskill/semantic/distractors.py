@@ -15,7 +15,7 @@ member x (exactly, when no value's weight exceeds 1/N of its bin; the bins are c
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Hashable, Iterable, Sequence
 
 import numpy as np
@@ -59,6 +59,7 @@ class Bins:
     members: tuple[Hashable, ...]
     weights: np.ndarray
     edges: tuple[int, ...]  # bin k holds members[edges[k]:edges[k + 1]]
+    index: dict[Hashable, int] = field(repr=False, compare=False)  # member -> position
 
     @classmethod
     def cut(cls, counts: Sequence[tuple[Hashable, int]], n: int, min_members: int | None = None) -> "Bins":
@@ -80,18 +81,18 @@ class Bins:
                 edges[-1] = len(w)  # the short tail joins the last bin
             else:
                 edges.append(len(w))
-        return cls(members, w, tuple(edges))
+        return cls(members, w, tuple(edges), {m: i for i, m in enumerate(members)})
 
-    def bin_of(self, member: Hashable) -> int:
-        i = self.members.index(member)
-        return int(np.searchsorted(self.edges, i, side="right") - 1)
+    def __contains__(self, member: Hashable) -> bool:
+        return member in self.index
 
     def draw(self, member: Hashable, n: int, rng: np.random.Generator) -> list:
         """N distinct members of ``member``'s bin, ``member`` first."""
-        k = self.bin_of(member)
+        i = self.index[member]
+        k = int(np.searchsorted(self.edges, i, side="right") - 1)
         lo, hi = self.edges[k], self.edges[k + 1]
         pi = inclusion_probabilities(self.weights[lo:hi], n)
-        idx = systematic_sample(pi, self.members.index(member) - lo, rng)
+        idx = systematic_sample(pi, i - lo, rng)
         out = [self.members[lo + int(i)] for i in idx]
         out.remove(member)
         return [member, *out]
@@ -106,7 +107,7 @@ def value_bins(values: Iterable[int], n: int) -> Bins:
 def numeric_options(value: int, bins: Bins | None, n: int, rng: np.random.Generator) -> list[int]:
     """N distinct values, ``value`` first, all of its sign (negative answers mirror the bins of
     their magnitude). Populations too small for bins fall back to :func:`lattice_options`."""
-    if bins is None or abs(value) not in bins.members:
+    if bins is None or abs(value) not in bins:
         return lattice_options(value, n, rng)
     drawn = bins.draw(abs(value), n, rng)
     if value < 0 and 0 in drawn:  # zero has no negative mirror

@@ -1,8 +1,12 @@
 """RoboSemanticBench (RSB) as a ManiSkill3 task pack.
 
-``import rsb_maniskill`` registers the ``aloha_agilex`` robot and the ``RSB-*`` environments.
+``import rsb_maniskill`` registers the ``RSB-*`` environments with gymnasium; the robot and the
+tasks (torch, SAPIEN, ManiSkill) load at the first ``gym.make``, so this import, the semantic
+engine and the ``rsb`` command line stay light (see registration.py).
 """
 from rsb_maniskill import _render  # noqa: F401  (selects a Vulkan device before SAPIEN starts)
-from rsb_maniskill import agents, tasks  # noqa: F401
+from rsb_maniskill.registration import register_envs
+
+register_envs()
 
 __version__ = "0.1.0"

@@ -26,6 +26,7 @@ from rsb_maniskill.motionplan.generate import (
     output_path,
     plan_work,
 )
+from rsb_maniskill.replay import carry_metadata
 
 try:
     from rsb_maniskill.motionplan import ScriptedExpert  # noqa: F401
@@ -172,7 +173,7 @@ def test_unknown_suite_and_unwritable_dir_leave_no_files(tmp_path):
 def test_generated_dataset_is_valid_and_self_describing(dataset):
     data = _check_dataset(dataset.path)
     env_info = data["env_info"]
-    assert env_info["env_id"] == ENV_ID
+    assert env_info["env_id"] == f"rsb_maniskill:{ENV_ID}"  # gymnasium imports the pack to find it
     assert env_info["env_kwargs"]["split"] == "train"
     assert env_info["env_kwargs"]["control_mode"] == "pd_joint_pos"
     assert env_info["env_kwargs"]["obs_mode"] == "state"
@@ -312,6 +313,41 @@ def test_replay_to_rgb_observations(dataset):
         for cam in cams.values():
             rgb = cam["rgb"]
             assert rgb.dtype == np.uint8 and rgb.shape[0] == f["traj_0/actions"].shape[0] + 1 and rgb.shape[-1] == 3
+
+
+@pytest.mark.slow
+@needs_expert
+def test_maniskills_own_replay_tool_as_is(dataset, tmp_path):
+    """`python -m mani_skill.trajectory.replay_trajectory`, nothing imported by hand: the file names
+    its env "rsb_maniskill:RSB-Math-4", so gymnasium imports the pack in each process (2 workers
+    here), converting control and obs modes; its output replays again with the same tool."""
+    src = tmp_path / "demo.h5"
+    src.write_bytes(dataset.path.read_bytes())
+    src.with_suffix(".json").write_bytes(dataset.path.with_suffix(".json").read_bytes())
+    assert json.loads(src.with_suffix(".json").read_text())["env_info"]["env_id"] == "rsb_maniskill:RSB-Math-4"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+
+    def maniskill_replay(path: Path, *args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "mani_skill.trajectory.replay_trajectory", "--traj-path",
+                               str(path), *args], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
+
+    res = maniskill_replay(src, "-n", "2", "-c", "pd_joint_delta_pos", "-o", "rgb", "--save-traj")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "Replayed 3 episodes, 3/3=100.00% demos saved" in res.stdout
+    out = tmp_path / "demo.rgb.pd_joint_delta_pos.physx_cpu.h5"
+    data = json.loads(out.with_suffix(".json").read_text())
+    assert data["env_info"]["env_id"] == "rsb_maniskill:RSB-Math-4"
+    assert data["env_info"]["env_kwargs"]["control_mode"] == "pd_joint_delta_pos"
+    with h5py.File(out) as f:
+        assert f["traj_0/obs/sensor_data/head_camera/rgb"].shape[-1] == 3
+    # ManiSkill writes its own episode fields only; the RSB ones come back from the source
+    assert "instruction" not in data["episodes"][0]
+    assert carry_metadata(src, out) == 3
+    source = json.loads(src.with_suffix(".json").read_text())
+    restored = json.loads(out.with_suffix(".json").read_text())
+    assert [e["instruction"] for e in restored["episodes"]] == [e["instruction"] for e in source["episodes"]]
+    again = maniskill_replay(out, "-o", "state", "--count", "1", "--save-traj")
+    assert again.returncode == 0 and "1/1=100.00% demos saved" in again.stdout, again.stderr[-3000:]
 
 
 @pytest.mark.slow

@@ -186,6 +186,15 @@ class AlohaAgilex(BaseAgent):
         idx = self.arm_qpos_index["left"] + self.arm_qpos_index["right"]
         return torch.max(torch.abs(self.robot.get_qvel()[:, idx]), dim=1)[0] <= threshold
 
+    def aloha14_state(self) -> torch.Tensor:
+        """(B, 14) joint state in the Aloha layout VLA datasets use: [left arm 6, left gripper,
+        right arm 6, right gripper], gripper opening in [0, 1] (0 closed, 1 open)."""
+        q = self.robot.get_qpos()
+        parts = []
+        for a in ARMS:
+            parts += [q[:, self.arm_qpos_index[a]], (q[:, self.finger_qpos_index[a]] / GRIPPER_OPEN).clamp(0, 1)[:, None]]
+        return torch.cat(parts, dim=1)
+
     def rest_action(self) -> torch.Tensor:
         """pd_joint_pos action that holds the rest pose with both grippers open."""
         q = [torch.as_tensor(REST_ARM_QPOS[a], dtype=torch.float32) for a in ARMS]
@@ -193,6 +202,10 @@ class AlohaAgilex(BaseAgent):
 
 
 # ---------------------------------------------------------------------- Aloha-14 layout
+ALOHA14_NAMES = tuple(f"{a}_{j}" for a in ARMS for j in ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle",
+                                                      "wrist_rotate", "gripper"))
+
+
 def to_aloha14(action: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
     """ManiSkill action [..., 14] -> Aloha [left arm 6, left grip, right arm 6, right grip], grip in [0, 1]."""
     a = action

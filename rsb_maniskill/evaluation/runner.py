@@ -18,6 +18,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
+
 from .policy import as_chunk, policy_name
 from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
 from .records import INSTRUCTION_MODES, RecordWriter, completed_seeds, read_records
@@ -25,7 +27,7 @@ from .records import INSTRUCTION_MODES, RecordWriter, completed_seeds, read_reco
 # info flags copied into every record, and extra ones kept when the env provides them.
 RECORD_FLAGS = ("grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success")
 EXTRA_FLAGS = ("grasped_wrong", "fail")
-DEFAULT_MAX_STEPS = 300  # the tasks' max_episode_steps (12 s at 25 Hz)
+DEFAULT_MAX_STEPS = TASK_MAX_EPISODE_STEPS  # the tasks' own limit
 VIDEO_FPS = 25  # the control rate: videos play in real time
 
 

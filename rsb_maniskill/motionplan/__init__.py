@@ -1,5 +1,18 @@
-"""Scripted motion-planning expert (mplib) for the RSB answer-selection task."""
-from rsb_maniskill.motionplan.expert import ExpertResult, ScriptedExpert
-from rsb_maniskill.motionplan.planner import ArmPlanner, get_planner
+"""Scripted motion-planning expert (mplib) for the RSB answer-selection task.
 
-__all__ = ["ArmPlanner", "ExpertResult", "ScriptedExpert", "get_planner"]
+The expert and planner load on first use (they need ManiSkill and mplib), so that the
+generation command line and dataset tools import light."""
+from __future__ import annotations
+
+from typing import Any
+
+_LAZY = {"ExpertResult": "expert", "ScriptedExpert": "expert", "ArmPlanner": "planner", "get_planner": "planner"}
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -21,6 +21,7 @@ from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from rsb_maniskill.agents.aloha import ARMS, AlohaAgilex
 from rsb_maniskill.objects import AnswerTargets, Blocks
+from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.semantic import SUITE_IDS, EpisodeSampler, EpisodeSpec, parse_suite_id
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.contacts import PairContacts
@@ -43,7 +44,7 @@ LIFT_HEIGHT = 0.01  # m above its resting height
 HOLD_STEPS = 8  # consecutive control steps of closed-gripper contact
 REST_SPEED = 0.05  # m/s: a placed block must be at rest
 
-MAX_EPISODE_STEPS = 300  # 12 s at 25 Hz; the expert needs about 7 s (see docs/tasks.md)
+MAX_EPISODE_STEPS = TASK_MAX_EPISODE_STEPS
 
 
 class AnswerSelectionEnv(RSBEnv):

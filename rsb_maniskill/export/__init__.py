@@ -1,0 +1,1 @@
+"""Exports of RSB demonstrations to other ecosystems' formats (LeRobot)."""

@@ -1,0 +1,340 @@
+"""RSB demonstrations as a LeRobot dataset (format v3.0), written with pyarrow and OpenCV.
+
+Layout (what ``lerobot.datasets.LeRobotDataset`` reads): ``meta/info.json``, ``meta/stats.json``,
+``meta/tasks.parquet`` (one row per distinct instruction, the task string as pandas index),
+``meta/episodes/chunk-000/file-000.parquet`` (one row per episode: tasks, length, frame range, video
+files and timestamps, per-episode statistics, and the RSB metadata as ``rsb/*`` columns),
+``data/chunk-000/file-000.parquet`` (one row per frame) and ``videos/<camera>/chunk-CCC/file-FFF.mp4``
+(one file per episode and camera, MPEG-4 from OpenCV).
+
+Frames are rendered from the recorded env states (``rsb generate`` records states, so state-only
+demos get their camera streams here), ``observation.state`` and ``action`` use the Aloha 14-number
+layout (``to_aloha14``) and each episode's instruction is its task. LeRobot's own package is not
+imported: its pins (torch, numpy 2) clash with the project's.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+CODEBASE_VERSION = "v3.0"
+ROBOT_TYPE = "aloha"
+CAMERAS = {"head": "cam_high", "left_wrist": "cam_left_wrist", "right_wrist": "cam_right_wrist"}
+DEFAULT_CAMERAS = tuple(CAMERAS)
+CHUNKS_SIZE = 1000  # files per chunk directory, LeRobot's default
+QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
+IMAGE_STATS_FRAMES = 100  # frames per episode sampled for image statistics
+VIDEO_FOURCC, VIDEO_CODEC = "mp4v", "mpeg4"
+DATA_FILE = "data/chunk-000/file-000.parquet"
+EPISODES_FILE = "meta/episodes/chunk-000/file-000.parquet"
+VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+
+
+class ExportError(RuntimeError):
+    """A demo file cannot be exported, or the output directory is not usable."""
+
+
+def video_key(camera: str) -> str:
+    return f"observation.images.{CAMERAS[camera]}"
+
+
+@dataclass
+class Episode:
+    """One exported episode: Aloha-layout state and action, camera frames, task, RSB metadata."""
+
+    state: np.ndarray  # (T, 14) float32
+    action: np.ndarray  # (T, 14) float32
+    frames: dict[str, np.ndarray]  # camera -> (T, H, W, 3) uint8
+    task: str
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+# ------------------------------------------------------------------ statistics (LeRobot's keys)
+
+
+def vector_stats(x: np.ndarray) -> dict[str, np.ndarray]:
+    """min / max / mean / std / count / quantiles of (T, D) values, per dimension."""
+    x = np.asarray(x, dtype=np.float64).reshape(len(x), -1)
+    out = dict(min=x.min(0), max=x.max(0), mean=x.mean(0), std=x.std(0), count=np.array([len(x)]))
+    out.update({f"q{int(round(q * 100)):02d}": np.quantile(x, q, axis=0) for q in QUANTILES})
+    return out
+
+
+def image_stats(frames: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-channel statistics of (T, H, W, 3) uint8 frames scaled to [0, 1], shaped (3, 1, 1) as
+    LeRobot stores them; a spread-out sample of frames stands for the episode."""
+    idx = np.linspace(0, len(frames) - 1, min(len(frames), IMAGE_STATS_FRAMES)).round().astype(int)
+    px = frames[idx].reshape(-1, 3).astype(np.float64) / 255.0
+    s = vector_stats(px)
+    s = {k: (v if k == "count" else v.reshape(3, 1, 1)) for k, v in s.items()}
+    s["count"] = np.array([len(frames)])
+    return s
+
+
+def aggregate_stats(per_episode: Sequence[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Dataset statistics from episode ones: exact min, max, mean and std (pooled variance),
+    count-weighted quantiles (the approximation LeRobot itself makes)."""
+    w = np.array([float(s["count"][0]) for s in per_episode])
+    wn = (w / w.sum()).reshape(-1, *([1] * per_episode[0]["mean"].ndim))
+    means = np.stack([s["mean"] for s in per_episode])
+    mean = (wn * means).sum(0)
+    var = (wn * (np.stack([s["std"] for s in per_episode]) ** 2 + (means - mean) ** 2)).sum(0)
+    out = dict(min=np.min([s["min"] for s in per_episode], 0), max=np.max([s["max"] for s in per_episode], 0),
+               mean=mean, std=np.sqrt(var), count=np.array([int(w.sum())]))
+    for q in QUANTILES:
+        k = f"q{int(round(q * 100)):02d}"
+        out[k] = (wn * np.stack([s[k] for s in per_episode])).sum(0)
+    return out
+
+
+def _jsonable(stats: dict[str, dict[str, np.ndarray]]) -> dict:
+    return {f: {k: np.asarray(v).tolist() for k, v in s.items()} for f, s in stats.items()}
+
+
+# ------------------------------------------------------------------ rendering from demo files
+
+
+def _env_for(env_info: dict):
+    import gymnasium as gym
+
+    import rsb_maniskill  # noqa: F401  (registers the ids)
+
+    kwargs = dict(env_info.get("env_kwargs") or {})
+    for k in ("render_mode", "num_envs", "sim_backend", "render_backend"):
+        kwargs.pop(k, None)
+    kwargs.update(obs_mode="rgb", sim_backend="physx_cpu")
+    return gym.make(env_info["env_id"], **kwargs)
+
+
+def _read_group(group) -> dict | np.ndarray:
+    """An h5 group as nested dicts of arrays, read at once (per-step h5 reads are slow)."""
+    import h5py
+
+    return {k: _read_group(v) if isinstance(v, h5py.Group) else v[()] for k, v in group.items()}
+
+
+def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int) -> Iterable[Episode]:
+    """Episodes of one demo file, camera frames rendered from the recorded env states."""
+    import h5py
+    from mani_skill.trajectory.utils import dict_to_list_of_dicts
+
+    from rsb_maniskill.agents.aloha import to_aloha14
+    from rsb_maniskill.motionplan.dataset import json_path_of, load_json
+
+    data = load_json(json_path_of(h5_path))
+    env = _env_for(data["env_info"])
+    base = env.unwrapped
+    try:
+        with h5py.File(h5_path, "r") as f:
+            for ep in data["episodes"]:
+                group = f[f"traj_{ep['episode_id']}"]
+                if "env_states" not in group:
+                    raise ExportError(f"{h5_path}: episode {ep['episode_id']} has no env states; record demos with "
+                                      "env states (rsb generate does) to export camera streams")
+                states = dict_to_list_of_dicts(_read_group(group["env_states"]))
+                actions = np.asarray(group["actions"][:], dtype=np.float32)
+                options = (ep.get("reset_kwargs") or {}).get("options")
+                env.reset(seed=ep["episode_seed"], options=options)
+                spec = base.episode_specs[0]  # the episode's semantics, also for files without RSB fields
+                state, frames = [], {c: [] for c in cameras}
+                for t in range(0, len(actions), stride):
+                    base.set_state_dict(states[t])
+                    obs = base.get_obs()
+                    state.append(base.agent.aloha14_state()[0].cpu().numpy())
+                    for c in cameras:
+                        frames[c].append(obs["sensor_data"][f"{c}_camera"]["rgb"][0].cpu().numpy())
+                meta = {
+                    "suite_id": spec.suite_id, "split": spec.split, "seed": int(ep["episode_seed"]),
+                    "question_id": spec.question_id, "question": spec.question, "options": list(spec.options),
+                    "correct_letter": spec.correct_letter, "target_block": spec.target_block,
+                    "template_id": spec.template_id, "source_file": h5_path.name,
+                    "source_episode_id": int(ep["episode_id"]),
+                }
+                yield Episode(np.asarray(state, np.float32), to_aloha14(actions[::stride]).astype(np.float32),
+                              {c: np.stack(v) for c, v in frames.items()}, ep.get("instruction", spec.instruction), meta)
+    finally:
+        env.close()
+
+
+# ------------------------------------------------------------------ writing
+
+
+def _write_video(path: Path, frames: np.ndarray, fps: int) -> None:
+    import cv2
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = frames.shape[1:3]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*VIDEO_FOURCC), float(fps), (w, h))
+    if not writer.isOpened():
+        raise ExportError(f"OpenCV cannot write {path} ({VIDEO_FOURCC})")
+    for frame in frames:
+        writer.write(np.ascontiguousarray(frame[..., ::-1]))
+    writer.release()
+
+
+def _hf_metadata(features: dict) -> bytes:
+    """The ``huggingface`` schema metadata of the data parquet (what ``datasets`` writes)."""
+    hf = {}
+    for name, ft in features.items():
+        if ft["dtype"] == "video":
+            continue
+        value = {"dtype": ft["dtype"], "_type": "Value"}
+        hf[name] = value if list(ft["shape"]) == [1] else {"feature": value, "length": ft["shape"][0], "_type": "List"}
+    return json.dumps({"info": {"features": hf}}).encode()
+
+
+def _features(cameras: Sequence[str], shapes: dict[str, tuple[int, int]], fps: int) -> dict:
+    from rsb_maniskill.agents.aloha import ALOHA14_NAMES
+
+    feats: dict[str, Any] = {
+        "observation.state": {"dtype": "float32", "shape": [14], "names": list(ALOHA14_NAMES)},
+        "action": {"dtype": "float32", "shape": [14], "names": list(ALOHA14_NAMES)},
+    }
+    for c in cameras:
+        h, w = shapes[c]
+        feats[video_key(c)] = {"dtype": "video", "shape": [h, w, 3], "names": ["height", "width", "channels"],
+                               "info": {"video.height": h, "video.width": w, "video.codec": VIDEO_CODEC,
+                                        "video.pix_fmt": "yuv420p", "video.fps": fps, "video.channels": 3,
+                                        "has_audio": False, "is_depth_map": False}}
+    for name, dtype in (("timestamp", "float32"), ("frame_index", "int64"), ("episode_index", "int64"),
+                        ("index", "int64"), ("task_index", "int64")):
+        feats[name] = {"dtype": dtype, "shape": [1], "names": None}
+    return feats
+
+
+def _tasks_table(tasks: dict[str, int]):
+    """``meta/tasks.parquet``: column task_index, index "task" (pandas metadata, as LeRobot reads it)."""
+    import pyarrow as pa
+
+    names = sorted(tasks, key=tasks.get)
+    table = pa.table({"task_index": pa.array([tasks[t] for t in names], pa.int64()), "task": pa.array(names, pa.string())})
+    pandas_md = {"index_columns": ["task"], "column_indexes": [{"name": None, "field_name": None, "pandas_type": "unicode",
+                                                                 "numpy_type": "object", "metadata": {"encoding": "UTF-8"}}],
+                 "columns": [{"name": "task_index", "field_name": "task_index", "pandas_type": "int64",
+                              "numpy_type": "int64", "metadata": None},
+                             {"name": "task", "field_name": "task", "pandas_type": "unicode", "numpy_type": "object",
+                              "metadata": None}],
+                 "attributes": {}, "creator": {"library": "pyarrow", "version": pa.__version__}}
+    return table.replace_schema_metadata({"pandas": json.dumps(pandas_md)})
+
+
+def _check_out(out: Path, overwrite: bool) -> None:
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
+        raise ExportError(f"{out} exists and is not empty; choose another --out or pass --overwrite")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ExportError(f"cannot create {out.parent}: {err}") from None
+
+
+def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *, fps: int | None = None,
+                   cameras: Sequence[str] = DEFAULT_CAMERAS, overwrite: bool = False,
+                   progress: bool = True) -> dict[str, Any]:
+    """Writes the episodes of ``demos`` (``rsb generate`` files, merged or converted ones too) as
+    one LeRobot v3.0 dataset under ``out``; returns a summary. The dataset is built under a
+    temporary name beside ``out`` and renamed at the end, so a failed export leaves nothing."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from tqdm import tqdm
+
+    out = Path(out)
+    bad = [c for c in cameras if c not in CAMERAS]
+    if bad or not cameras:
+        raise ExportError(f"unknown camera(s) {', '.join(bad) or '(none given)'}; valid: {', '.join(CAMERAS)}")
+    paths = [Path(p) for p in demos]
+    for p in paths:
+        if p.suffix != ".h5" or not p.is_file() or not p.with_suffix(".json").is_file():
+            raise ExportError(f"{p}: not a trajectory file pair (X.h5 with X.json beside it)")
+    _check_out(out, overwrite)
+    from rsb_maniskill.tasks.tabletop import CONTROL_FREQ as base_fps  # what every RSB demo runs at
+    fps = base_fps if fps is None else int(fps)
+    if fps < 1 or base_fps % fps:
+        raise ExportError(f"--fps must divide the demos' control frequency ({base_fps} Hz), got {fps}")
+    stride = base_fps // fps
+    total = sum(len(json.loads(p.with_suffix(".json").read_text())["episodes"]) for p in paths)
+
+    tmp = out.parent / f".{out.name}.tmp{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tasks: dict[str, int] = {}
+    episodes: list[dict[str, Any]] = []
+    stats: list[dict[str, dict[str, np.ndarray]]] = []
+    shapes: dict[str, tuple[int, int]] = {}
+    writer = None
+    index = 0
+    bar = tqdm(total=total, desc="export", unit="ep", disable=not progress)
+    try:
+        (tmp / DATA_FILE).parent.mkdir(parents=True)
+        for path in paths:
+            for ep in render_episodes(path, cameras, stride):
+                e = len(episodes)
+                n = len(ep.action)
+                task_index = tasks.setdefault(ep.task, len(tasks))
+                frame_index = np.arange(n)
+                cols = {"observation.state": ep.state, "action": ep.action,
+                        "timestamp": (frame_index / fps).astype(np.float32), "frame_index": frame_index,
+                        "episode_index": np.full(n, e), "index": index + frame_index, "task_index": np.full(n, task_index)}
+                table = pa.table({
+                    "observation.state": pa.FixedSizeListArray.from_arrays(pa.array(ep.state.ravel(), pa.float32()), 14),
+                    "action": pa.FixedSizeListArray.from_arrays(pa.array(ep.action.ravel(), pa.float32()), 14),
+                    "timestamp": pa.array(cols["timestamp"], pa.float32()),
+                    **{k: pa.array(cols[k], pa.int64()) for k in ("frame_index", "episode_index", "index", "task_index")},
+                })
+                if writer is None:
+                    feats = _features(cameras, {c: ep.frames[c].shape[1:3] for c in cameras}, fps)
+                    shapes = {c: ep.frames[c].shape[1:3] for c in cameras}
+                    writer = pq.ParquetWriter(tmp / DATA_FILE, table.schema.with_metadata({"huggingface": _hf_metadata(feats)}))
+                writer.write_table(table.replace_schema_metadata(writer.schema.metadata))
+                ep_stats = {k: vector_stats(v) for k, v in cols.items()}
+                row: dict[str, Any] = {"episode_index": e, "tasks": [ep.task], "length": n, "data/chunk_index": 0,
+                                       "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n}
+                for c in cameras:
+                    if ep.frames[c].shape[1:3] != shapes[c]:
+                        raise ExportError(f"{path}: camera {c} is {ep.frames[c].shape[1:3]} here, {shapes[c]} before; "
+                                          "export demos of one camera size together")
+                    key = video_key(c)
+                    chunk, file = divmod(e, CHUNKS_SIZE)
+                    _write_video(tmp / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=file), ep.frames[c], fps)
+                    row.update({f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": file,
+                                f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": n / fps})
+                    ep_stats[key] = image_stats(ep.frames[c])
+                row.update({"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0})
+                row.update({f"stats/{f}/{k}": np.asarray(v).tolist() for f, s in ep_stats.items() for k, v in s.items()})
+                row.update({f"rsb/{k}": v for k, v in ep.meta.items()})
+                episodes.append(row)
+                stats.append(ep_stats)
+                index += n
+                bar.update(1)
+        if writer is None:
+            raise ExportError("the demo files hold no episodes")
+        writer.close()
+        writer = None
+        (tmp / EPISODES_FILE).parent.mkdir(parents=True)
+        pq.write_table(pa.Table.from_pylist(episodes), tmp / EPISODES_FILE)
+        pq.write_table(_tasks_table(tasks), tmp / "meta/tasks.parquet")
+        agg = {f: aggregate_stats([s[f] for s in stats]) for f in stats[0]}
+        (tmp / "meta/stats.json").write_text(json.dumps(_jsonable(agg), indent=1))
+        info = {"codebase_version": CODEBASE_VERSION, "fps": fps, "features": feats, "total_episodes": len(episodes),
+                "total_frames": index, "total_tasks": len(tasks), "chunks_size": CHUNKS_SIZE,
+                "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
+                "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+                "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
+                "robot_type": ROBOT_TYPE, "splits": {"train": f"0:{len(episodes)}"}}
+        (tmp / "meta/info.json").write_text(json.dumps(info, indent=4))
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        if writer is not None:
+            writer.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    finally:
+        bar.close()
+    return {"out": str(out), "episodes": len(episodes), "frames": index, "tasks": len(tasks), "fps": fps,
+            "cameras": [video_key(c) for c in cameras]}

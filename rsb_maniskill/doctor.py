@@ -28,7 +28,7 @@ OPTIONAL = (  # (what, modules, install hint)
     ("question data from the hub", ("pyarrow",), "pip install 'rsb_maniskill[hub]'"),
     ("rsb eval remote / serve (openpi)", ("websockets", "msgpack"), "pip install 'rsb_maniskill[eval]'"),
     ("Ray executor", ("ray",), "pip install ray"),
-    ("LeRobot export (parquet + video)", ("pyarrow", "av"), "pip install pyarrow av"),
+    ("rsb export lerobot", ("pyarrow",), "pip install 'rsb_maniskill[export]'"),
 )
 _RENDER_PROBE = r"""
 import importlib.util, json, sys, time, numpy as np

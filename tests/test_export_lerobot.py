@@ -1,0 +1,172 @@
+"""`rsb export lerobot`: the v3.0 layout, frames equal to what the env renders, bad input, and
+LeRobot's own loader on the result (in a separate virtual environment: its pins clash with ours)."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from rsb_maniskill.cli import main
+from rsb_maniskill.export.lerobot import ExportError, export_lerobot
+from rsb_maniskill.motionplan.generate import GenerateConfig, generate
+
+REPO = Path(__file__).resolve().parents[1]
+LEROBOT = "lerobot[dataset]==0.6.1"  # the current release; needs Python >= 3.12 and numpy 2
+VENV = Path(os.environ.get("RSB_LEROBOT_VENV", REPO / ".cache" / "lerobot-0.6.1-venv"))
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("demos")
+    summary = generate(GenerateConfig(env_id="RSB-Math-4", out=str(out), num=2, progress=False))
+    assert summary.completed == 2
+    return summary.path
+
+
+@pytest.fixture(scope="module")
+def exported(demos, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("lerobot") / "rsb-math-4"
+    export_lerobot([demos], out, progress=False)
+    return out
+
+
+def _head_frame(demos: Path, episode: int, t: int) -> np.ndarray:
+    """The head camera at step t of a demo, rendered here from its recorded state."""
+    from rsb_maniskill.export.lerobot import render_episodes
+
+    for i, ep in enumerate(render_episodes(demos, ("head",), 1)):
+        if i == episode:
+            return ep.frames["head"][t]
+    raise IndexError(episode)
+
+
+def test_v3_layout_and_contents(demos, exported):
+    src = json.loads(demos.with_suffix(".json").read_text())
+    info = json.loads((exported / "meta/info.json").read_text())
+    n_frames = sum(e["elapsed_steps"] for e in src["episodes"])
+    assert info["codebase_version"] == "v3.0" and info["fps"] == 25 and info["robot_type"] == "aloha"
+    assert info["total_episodes"] == 2 and info["total_frames"] == n_frames
+    keys = ["observation.images.cam_high", "observation.images.cam_left_wrist", "observation.images.cam_right_wrist"]
+    assert all(info["features"][k]["dtype"] == "video" for k in keys)
+    assert info["features"]["observation.state"]["shape"] == [14]
+    data = pq.read_table(exported / "data/chunk-000/file-000.parquet").to_pydict()
+    assert len(data["index"]) == n_frames and data["index"] == list(range(n_frames))
+    tasks = pq.read_table(exported / "meta/tasks.parquet").to_pydict()
+    instructions = [e["instruction"] for e in src["episodes"]]
+    assert sorted(tasks["task"]) == sorted(set(instructions))
+    eps = pq.read_table(exported / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    for ep, s in zip(eps, src["episodes"]):
+        assert ep["tasks"] == [s["instruction"]] and ep["length"] == s["elapsed_steps"]
+        assert ep["rsb/correct_letter"] == s["correct_letter"] and ep["rsb/seed"] == s["episode_seed"]
+        assert ep["rsb/suite_id"] == "RSB-Math-4" and ep["rsb/split"] == "train"
+        # every frame of the episode points at its task
+        rows = range(ep["dataset_from_index"], ep["dataset_to_index"])
+        assert {data["task_index"][r] for r in rows} == {tasks["task_index"][tasks["task"].index(s["instruction"])]}
+    # Aloha layout: action = to_aloha14 of the recorded pd_joint_pos action, grippers in [0, 1]
+    import h5py
+
+    from rsb_maniskill.agents.aloha import to_aloha14
+    with h5py.File(demos) as f:
+        np.testing.assert_allclose(np.asarray(data["action"][:5]), to_aloha14(f["traj_0/actions"][:5]), atol=1e-6)
+    state = np.asarray(data["observation.state"])
+    assert state[:, [6, 13]].min() >= 0 and state[:, [6, 13]].max() <= 1
+    stats = json.loads((exported / "meta/stats.json").read_text())
+    assert stats["action"]["count"] == [n_frames] and np.asarray(stats[keys[0]]["mean"]).shape == (3, 1, 1)
+
+
+def test_video_frames_are_the_rendered_frames(demos, exported):
+    cap = cv2.VideoCapture(str(exported / "videos/observation.images.cam_high/chunk-000/file-001.mp4"))
+    frames = []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        frames.append(frame[..., ::-1])
+    src = json.loads(demos.with_suffix(".json").read_text())
+    assert len(frames) == src["episodes"][1]["elapsed_steps"]
+    t = 40
+    err = np.abs(frames[t].astype(int) - _head_frame(demos, 1, t).astype(int)).mean()
+    assert err < 6, err  # MPEG-4 is lossy; a wrong frame or camera differs by tens
+
+
+def test_fps_subsamples_and_bad_input_keeps_existing_files(demos, tmp_path):
+    out = tmp_path / "five"
+    summary = export_lerobot([demos], out, fps=5, cameras=["head"], progress=False)
+    src = json.loads(demos.with_suffix(".json").read_text())
+    assert summary["frames"] == sum(-(-e["elapsed_steps"] // 5) for e in src["episodes"])
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    for kwargs, msg in ((dict(fps=7, overwrite=True), "must divide"), (dict(cameras=["top"]), "unknown camera"),
+                        ({}, "not empty")):
+        with pytest.raises(ExportError, match=msg):
+            export_lerobot([demos], out, progress=False, **kwargs)
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before  # nothing written over
+    assert not list(tmp_path.glob(".five.tmp*"))
+    with pytest.raises(ExportError, match="not a trajectory file pair"):
+        export_lerobot([tmp_path / "missing.h5"], tmp_path / "x", progress=False)
+    assert main(["export", "lerobot", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "y")]) == 2
+
+
+def _python312() -> str | None:
+    """A working Python >= 3.12 (PATH, then pyenv's installs: its shims only run the active one)."""
+    cands = [shutil.which(f"python3.{m}") for m in (12, 13, 14)]
+    cands += sorted(str(p) for p in Path.home().glob(".pyenv/versions/3.1[2-9]*/bin/python3"))
+    for c in filter(None, cands):
+        ok = subprocess.run([c, "-c", "import sys, venv; assert sys.version_info >= (3, 12)"], capture_output=True)
+        if ok.returncode == 0:
+            return c
+    return None
+
+
+def _lerobot_python() -> Path:
+    """Python of a virtual environment with LeRobot (built once, reused from $RSB_LEROBOT_VENV)."""
+    py = VENV / "bin" / "python"
+    if py.exists() and subprocess.run([str(py), "-c", "import lerobot.datasets"], capture_output=True).returncode == 0:
+        return py
+    base = _python312()
+    if base is None:
+        pytest.skip("LeRobot 0.6 needs Python >= 3.12 and none is installed here")
+    shutil.rmtree(VENV, ignore_errors=True)
+    subprocess.run([base, "-m", "venv", str(VENV)], check=True)
+    res = subprocess.run([str(py), "-m", "pip", "install", "-q", LEROBOT], capture_output=True, text=True, timeout=1500)
+    if res.returncode != 0:
+        pytest.fail(f"pip install {LEROBOT} failed:\n{res.stderr[-3000:]}")
+    return py
+
+
+@pytest.mark.slow
+def test_lerobot_loads_the_export(demos, exported, tmp_path):
+    py = _lerobot_python()
+    expected = _head_frame(demos, 0, 30)
+    np.save(tmp_path / "frame.npy", expected)
+    src = json.loads(demos.with_suffix(".json").read_text())
+    code = textwrap.dedent(f"""
+        import json, numpy as np
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+        ds = LeRobotDataset("local/rsb-math-4", root={str(exported)!r})
+        item = ds[30]  # episode 0, frame 30
+        img = (item["observation.images.cam_high"].numpy().transpose(1, 2, 0) * 255).round()
+        eps = ds.meta.episodes
+        print(json.dumps(dict(frames=len(ds), episodes=ds.num_episodes, task=item["task"],
+                              tasks=sorted(ds.meta.tasks.index), letter=eps[0]["rsb/correct_letter"],
+                              err=float(np.abs(img - np.load({str(tmp_path / "frame.npy")!r})).mean()),
+                              keys=sorted(item))))
+    """)
+    res = subprocess.run([str(py), "-c", code], capture_output=True, text=True, timeout=600,
+                         env={**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": ""})
+    assert res.returncode == 0, res.stderr[-3000:]
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    assert got["frames"] == sum(e["elapsed_steps"] for e in src["episodes"]) and got["episodes"] == 2
+    assert got["task"] == src["episodes"][0]["instruction"]
+    assert got["tasks"] == sorted({e["instruction"] for e in src["episodes"]})
+    assert got["letter"] == src["episodes"][0]["correct_letter"]
+    assert got["err"] < 6, got["err"]
+    assert {"observation.state", "action", "observation.images.cam_left_wrist", "task_index"} <= set(got["keys"])

@@ -234,20 +234,61 @@ def _check_out(out: Path, overwrite: bool) -> None:
         raise ExportError(f"cannot create {out.parent}: {err}") from None
 
 
-def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *, fps: int | None = None,
-                   cameras: Sequence[str] = DEFAULT_CAMERAS, overwrite: bool = False,
-                   progress: bool = True) -> dict[str, Any]:
-    """Writes the episodes of ``demos`` (``rsb generate`` files, merged or converted ones too) as
-    one LeRobot v3.0 dataset under ``out``; returns a summary. The dataset is built under a
-    temporary name beside ``out`` and renamed at the end, so a failed export leaves nothing."""
-    try:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-    except ImportError:
-        raise ExportError("writing parquet needs pyarrow: pip install 'rsb_maniskill[export]'") from None
-    from tqdm import tqdm
+def _frame_table(ep: Episode, episode_index: int, first_index: int, task_index: int, fps: int):
+    """The episode's rows of the data parquet, and the columns its statistics are taken over."""
+    import pyarrow as pa
 
-    out = Path(out)
+    n = len(ep.action)
+    frame_index = np.arange(n)
+    cols = {"observation.state": ep.state, "action": ep.action, "timestamp": (frame_index / fps).astype(np.float32),
+            "frame_index": frame_index, "episode_index": np.full(n, episode_index),
+            "index": first_index + frame_index, "task_index": np.full(n, task_index)}
+    table = pa.table({
+        "observation.state": pa.FixedSizeListArray.from_arrays(pa.array(ep.state.ravel(), pa.float32()), 14),
+        "action": pa.FixedSizeListArray.from_arrays(pa.array(ep.action.ravel(), pa.float32()), 14),
+        "timestamp": pa.array(cols["timestamp"], pa.float32()),
+        **{k: pa.array(cols[k], pa.int64()) for k in ("frame_index", "episode_index", "index", "task_index")},
+    })
+    return table, cols
+
+
+def _write_videos(root: Path, ep: Episode, episode_index: int, cameras: Sequence[str], fps: int) -> dict[str, Any]:
+    """One mp4 per camera; returns the episode row's video columns."""
+    n = len(ep.action)
+    chunk, file = divmod(episode_index, CHUNKS_SIZE)
+    row: dict[str, Any] = {}
+    for c in cameras:
+        key = video_key(c)
+        _write_video(root / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=file), ep.frames[c], fps)
+        row.update({f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": file,
+                    f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": n / fps})
+    return row
+
+
+def _write_meta(root: Path, episodes: list[dict], tasks: dict[str, int], stats: list[dict], features: dict,
+                fps: int, frames: int) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    (root / EPISODES_FILE).parent.mkdir(parents=True)
+    pq.write_table(pa.Table.from_pylist(episodes), root / EPISODES_FILE)
+    pq.write_table(_tasks_table(tasks), root / "meta/tasks.parquet")
+    agg = {f: aggregate_stats([s[f] for s in stats]) for f in stats[0]}
+    (root / "meta/stats.json").write_text(json.dumps(_jsonable(agg), indent=1))
+    info = {"codebase_version": CODEBASE_VERSION, "fps": fps, "features": features, "total_episodes": len(episodes),
+            "total_frames": frames, "total_tasks": len(tasks), "chunks_size": CHUNKS_SIZE,
+            "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
+            "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+            "video_path": VIDEO_PATH,
+            "robot_type": ROBOT_TYPE, "splits": {"train": f"0:{len(episodes)}"}}
+    (root / "meta/info.json").write_text(json.dumps(info, indent=4))
+
+
+def _check_inputs(demos: Sequence[str | os.PathLike], out: Path, fps: int | None, cameras: Sequence[str],
+                  overwrite: bool) -> tuple[list[Path], int, int]:
+    """Validated demo paths, fps and frame stride; raises before anything is written."""
+    from rsb_maniskill.tasks.tabletop import CONTROL_FREQ  # what every RSB demo runs at
+
     bad = [c for c in cameras if c not in CAMERAS]
     if bad or not cameras:
         raise ExportError(f"unknown camera(s) {', '.join(bad) or '(none given)'}; valid: {', '.join(CAMERAS)}")
@@ -256,19 +297,34 @@ def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *
         if p.suffix != ".h5" or not p.is_file() or not p.with_suffix(".json").is_file():
             raise ExportError(f"{p}: not a trajectory file pair (X.h5 with X.json beside it)")
     _check_out(out, overwrite)
-    from rsb_maniskill.tasks.tabletop import CONTROL_FREQ as base_fps  # what every RSB demo runs at
-    fps = base_fps if fps is None else int(fps)
-    if fps < 1 or base_fps % fps:
-        raise ExportError(f"--fps must divide the demos' control frequency ({base_fps} Hz), got {fps}")
-    stride = base_fps // fps
-    total = sum(len(json.loads(p.with_suffix(".json").read_text())["episodes"]) for p in paths)
+    fps = CONTROL_FREQ if fps is None else int(fps)
+    if fps < 1 or CONTROL_FREQ % fps:
+        raise ExportError(f"--fps must divide the demos' control frequency ({CONTROL_FREQ} Hz), got {fps}")
+    return paths, fps, CONTROL_FREQ // fps
 
+
+def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *, fps: int | None = None,
+                   cameras: Sequence[str] = DEFAULT_CAMERAS, overwrite: bool = False,
+                   progress: bool = True) -> dict[str, Any]:
+    """Writes the episodes of ``demos`` (``rsb generate`` files, merged or converted ones too) as
+    one LeRobot v3.0 dataset under ``out``; returns a summary. The dataset is built under a
+    temporary name beside ``out`` and renamed at the end, so a failed export leaves nothing."""
+    try:
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise ExportError("writing parquet needs pyarrow: pip install 'rsb_maniskill[export]'") from None
+    from tqdm import tqdm
+
+    out = Path(out)
+    paths, fps, stride = _check_inputs(demos, out, fps, cameras, overwrite)
+    total = sum(len(json.loads(p.with_suffix(".json").read_text())["episodes"]) for p in paths)
     tmp = out.parent / f".{out.name}.tmp{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tasks: dict[str, int] = {}
     episodes: list[dict[str, Any]] = []
     stats: list[dict[str, dict[str, np.ndarray]]] = []
     shapes: dict[str, tuple[int, int]] = {}
+    features: dict = {}
     writer = None
     index = 0
     bar = tqdm(total=total, desc="export", unit="ep", disable=not progress)
@@ -276,39 +332,26 @@ def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *
         (tmp / DATA_FILE).parent.mkdir(parents=True)
         for path in paths:
             for ep in render_episodes(path, cameras, stride):
-                e = len(episodes)
-                n = len(ep.action)
-                task_index = tasks.setdefault(ep.task, len(tasks))
-                frame_index = np.arange(n)
-                cols = {"observation.state": ep.state, "action": ep.action,
-                        "timestamp": (frame_index / fps).astype(np.float32), "frame_index": frame_index,
-                        "episode_index": np.full(n, e), "index": index + frame_index, "task_index": np.full(n, task_index)}
-                table = pa.table({
-                    "observation.state": pa.FixedSizeListArray.from_arrays(pa.array(ep.state.ravel(), pa.float32()), 14),
-                    "action": pa.FixedSizeListArray.from_arrays(pa.array(ep.action.ravel(), pa.float32()), 14),
-                    "timestamp": pa.array(cols["timestamp"], pa.float32()),
-                    **{k: pa.array(cols[k], pa.int64()) for k in ("frame_index", "episode_index", "index", "task_index")},
-                })
-                if writer is None:
-                    feats = _features(cameras, {c: ep.frames[c].shape[1:3] for c in cameras}, fps)
+                e, n = len(episodes), len(ep.action)
+                if not shapes:
                     shapes = {c: ep.frames[c].shape[1:3] for c in cameras}
-                    writer = pq.ParquetWriter(tmp / DATA_FILE, table.schema.with_metadata({"huggingface": _hf_metadata(feats)}))
+                    features = _features(cameras, shapes, fps)
+                bad = [c for c in cameras if ep.frames[c].shape[1:3] != shapes[c]]
+                if bad:
+                    raise ExportError(f"{path}: camera {bad[0]} is {ep.frames[bad[0]].shape[1:3]} here, "
+                                      f"{shapes[bad[0]]} before; export demos of one camera size together")
+                table, cols = _frame_table(ep, e, index, tasks.setdefault(ep.task, len(tasks)), fps)
+                if writer is None:
+                    writer = pq.ParquetWriter(tmp / DATA_FILE, table.schema.with_metadata(
+                        {"huggingface": _hf_metadata(features)}))
                 writer.write_table(table.replace_schema_metadata(writer.schema.metadata))
                 ep_stats = {k: vector_stats(v) for k, v in cols.items()}
+                ep_stats.update({video_key(c): image_stats(ep.frames[c]) for c in cameras})
                 row: dict[str, Any] = {"episode_index": e, "tasks": [ep.task], "length": n, "data/chunk_index": 0,
                                        "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n}
-                for c in cameras:
-                    if ep.frames[c].shape[1:3] != shapes[c]:
-                        raise ExportError(f"{path}: camera {c} is {ep.frames[c].shape[1:3]} here, {shapes[c]} before; "
-                                          "export demos of one camera size together")
-                    key = video_key(c)
-                    chunk, file = divmod(e, CHUNKS_SIZE)
-                    _write_video(tmp / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=file), ep.frames[c], fps)
-                    row.update({f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": file,
-                                f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": n / fps})
-                    ep_stats[key] = image_stats(ep.frames[c])
+                row.update(_write_videos(tmp, ep, e, cameras, fps))
                 row.update({"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0})
-                row.update({f"stats/{f}/{k}": np.asarray(v).tolist() for f, s in ep_stats.items() for k, v in s.items()})
+                row.update({f"stats/{f}/{k}": np.asarray(v).tolist() for f, st in ep_stats.items() for k, v in st.items()})
                 row.update({f"rsb/{k}": v for k, v in ep.meta.items()})
                 episodes.append(row)
                 stats.append(ep_stats)
@@ -318,18 +361,7 @@ def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *
             raise ExportError("the demo files hold no episodes")
         writer.close()
         writer = None
-        (tmp / EPISODES_FILE).parent.mkdir(parents=True)
-        pq.write_table(pa.Table.from_pylist(episodes), tmp / EPISODES_FILE)
-        pq.write_table(_tasks_table(tasks), tmp / "meta/tasks.parquet")
-        agg = {f: aggregate_stats([s[f] for s in stats]) for f in stats[0]}
-        (tmp / "meta/stats.json").write_text(json.dumps(_jsonable(agg), indent=1))
-        info = {"codebase_version": CODEBASE_VERSION, "fps": fps, "features": feats, "total_episodes": len(episodes),
-                "total_frames": index, "total_tasks": len(tasks), "chunks_size": CHUNKS_SIZE,
-                "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
-                "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-                "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
-                "robot_type": ROBOT_TYPE, "splits": {"train": f"0:{len(episodes)}"}}
-        (tmp / "meta/info.json").write_text(json.dumps(info, indent=4))
+        _write_meta(tmp, episodes, tasks, stats, features, fps, index)
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)

@@ -3,9 +3,9 @@
 Each fact yields questions in both directions (tool -> purpose, purpose -> tool, ...) and in
 several phrasings. Facts, not questions, are split between the pools (half each, by stable hash
 of the fact's split key), so no fact is asked in both pools in either direction: location facts
-are keyed by their place's *area* (areas are dealt out evenly instead of hashed), because the reverse question "Which of these is kept in the
-pantry?" asks about every item of the pantry at once, and "kept in the bathroom" is nearly
-"kept in the bathroom cabinet".
+are keyed by their place's *area* (areas are dealt out evenly instead of hashed), because the
+reverse question "Which of these is kept in the pantry?" asks about every item of the pantry at
+once, and "kept in the bathroom" is nearly "kept in the bathroom cabinet".
 
 Distractors (see distractors.py) are other answers of the same kind of question *in the same
 split*, each weighted by how often it is an answer there, minus rows that could also be right
@@ -55,6 +55,7 @@ def _conflict_map(groups: tuple[tuple[str, ...], ...]) -> dict[str, set[str]]:
     return m
 
 
+@lru_cache(maxsize=None)
 def _area_splits() -> dict[str, bool]:
     """Area -> in train. Areas differ a lot in size, so instead of a hash they are dealt out,
     largest first, to the split with fewer places so far: both splits get enough places."""

@@ -24,11 +24,25 @@ MODULE = "rsb_maniskill"
 TASK_MAX_EPISODE_STEPS = 300  # 12 s at 25 Hz; the expert needs about 7 s (see docs/tasks.md)
 TABLETOP_ID = "RSB-TableTop-v1"
 TABLETOP_MAX_EPISODE_STEPS = 500
+OBJECTS_SUFFIX = "-Objects"  # "RSB-Math-4-Objects": the suite with everyday objects (Beyond Blocks)
+OBJECT_ENV_IDS: tuple[str, ...] = tuple(sid + OBJECTS_SUFFIX for sid in SUITE_IDS)
 # id -> (max_episode_steps, default kwargs), as the tasks register themselves with ManiSkill
 ENVS: dict[str, tuple[int, dict[str, Any]]] = {
     **{sid: (TASK_MAX_EPISODE_STEPS, {"suite_id": sid}) for sid in SUITE_IDS},
+    **{eid: (TASK_MAX_EPISODE_STEPS, {"suite_id": eid[:-len(OBJECTS_SUFFIX)], "targets": "objects"})
+       for eid in OBJECT_ENV_IDS},
     TABLETOP_ID: (TABLETOP_MAX_EPISODE_STEPS, {}),
 }
+
+
+def env_suite(env_id: str) -> tuple[str, str]:
+    """``"RSB-Math-4-Objects"`` -> ``("RSB-Math-4", "objects")``; ValueError names the valid ids."""
+    eid = env_id.split(":", 1)[-1]
+    kwargs = ENVS.get(eid, (0, {}))[1]
+    if "suite_id" not in kwargs:
+        raise ValueError(f"unknown RSB task id {env_id!r}; valid: {', '.join(SUITE_IDS)} "
+                         f"and the same with {OBJECTS_SUFFIX!r} (e.g. {OBJECT_ENV_IDS[0]})")
+    return kwargs["suite_id"], kwargs.get("targets", "blocks")
 
 
 def qualified_id(env_id: str) -> str:

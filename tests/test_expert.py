@@ -90,7 +90,7 @@ def test_expert_run_succeeds(request, suite, seeds):
     for seed in seeds:
         env.reset(seed=seed)
         u = env.unwrapped
-        start_y = float(u.blocks[int(u.target_block[0])].pose.p[0, 1])
+        start_y = float(u.candidate_actor(int(u.target_block[0])).pose.p[0, 1])
         res = ScriptedExpert(env).run()
         assert isinstance(res, ExpertResult)
         info = env.unwrapped.get_info()

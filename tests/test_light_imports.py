@@ -73,6 +73,6 @@ def test_qualified_id_needs_no_import():
         import json, gymnasium as gym
         env = gym.make("rsb_maniskill:RSB-Math-10", obs_mode="state", render_backend="none")
         env.reset(seed=3)
-        print(json.dumps(dict(n=len(env.unwrapped.blocks), instr=env.unwrapped.get_language_instruction()[0][:20])))
+        print(json.dumps(dict(n=len(env.unwrapped.pool.actors), instr=env.unwrapped.get_language_instruction()[0][:20])))
     """)
     assert got["n"] == 10 and got["instr"]

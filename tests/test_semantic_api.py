@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from rsb_maniskill.semantic import (COLORS_4, LETTERS_4, LETTERS_10, SUITE_IDS, DataNotFoundError, EpisodeSampler,
+from rsb_maniskill.objects.family import BLOCK_COLORS
+from rsb_maniskill.semantic import (LETTERS_4, LETTERS_10, SUITE_IDS, DataNotFoundError, EpisodeSampler,
                                     EpisodeSpec, SemanticDataError, parse_suite_id)
 
 FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
@@ -19,7 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 def test_constants():
     assert LETTERS_4 == ("A", "B", "C", "D")
     assert LETTERS_10 == ("A", "B", "C", "D", "E", "F", "G", "H", "I", "K")
-    assert COLORS_4 == ("red", "green", "blue", "yellow")
+    assert tuple(BLOCK_COLORS) == ("red", "green", "blue", "yellow")
     assert SUITE_IDS == ("RSB-Math-4", "RSB-Math-10", "RSB-HardMath-4", "RSB-HardMath-10",
                          "RSB-General-4", "RSB-General-10", "RSB-Direct-4", "RSB-Direct-10")
     assert issubclass(DataNotFoundError, FileNotFoundError) and issubclass(SemanticDataError, ValueError)

@@ -43,7 +43,7 @@ def test_every_suite_resets_and_steps(suite_id):
     obs, info = env.reset(seed=1)
     n = int(suite_id.rsplit("-", 1)[1])
     assert obs.shape[0] == 1 and obs.shape[1] > 0
-    assert env.unwrapped.n_choices == n and len(env.unwrapped.blocks) == n
+    assert env.unwrapped.n_choices == n and env.unwrapped.pool.raw_poses().shape == (1, n, 7)
     (instruction,) = env.unwrapped.get_language_instruction()
     assert isinstance(instruction, str) and len(instruction) > 10
     spec = env.unwrapped.episode_specs[0]
@@ -94,7 +94,8 @@ def _episode_fingerprint(suite_id: str, seed: int) -> dict:
         instruction=u.get_language_instruction()[0],
         target=int(u.target_block[0]),
         question_id=int(u.question_id[0]),
-        xy=[round(float(v), 6) for b in u.blocks for v in b.pose.p[0, :2]],
+        xy=[round(float(v), 6) for v in u.pool.raw_poses()[0, :, :2].flatten()],
+        candidates=list(u.episode_specs[0].candidates),
     )
     env.close()
     return out
@@ -108,7 +109,7 @@ print(json.dumps(_episode_fingerprint({suite!r}, {seed})))
 """
 
 
-@pytest.mark.parametrize("suite_id", ["RSB-Math-4", "RSB-Math-10"])
+@pytest.mark.parametrize("suite_id", ["RSB-Math-4", "RSB-Math-10", "RSB-Math-10-Objects"])
 def test_same_seed_same_episode_in_fresh_process(suite_id):
     here = _episode_fingerprint(suite_id, seed=7)
     code = FINGERPRINT_SCRIPT.format(tests=os.path.dirname(__file__), suite=suite_id, seed=7)
@@ -119,8 +120,9 @@ def test_same_seed_same_episode_in_fresh_process(suite_id):
     assert other["xy"] != here["xy"] and other["instruction"] != here["instruction"]
 
 
-def test_reset_twice_with_seed_is_identical():
-    env = make("RSB-Math-10")
+@pytest.mark.parametrize("suite_id", ["RSB-Math-10", "RSB-Math-4-Objects"])
+def test_reset_twice_with_seed_is_identical(suite_id):
+    env = make(suite_id)
     env.reset(seed=3)
     a = env.unwrapped.get_state_dict()
     inst = env.unwrapped.get_language_instruction()
@@ -129,19 +131,24 @@ def test_reset_twice_with_seed_is_identical():
     b = env.unwrapped.get_state_dict()
     assert inst == env.unwrapped.get_language_instruction()
     assert torch.allclose(a["task"], b["task"])
-    for name in a["actors"]:
+    on_table = {f"candidate_{k.replace(':', '_')}" for k in env.unwrapped.episode_specs[0].candidates}
+    assert on_table <= set(a["actors"])
+    for name in on_table | {"answer_zone"}:
         assert torch.allclose(a["actors"][name], b["actors"][name]), name
     env.close()
 
 
-def test_state_dict_restores_task_ids():
-    env = make("RSB-Math-10")
+@pytest.mark.parametrize("suite_id", ["RSB-Math-10", "RSB-Math-10-Objects"])
+def test_state_dict_restores_task_ids(suite_id):
+    env = make(suite_id)
     env.reset(seed=11)
     state = env.unwrapped.get_state_dict()
     target = int(env.unwrapped.target_block[0])
+    poses = env.unwrapped.pool.raw_poses().clone()
     env.reset(seed=12)
     env.unwrapped.set_state_dict(state)
     assert int(env.unwrapped.target_block[0]) == target
+    assert torch.allclose(env.unwrapped.pool.raw_poses(), poses, atol=1e-6), "the same candidates, in place"
     info = env.unwrapped.get_info()
     assert int(info["target_block"][0]) == target
     env.close()
@@ -151,12 +158,40 @@ def test_layout_min_spacing_and_reach():
     env = make("RSB-Math-10")
     for seed in range(20):
         env.reset(seed=seed)
-        xy = torch.stack([b.pose.p[0, :2] for b in env.unwrapped.blocks])
+        xy = env.unwrapped.pool.raw_poses()[0, :, :2]
         d = torch.cdist(xy, xy) + torch.eye(len(xy)) * 10
         assert d.min() > 0.07, f"seed {seed}: blocks {d.min():.3f} m apart"
         assert (xy[:, 0] > 0.25).all() and (xy[:, 0] < 0.45).all()
         zone_gap = torch.linalg.norm(xy - torch.tensor(ZONE_XY), dim=1).min()
         assert zone_gap > 0.1
+    env.close()
+
+
+def _footprint_boxes(u) -> torch.Tensor:
+    """(N, 4) world bounding boxes [xmin, ymin, xmax, ymax] of the candidates' turned footprints."""
+    pose = u.pool.raw_poses()[0]
+    yaw = 2 * torch.atan2(pose[:, 6], pose[:, 3])
+    hx, hy = u.pool.half_extents()[0].unbind(-1)
+    ex = hx * yaw.cos().abs() + hy * yaw.sin().abs()
+    ey = hx * yaw.sin().abs() + hy * yaw.cos().abs()
+    return torch.stack([pose[:, 0] - ex, pose[:, 1] - ey, pose[:, 0] + ex, pose[:, 1] + ey], 1)
+
+
+@pytest.mark.parametrize("suite_id", ["RSB-Math-10-Objects", "RSB-Math-4-Objects"])
+def test_objects_do_not_overlap_and_stay_in_reach(suite_id):
+    env = make(suite_id)
+    for seed in range(40):
+        env.reset(seed=seed)
+        u = env.unwrapped
+        box = _footprint_boxes(u)
+        n = len(box)
+        for i in range(n):
+            for j in range(i + 1, n):
+                apart = (box[i, 2] < box[j, 0]) | (box[j, 2] < box[i, 0]) | (box[i, 3] < box[j, 1]) | (box[j, 3] < box[i, 1])
+                assert apart, f"seed {seed}: candidates {i} and {j} overlap"
+        assert (box[:, 0] > 0.22).all() and (box[:, 2] < 0.48).all() and (box[:, [1, 3]].abs() < 0.32).all()
+        assert len(set(u.episode_specs[0].candidates)) == n
+        assert len({k.split(":")[0] for k in u.episode_specs[0].candidates}) == n, "distinct categories"
     env.close()
 
 
@@ -187,8 +222,7 @@ def _arm_for(xy) -> str:
 
 def test_touch_without_closing_is_no_grasp():
     env, u = _setup()
-    block = u.blocks[0]
-    x, y = block.pose.p[0, :2].tolist()
+    x, y = u.candidate_actor(0).pose.p[0, :2].tolist()
     arm = _arm_for((x, y))
     drv = ArmDriver(env, arm)
     drv.grip(1.0, steps=5)
@@ -217,8 +251,7 @@ def test_closed_empty_gripper_is_no_grasp():
 
 
 def _pick(env, u, index) -> ArmDriver:
-    block = u.blocks[index]
-    x, y = block.pose.p[0, :2].tolist()
+    x, y = u.candidate_actor(index).pose.p[0, :2].tolist()
     drv = ArmDriver(env, _arm_for((x, y)))
     drv.grip(0.5, steps=5)
     drv.move_to([x, y, 0.12], steps=30)
@@ -282,7 +315,7 @@ def test_gpu_parallel_envs_are_independent():
     for i in (0, 5):
         cpu.reset(seed=i)
         assert cpu.unwrapped.get_language_instruction()[0] == u.get_language_instruction()[i]
-        assert torch.allclose(cpu.unwrapped.blocks[0].pose.p[0], u.blocks[0].pose.p[i].cpu(), atol=1e-4)
+        assert torch.allclose(cpu.unwrapped.pool.raw_poses()[0, :, :3], u.pool.raw_poses()[i, :, :3].cpu(), atol=1e-4)
     # Moving env 0's arm leaves the others alone.
     before = u.agent.robot.get_qpos().clone()
     action = u.agent.rest_action().to(u.device).repeat(16, 1)
@@ -292,4 +325,25 @@ def test_gpu_parallel_envs_are_independent():
     after = u.agent.robot.get_qpos()
     assert (after[0] - before[0]).abs().max() > 0.1
     assert (after[1:] - before[1:]).abs().max() < 0.02
+    env.close()
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA for the physx_cuda backend")
+def test_gpu_objects_differ_per_env_and_match_cpu():
+    env = gym.make("RSB-Math-10-Objects", num_envs=16, obs_mode="state", sim_backend="physx_cuda",
+                   render_backend="none")
+    env.reset(seed=list(range(16)))
+    u = env.unwrapped
+    assert len({tuple(s.candidates) for s in u.episode_specs}) == 16, "each env draws its own objects"
+    cpu = make("RSB-Math-10-Objects")
+    for i in (0, 7):
+        cpu.reset(seed=i)
+        assert cpu.unwrapped.episode_specs[0].candidates == u.episode_specs[i].candidates
+        assert torch.equal(cpu.unwrapped.pool.index[0], u.pool.index[i].cpu())
+        assert torch.allclose(cpu.unwrapped.pool.raw_poses()[0, :, :3], u.pool.raw_poses()[i, :, :3].cpu(), atol=1e-4)
+    for _ in range(20):
+        env.step(u.agent.rest_action().to(u.device).repeat(16, 1))
+    z = u.pool.raw_poses()[..., 2]
+    assert (z - u.rest_z).abs().max() < 0.01, "candidates rest on the table in every env"
     env.close()

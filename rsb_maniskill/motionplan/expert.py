@@ -1,20 +1,24 @@
-"""Scripted expert for the RSB answer-selection task: pick the target block, place it in the zone.
+"""Scripted expert for the RSB answer-selection task: pick the target candidate, place it in the zone.
 
 Reads the ground truth (``env.unwrapped.target_block``), takes the arm on the target's side
 (y >= 0: left) and runs, each motion planned from the live state just before it is executed:
 
-    approach  above the block, tool down, fingers aligned with the block's yaw, gripper half open
+    approach  above the candidate's grasp frame, tool down, fingers across the grasp, gripper
+              opened a centimetre wider than the grasp on each side
     descend   straight down to the grasp height
     close     gripper closed, arm held
     lift      straight up (checks the grasp)
-    carry     straight across to above the zone centre
-    lower     down until the block hangs a few millimetres above the table (checks the hold)
+    carry     straight across to above the zone centre, high enough to clear every candidate
+    lower     down until the candidate hangs a few millimetres above the table (checks the hold)
     release   gripper half open, arm held
     retreat   straight up
     rest      joint-space move back to the rest pose
 
 The other arm holds its current target throughout. Screw motions (straight TCP lines, fast) are
 used everywhere; RRTConnect only when a screw motion fails (a joint limit or a collision).
+Grasp frames come from the candidate family (``rsb_maniskill.objects``): a block offers two
+closing directions, an everyday object those its catalog entry lists; heights are measured
+from the grasp frame, so the same plan serves every shape.
 """
 from __future__ import annotations
 
@@ -37,22 +41,23 @@ from rsb_maniskill.motionplan.planner import (
 
 # TCP frame pointing straight down (its x axis along -z) with the fingers closing along world y.
 DOWN_Q = np.array([0.70710678, 0.0, 0.70710678, 0.0])
-# Heights of the TCP relative to the block's resting centre height (the fingertips reach
-# 2.46 cm past the TCP, so +1 cm keeps them ~5 mm above the table and the pads on the block).
-GRASP_DZ = 0.010
-PREGRASP_DZ = 0.090  # approach from here: fingertips clear the 4 cm neighbours
-CARRY_DZ = 0.100  # carried block's bottom ~8 cm up: clears every other block
-PLACE_DZ = GRASP_DZ + 0.006  # release with the block 6 mm above the table
+# Heights of the TCP above its grasp height (the grasp frame's TCP; fingertips reach 2.46 cm
+# below the TCP). For a 4 cm block: TCP 11 cm up to approach, 12 cm to carry.
+PREGRASP_DZ = 0.080  # fingertips clear the target and (for every height up to 5.5 cm) its neighbours
+PREGRASP_CLEARANCE = 0.045  # TCP above the tallest candidate's top when that is higher
+CARRY_CLEARANCE = 0.050  # carried candidate's bottom this far above the tallest candidate
+PLACE_DZ = 0.006  # release with the candidate 6 mm above the table
 RETREAT_DZ = 0.090
-# Gripper: neighbours are >= 7.4 cm centre to centre, so a fully open gripper (9.5 cm gap plus
-# 8 mm pads) may touch them; 3 cm per finger gives a 6 cm gap, 1 cm clearance on a 4 cm block.
-GRASP_OPENING = 0.030  # m per finger
+# Gripper: a fully open gripper (9.5 cm gap plus 8 mm pads) may touch neighbours, so it opens
+# 1 cm wider than the grasp on each side (a 6 cm gap on a 4 cm block).
+GRASP_CLEARANCE = 0.010  # m per finger
+MAX_OPENING = 0.045  # m per finger (joint travel is 4.76 cm)
 CLOSED = -1.0
 SETTLE_STEPS = 2  # hold the last target so the PD drives catch up before closing/opening
 CLOSE_STEPS = 8
 OPEN_STEPS = 5
-IDLE_STEPS = 15  # after the plan: lets a released block come to rest
-YAW_CANDIDATES = (0.0, np.pi / 2, -np.pi / 2)  # grasp yaws tried, relative to the block face
+IDLE_STEPS = 15  # after the plan: lets a released candidate come to rest
+CARRY_YAWS = (0.0, np.pi / 2, -np.pi / 2)  # wrist turns tried on the way to the zone
 
 
 @dataclass
@@ -72,9 +77,28 @@ def _yaw_of(quat_wxyz: np.ndarray) -> float:
     return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
-def _wrap_quarter(angle: float) -> float:
-    """The block is square: its yaw matters modulo pi/2; map to [-pi/4, pi/4)."""
-    return float((angle + np.pi / 4) % (np.pi / 2) - np.pi / 4)
+def _wrap(angle: float) -> float:
+    """Angle in [-pi, pi)."""
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _rotate_xy(v: tuple[float, float], yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
+def grasp_options(shape, pose7_world: np.ndarray) -> list[tuple[np.ndarray, float, float]]:
+    """World (TCP xyz, TCP yaw, grasp width) of each grasp frame of a candidate resting on the
+    table at ``pose7_world``, both finger orders; the least wrist turn (|yaw| smallest) first."""
+    yaw_obj = _yaw_of(pose7_world[3:])
+    out = []
+    for g in shape.grasps:
+        xy = pose7_world[:2] + _rotate_xy(g.pos[:2], yaw_obj)
+        z = shape.rest_z + g.pos[2]  # the table top is z = 0
+        for flip in (0.0, np.pi):
+            # down_quat(yaw) closes the fingers along yaw + pi/2
+            out.append((np.array([*xy, z]), _wrap(yaw_obj + g.yaw + flip - np.pi / 2), g.width))
+    return sorted(out, key=lambda o: abs(o[1]))
 
 
 def down_quat(yaw: float) -> np.ndarray:
@@ -95,7 +119,7 @@ class ScriptedExpert:
 
     Args:
         env: the gym env, possibly wrapped (e.g. RecordEpisode).
-        target_block: block index to pick instead of the ground truth (the 'blind' baseline).
+        target_block: candidate index to pick instead of the ground truth (the 'blind' baseline).
     """
 
     def __init__(self, env, target_block: int | None = None):
@@ -104,13 +128,14 @@ class ScriptedExpert:
         assert self.base.num_envs == 1, "ScriptedExpert drives one env at a time"
         self.agent = self.base.agent
         self.target = int(self.base.target_block[0]) if target_block is None else int(target_block)
-        self.block = self.base.blocks[self.target]
-        self.rest_z = float(self.base.rest_z[0, self.target])
+        self.block = self.base.candidate_actor(self.target)
+        self.shape = self.base.pool.shape(self.target)
+        self.tallest = float(self.base.pool.heights()[0].max())
         y = float(self.block.pose.p[0, 1])
         self.arm = "left" if y >= 0 else "right"
         self.planner = ArmPlanner(self.agent.robot, self.arm, self.base.control_timestep)
         self.action = self._current_action()
-        self.open_action = gripper_action(GRASP_OPENING)
+        self.open_action = 1.0  # set per grasp in chunks()
         self.reason = ""
         self.stage = ""
 
@@ -119,31 +144,31 @@ class ScriptedExpert:
         """Yields (T, 14) pd_joint_pos chunks, each planned from the live state after the last.
 
         Stops early (``self.reason`` set) when a plan fails or the grasp is lost."""
-        block_pose = self.block.pose.raw_pose[0].cpu().numpy()
-        bxy = block_pose[:2]
-        yaw0 = _wrap_quarter(_yaw_of(block_pose[3:]))
+        options = grasp_options(self.shape, self.block.pose.raw_pose[0].cpu().numpy().astype(np.float64))
         zone = np.asarray(self.base.zone_xy.cpu().numpy(), np.float64)
-        z0 = self.rest_z
+        grasp_z = float(options[0][0][2])  # every grasp frame of a candidate shares its height
+        above = grasp_z + max(PREGRASP_DZ, self.tallest + PREGRASP_CLEARANCE - grasp_z)
+        carry_z = self.tallest + CARRY_CLEARANCE + grasp_z  # the bottom clears every candidate
 
-        # approach: fingers square to the block, the least wrist turn first; screw, IK + joint
-        # move, RRT in that order of preference over all yaws
+        # approach: the grasp with the least wrist turn first; screw, IK + joint move, RRT in
+        # that order of preference over all grasps
         self.stage = "pregrasp"
-        path, yaw = None, yaw0
+        path = None
         for straight, allow_rrt in ((True, False), (False, False), (False, True)):
-            for dyaw in YAW_CANDIDATES:
-                yaw = yaw0 + dyaw
+            for tcp, yaw, width in options:
                 quat = down_quat(yaw)
-                path = self.planner.move_to(pose7([*bxy, z0 + PREGRASP_DZ], quat),
-                                            straight=straight, allow_rrt=allow_rrt)
+                path = self.planner.move_to(pose7([*tcp[:2], above], quat), straight=straight, allow_rrt=allow_rrt)
                 if path is not None:
                     break
             if path is not None:
                 break
         if path is None:
             return self._fail("ik_failed:pregrasp")
+        bxy = tcp[:2]
+        self.open_action = gripper_action(min(MAX_OPENING, width / 2 + GRASP_CLEARANCE))
         yield self._arm_chunk(path, self.open_action)
 
-        chunk = self._line("grasp", pose7([*bxy, z0 + GRASP_DZ], quat), self.open_action, SETTLE_STEPS)
+        chunk = self._line("grasp", pose7([*bxy, grasp_z], quat), self.open_action, SETTLE_STEPS)
         if chunk is None:
             return
         yield chunk
@@ -153,30 +178,30 @@ class ScriptedExpert:
         if not self._grasping():
             return self._fail("grasp_missed")
 
-        chunk = self._line("lift", pose7([*bxy, z0 + CARRY_DZ], quat), CLOSED, 0)
+        chunk = self._line("lift", pose7([*bxy, carry_z], quat), CLOSED, 0)
         if chunk is None:
             return
         yield chunk
         if not self._grasping():
             return self._fail("grasp_missed")
 
-        # carry: the block may turn by a quarter turn on the way if the wrist runs out of range
+        # carry: the candidate may turn by a quarter turn on the way if the wrist runs out of range
         self.stage = "carry"
-        for dyaw in YAW_CANDIDATES:
+        for dyaw in CARRY_YAWS:
             quat = down_quat(yaw + dyaw)
-            path = self.planner.move_to(pose7([*zone, z0 + CARRY_DZ], quat), allow_rrt=False)
+            path = self.planner.move_to(pose7([*zone, carry_z], quat), allow_rrt=False)
             if path is not None:
                 break
         if path is None:
             quat = down_quat(yaw)
-            path = self.planner.rrt(pose7([*zone, z0 + CARRY_DZ], quat))
+            path = self.planner.rrt(pose7([*zone, carry_z], quat))
         if path is None:
             return self._fail("ik_failed:carry")
         yield self._arm_chunk(path, CLOSED)
         if not self._grasping():
             return self._fail("dropped")
 
-        chunk = self._line("lower", pose7([*zone, z0 + PLACE_DZ], quat), CLOSED, SETTLE_STEPS)
+        chunk = self._line("lower", pose7([*zone, grasp_z + PLACE_DZ], quat), CLOSED, SETTLE_STEPS)
         if chunk is None:
             return
         yield chunk
@@ -186,7 +211,7 @@ class ScriptedExpert:
         self.stage = "release"
         yield self._hold(OPEN_STEPS, self.open_action)
 
-        chunk = self._line("retreat", pose7([*zone, z0 + PLACE_DZ + RETREAT_DZ], quat), self.open_action, 0)
+        chunk = self._line("retreat", pose7([*zone, grasp_z + PLACE_DZ + RETREAT_DZ], quat), self.open_action, 0)
         if chunk is None:
             return
         yield chunk

@@ -1,5 +1,11 @@
-"""Answer targets: what the robot picks (blocks now; everyday objects later)."""
-from rsb_maniskill.objects.base import AnswerTargets
-from rsb_maniskill.objects.blocks import BLOCK_HALF, Blocks
+"""What the candidates are: blocks or everyday objects (Beyond Blocks).
 
-__all__ = ["AnswerTargets", "BLOCK_HALF", "Blocks"]
+Two halves. Without the simulator (numpy only, used by the semantic sampler): ``family`` (the
+families, their per-episode draw, names, noun and geometry) and ``catalog`` (everyday objects as
+convex parts with grasp frames). With the simulator: ``pool`` builds a family's actors in a scene
+and places, parks and reads the candidates of each parallel env (``blocks`` and ``everyday``
+build the actors). See docs/objects.md.
+"""
+from rsb_maniskill.objects.family import TARGETS, get_family
+
+__all__ = ["TARGETS", "get_family"]

@@ -10,7 +10,6 @@ from .sampler import EpisodeSampler
 from .spec import EpisodeSpec
 from .suites import (
     COLOR_MAPS,
-    COLORS_4,
     INSTRUCTION_SETS,
     LETTERS_4,
     LETTERS_10,
@@ -18,7 +17,6 @@ from .suites import (
     SUITE_IDS,
     SUITE_SOURCES,
     SUITES,
-    block_names_for,
     letters_for,
     parse_suite_id,
 )
@@ -26,8 +24,8 @@ from .templates import render_instruction
 from .pools import clear_cache, get_pool
 
 __all__ = [
-    "COLOR_MAPS", "COLORS_4", "DataNotFoundError", "EpisodeSampler", "EpisodeSpec", "INSTRUCTION_SETS",
+    "COLOR_MAPS", "DataNotFoundError", "EpisodeSampler", "EpisodeSpec", "INSTRUCTION_SETS",
     "LETTERS_4", "LETTERS_10", "SPLITS", "SUITE_IDS", "SUITE_SOURCES", "SUITES", "SemanticDataError",
-    "SemanticError", "block_names_for", "clear_cache", "get_pool", "letters_for", "parse_suite_id",
+    "SemanticError", "clear_cache", "get_pool", "letters_for", "parse_suite_id",
     "render_instruction",
 ]

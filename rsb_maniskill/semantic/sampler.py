@@ -10,9 +10,9 @@ from .pools import Pool, get_pool
 from .records import Question, format_number
 from .spec import EpisodeSpec
 from .stable import episode_rng
-from .suites import COLOR_MAPS, INSTRUCTION_SETS, block_names_for, check_split, letters_for, parse_suite_id
+from .suites import COLOR_MAPS, INSTRUCTION_SETS, check_split, letters_for, parse_suite_id
 from .templates import render_direct, render_instruction, template_ids
-
+from ..objects.family import get_family
 
 
 def _sentence(text: str) -> str:
@@ -20,9 +20,9 @@ def _sentence(text: str) -> str:
     return text if text[-1:] in ".!?" else text + "."
 
 
-def block_phrase(block_name: str) -> str:
-    """"the red block" / "block F" for rationales."""
-    return f"the {block_name}" if block_name.endswith(" block") else block_name
+def candidate_phrase(name: str, lettered: bool) -> str:
+    """"the red block" / "the mug", or "block F" for candidates named by their letter."""
+    return name if lettered else f"the {name}"
 
 
 class EpisodeSampler:
@@ -30,11 +30,14 @@ class EpisodeSampler:
 
     ``split="test"`` is the evaluation pool. ``instructions`` defaults to the seen templates for
     training and the unseen ones for evaluation. ``color_map="shuffle"`` draws the 4-choice
-    letter->colour map per episode (10-choice blocks carry their letter, so it has no effect there).
+    option->candidate map per episode (10-choice blocks carry their letter, so it has no effect
+    there). ``targets`` names the candidate family (``rsb_maniskill.objects.TARGETS``): it says
+    what the candidates are called; questions and options do not depend on it.
     """
 
     def __init__(self, suite_id: str, split: str = "train", instructions: str | None = None,
-                 color_map: str = "fixed", data_dir: str | os.PathLike | None = None) -> None:
+                 color_map: str = "fixed", data_dir: str | os.PathLike | None = None,
+                 targets: str = "blocks") -> None:
         self.suite_id = suite_id
         self.suite, self.n_choices = parse_suite_id(suite_id)
         self.split = check_split(split)
@@ -46,10 +49,12 @@ class EpisodeSampler:
             raise ValueError(f"unknown color_map {color_map!r}; valid: {', '.join(COLOR_MAPS)}")
         self.instructions = instructions
         self.color_map = color_map
+        self.family = get_family(targets)
+        self.targets = targets
         self.letters = letters_for(self.n_choices)
-        self.block_names = block_names_for(self.n_choices)
+        self.lettered = self.family.lettered(self.n_choices)
         self.direct = self.suite == "Direct"
-        self._templates = template_ids(self.n_choices, instructions, self.direct)
+        self._templates = template_ids(self.n_choices, instructions, self.direct, self.lettered)
         self.pool: Pool | None = None if self.direct else get_pool(self.suite, split, data_dir)
 
     @property
@@ -88,8 +93,9 @@ class EpisodeSampler:
             block_of_option = tuple(int(b) for b in rng.permutation(4))
         else:
             block_of_option = tuple(range(n))
+        cands = self.family.draw(n, self.letters, episode_rng(self.suite_id, self.split, seed, "candidates"))
         if self.direct:
-            return self._direct(seed, qi, template_id, block_of_option)
+            return self._direct(seed, qi, template_id, block_of_option, cands.names, cands.keys)
 
         q = self.pool.questions[qi]
         options = self._options(qi, q, rng)  # options[0] is the answer
@@ -97,9 +103,11 @@ class EpisodeSampler:
         ordered = tuple(options[int(i)] for i in perm)
         slot = int(np.flatnonzero(perm == 0)[0])
         letter = self.letters[slot]
-        instruction = render_instruction(n, template_id, q.text, ordered, self.letters, self.block_names, block_of_option)
+        names = cands.names
+        instruction = render_instruction(n, template_id, q.text, ordered, self.letters, names, block_of_option,
+                                         self.lettered, self.family.noun)
         binding = (f"Option {letter} is {_sentence(ordered[slot])} "
-                   f"Option {letter} is {block_phrase(self.block_names[block_of_option[slot]])}.")
+                   f"Option {letter} is {candidate_phrase(names[block_of_option[slot]], self.lettered)}.")
         if q.source == "math":
             rationale = f"{q.solution} {binding}"
         elif q.source == "gsm8k":
@@ -107,18 +115,19 @@ class EpisodeSampler:
         else:  # MMLU, commonsense (the latter states its fact first)
             rationale = f"{q.solution} The answer is {_sentence(q.answer)} {binding}".lstrip()
         return EpisodeSpec(self.suite_id, self.suite, n, self.split, seed, qi, q.text, ordered, self.letters, slot,
-                           letter, block_of_option, self.block_names, instruction, template_id, rationale)
+                           letter, block_of_option, names, cands.keys, instruction, template_id, rationale)
 
     # -----------------------------------------------------------------------------------------
 
-    def _direct(self, seed: int, target: int, template_id: int, block_of_option: tuple[int, ...]) -> EpisodeSpec:
-        options = tuple(self.block_names[b] for b in block_of_option)
+    def _direct(self, seed: int, target: int, template_id: int, block_of_option: tuple[int, ...],
+                names: tuple[str, ...], keys: tuple[str, ...]) -> EpisodeSpec:
+        options = tuple(names[b] for b in block_of_option)
         slot = block_of_option.index(target)
         letter = self.letters[slot]
-        name = self.block_names[target]
-        rationale = f"The instruction names {block_phrase(name)}."
+        name = names[target]
+        rationale = f"The instruction names {candidate_phrase(name, self.lettered)}."
         return EpisodeSpec(self.suite_id, self.suite, self.n_choices, self.split, seed, target, "", options,
-                           self.letters, slot, letter, block_of_option, self.block_names,
+                           self.letters, slot, letter, block_of_option, names, keys,
                            render_direct(self.n_choices, template_id, name), template_id, rationale)
 
     def _options(self, qi: int, q: Question, rng: np.random.Generator) -> list[str]:

@@ -6,15 +6,17 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-_TUPLE_FIELDS = ("options", "letters", "block_of_option", "block_names")
+_TUPLE_FIELDS = ("options", "letters", "block_of_option", "block_names", "candidates")
 
 
 @dataclass(frozen=True)
 class EpisodeSpec:
-    """One episode's question, options, option->block binding and instruction.
+    """One episode's question, options, option->candidate binding and instruction.
 
     The correct answer lives only here (``answer_slot`` / ``correct_letter``); it is evaluation
-    metadata and never appears in ``instruction``.
+    metadata and never appears in ``instruction``. "Block" in field names means candidate (a
+    block or an everyday object): candidate ``c`` is called ``block_names[c]`` and is the asset
+    ``candidates[c]``; option ``i`` is bound to candidate ``block_of_option[i]``.
     """
 
     suite_id: str
@@ -30,14 +32,17 @@ class EpisodeSpec:
     correct_letter: str
     block_of_option: tuple[int, ...]
     block_names: tuple[str, ...]
+    candidates: tuple[str, ...]
     instruction: str
     template_id: int
     rationale: str
 
     def __post_init__(self) -> None:
         n = self.n_choices
-        if not (len(self.options) == len(self.letters) == len(self.block_of_option) == len(self.block_names) == n):
-            raise ValueError(f"EpisodeSpec: options, letters, block_of_option and block_names must all have {n} entries")
+        if not (len(self.options) == len(self.letters) == len(self.block_of_option) == len(self.block_names)
+                == len(self.candidates) == n):
+            raise ValueError(f"EpisodeSpec: options, letters, block_of_option, block_names and candidates "
+                             f"must all have {n} entries")
         if not 0 <= self.answer_slot < n:
             raise ValueError(f"EpisodeSpec: answer_slot {self.answer_slot} out of range 0..{n - 1}")
         if self.letters[self.answer_slot] != self.correct_letter:
@@ -47,7 +52,7 @@ class EpisodeSpec:
 
     @property
     def target_block(self) -> int:
-        """Physical block index the expert must place in the answer zone."""
+        """Candidate index the expert must place in the answer zone."""
         return self.block_of_option[self.answer_slot]
 
     @property
@@ -66,6 +71,8 @@ class EpisodeSpec:
     def from_dict(cls, d: Mapping[str, Any]) -> "EpisodeSpec":
         """Inverse of :meth:`to_dict`; unknown or missing keys raise ValueError."""
         names = [f.name for f in dataclasses.fields(cls)]
+        if "candidates" not in d and "block_names" in d:  # written before everyday objects: blocks
+            d = {**d, "candidates": [_legacy_block_key(b) for b in d["block_names"]]}
         missing = [k for k in names if k not in d]
         extra = [k for k in d if k not in names]
         if missing or extra:
@@ -77,3 +84,8 @@ class EpisodeSpec:
             kw[k] = int(kw[k])
         kw["block_of_option"] = tuple(int(b) for b in kw["block_of_option"])
         return cls(**kw)
+
+
+def _legacy_block_key(name: str) -> str:
+    """"red block" -> "block:red", "block F" -> "block:F" (records that predate ``candidates``)."""
+    return "block:" + (name[:-len(" block")] if name.endswith(" block") else name.split()[-1])

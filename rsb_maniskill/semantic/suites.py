@@ -1,11 +1,9 @@
-"""Suite identifiers, letters and colours shared by the whole task pack."""
+"""Suite identifiers and option letters shared by the whole task pack (candidates: objects/family.py)."""
 from __future__ import annotations
 
 LETTERS_4: tuple[str, ...] = ("A", "B", "C", "D")
-# J is skipped: on a block it is too easily confused with I (paper section 3.3).
+# J is skipped: on a lettered block it is too easily confused with I (paper section 3.3).
 LETTERS_10: tuple[str, ...] = ("A", "B", "C", "D", "E", "F", "G", "H", "I", "K")
-# Block index i of the 4-choice scene has colour COLORS_4[i]; paper's fixed map A=red ... D=yellow.
-COLORS_4: tuple[str, ...] = ("red", "green", "blue", "yellow")
 
 SUITES: tuple[str, ...] = ("Math", "HardMath", "General", "Direct")
 CHOICE_COUNTS: tuple[int, ...] = (4, 10)
@@ -19,7 +17,7 @@ SUITE_SOURCES: dict[str, str] = {
     "Math": "procedural arithmetic",
     "HardMath": "GSM8K",
     "General": "commonsense table + MMLU",
-    "Direct": "block named in the instruction",
+    "Direct": "target named in the instruction",
 }
 
 
@@ -45,10 +43,3 @@ def letters_for(n_choices: int) -> tuple[str, ...]:
     if n_choices == 10:
         return LETTERS_10
     raise ValueError(f"n_choices must be 4 or 10, got {n_choices!r}")
-
-
-def block_names_for(n_choices: int) -> tuple[str, ...]:
-    """Physical block index -> name used in instructions ("red block" / "block F")."""
-    if n_choices == 4:
-        return tuple(f"{c} block" for c in COLORS_4)
-    return tuple(f"block {letter}" for letter in letters_for(n_choices))

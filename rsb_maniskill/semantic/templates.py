@@ -1,15 +1,20 @@
-"""Instruction templates (paper section 3.4): question, options and their blocks, never the answer.
+"""Instruction templates (paper section 3.4): question, options and their candidates, never the answer.
 
-4-choice templates place ``{MAPA}`` .. ``{MAPD}`` (one option and its block each); 10-choice
-templates place all mappings in ``{OPTIONS}``. Each template has its own entry format so that
-the option list is worded differently too. "seen" templates are for training, "unseen" ones,
-worded differently, for evaluation. Template ids: seen 0..S-1, unseen S..S+U-1 within a family.
+Three families. *Named* templates bind each option to a candidate by name in ``{MAPS}`` (one
+"option -> candidate" entry each: the 4 coloured blocks, and everyday objects at any N).
+*Lettered* templates list the options in ``{OPTIONS}`` only: the 10 lettered blocks carry the
+option letters themselves. *Direct* templates name the target in ``{BLOCK}``. Each template has
+its own entry format so that the option list is worded differently too. The templates say
+"block"; other candidate families swap in their noun ("object"). "seen" templates are for
+training, "unseen" ones, worded differently, for evaluation. Template ids: seen 0..S-1, unseen
+S..S+U-1 within a family.
 
 :func:`render_instruction` takes no answer argument at all: an instruction cannot depend on
 which option is correct.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -23,9 +28,9 @@ class Template:
     joiner: str = " "
 
 
-_M4 = "{MAPA} {MAPB} {MAPC} {MAPD}"
+_M4 = "{MAPS}"  # every option with its candidate
 
-SEEN_4: tuple[Template, ...] = (
+SEEN_NAMED: tuple[Template, ...] = (
     Template("{Q} Options: " + _M4 + " Place the block of the correct option in the gray answer zone.", "({L}) {O} - {B}."),
     Template("Question: {Q} Choices: " + _M4 + " Pick up the block that matches the right answer and put it in the gray answer zone.", "{L}: {O} ({B})."),
     Template("{Q} " + _M4 + " Move the block of the correct choice into the gray answer zone.", "Option {L} is {O}, on the {B}."),
@@ -47,7 +52,7 @@ SEEN_4: tuple[Template, ...] = (
     Template("Please answer: {Q} " + _M4 + " Place the block that corresponds to your answer in the gray answer zone.", "({L}) {O}: {B}."),
     Template("{Q} Pick one of " + _M4 + " and place its block in the gray answer zone.", "({L}) {O} as the {B},"),
 )
-UNSEEN_4: tuple[Template, ...] = (
+UNSEEN_NAMED: tuple[Template, ...] = (
     Template("Think about this problem: {Q} You can choose " + _M4 + " Lift whichever block shows the solution and lay it inside the gray target area.", "{O} marked {L} with the {B},"),
     Template("A question for the robot: {Q} Listed answers are " + _M4 + " Bring the solution's block over to the gray square.", "[{L}] {O} goes with the {B};"),
     Template("{Q} Among " + _M4 + " exactly one fits. Set its block down on the gray region.", "{O} (letter {L}, {B}),"),
@@ -58,7 +63,7 @@ UNSEEN_4: tuple[Template, ...] = (
     Template("Respond with a block. {Q} Choices map as " + _M4 + " Lay the block of the true answer in the gray area.", "{L} <- {O} ({B}),"),
 )
 
-SEEN_10: tuple[Template, ...] = (
+SEEN_LETTERED: tuple[Template, ...] = (
     Template("{Q} Options: {OPTIONS}. Place the block of the correct option in the gray answer zone.", "({L}) {O}"),
     Template("Question: {Q} Choices: {OPTIONS}. Pick up the lettered block of the right answer and put it in the gray answer zone.", "{L}: {O}", "; "),
     Template("{Q} {OPTIONS}. Move the block of the correct choice into the gray answer zone.", "option {L} is {O}", ", "),
@@ -80,7 +85,7 @@ SEEN_10: tuple[Template, ...] = (
     Template("Please answer: {Q} {OPTIONS}. Place the block that corresponds to your answer in the gray answer zone.", "({L}) {O}", "; "),
     Template("{Q} Pick one of {OPTIONS} and place its block in the gray answer zone.", "({L}) {O}", " "),
 )
-UNSEEN_10: tuple[Template, ...] = (
+UNSEEN_LETTERED: tuple[Template, ...] = (
     Template("Think about this problem: {Q} You can choose {OPTIONS}. Lift whichever letter block shows the solution and lay it inside the gray target area.", "{O} marked {L}", ", "),
     Template("A question for the robot: {Q} Listed answers are {OPTIONS}. Bring the solution's block over to the gray square.", "[{L}] {O}", " "),
     Template("{Q} Among {OPTIONS} exactly one fits. Set its block down on the gray region.", "{O} (letter {L})", ", "),
@@ -126,20 +131,26 @@ UNSEEN_DIRECT: tuple[Template, ...] = tuple(Template(t, "") for t in (
 ))
 
 
-def template_family(n_choices: int, direct: bool = False) -> tuple[tuple[Template, ...], tuple[Template, ...]]:
-    """(seen, unseen) templates for a suite family."""
+_NOUN = re.compile(r"\b([Bb])lock(s?)\b")
+
+
+def template_family(n_choices: int, direct: bool = False,
+                    lettered: bool | None = None) -> tuple[tuple[Template, ...], tuple[Template, ...]]:
+    """(seen, unseen) templates: direct, lettered (default for 10 choices: the lettered blocks) or named."""
+    if n_choices not in (4, 10):
+        raise ValueError(f"n_choices must be 4 or 10, got {n_choices!r}")
     if direct:
         return SEEN_DIRECT, UNSEEN_DIRECT
-    if n_choices == 4:
-        return SEEN_4, UNSEEN_4
-    if n_choices == 10:
-        return SEEN_10, UNSEEN_10
-    raise ValueError(f"n_choices must be 4 or 10, got {n_choices!r}")
+    if lettered is None:
+        lettered = n_choices == 10
+    if lettered:
+        return SEEN_LETTERED, UNSEEN_LETTERED
+    return SEEN_NAMED, UNSEEN_NAMED
 
 
-def template_ids(n_choices: int, instructions: str, direct: bool = False) -> range:
+def template_ids(n_choices: int, instructions: str, direct: bool = False, lettered: bool | None = None) -> range:
     """Template ids available for an instruction set ("seen" or "unseen")."""
-    seen, unseen = template_family(n_choices, direct)
+    seen, unseen = template_family(n_choices, direct, lettered)
     if instructions == "seen":
         return range(len(seen))
     if instructions == "unseen":
@@ -147,34 +158,44 @@ def template_ids(n_choices: int, instructions: str, direct: bool = False) -> ran
     raise ValueError(f"unknown instruction set {instructions!r}; valid: seen, unseen")
 
 
-def get_template(n_choices: int, template_id: int, direct: bool = False) -> Template:
-    seen, unseen = template_family(n_choices, direct)
+def get_template(n_choices: int, template_id: int, direct: bool = False, lettered: bool | None = None) -> Template:
+    seen, unseen = template_family(n_choices, direct, lettered)
     allt = seen + unseen
     if not 0 <= template_id < len(allt):
         raise ValueError(f"template id {template_id} out of range 0..{len(allt) - 1}")
     return allt[template_id]
 
 
+def _with_noun(text: str, noun: str) -> str:
+    """The template's "block(s)" as another family's noun ("object(s)")."""
+    if noun == "block":
+        return text
+    return _NOUN.sub(lambda m: (noun.capitalize() if m[1] == "B" else noun) + m[2], text)
+
+
 def render_instruction(n_choices: int, template_id: int, question: str, options: Sequence[str],
-                       letters: Sequence[str], block_names: Sequence[str], block_of_option: Sequence[int]) -> str:
-    """Instruction for a multiple-choice episode. Deliberately has no answer parameter."""
-    t = get_template(n_choices, template_id)
+                       letters: Sequence[str], block_names: Sequence[str], block_of_option: Sequence[int],
+                       lettered: bool | None = None, noun: str = "block") -> str:
+    """Instruction for a multiple-choice episode. Deliberately has no answer parameter.
+
+    ``block_names[c]`` names candidate ``c``; option ``i`` is bound to ``block_of_option[i]``."""
+    t = get_template(n_choices, template_id, lettered=lettered)
     entries = [t.entry.format(L=letters[i], O=normalize_text(options[i]), B=block_names[block_of_option[i]])
                for i in range(n_choices)]
     fields = {"Q": normalize_text(question)}
-    if n_choices == 4:
+    text = _with_noun(t.text, noun)
+    if "{MAPS}" in t.text:
         # the last mapping closes the list: a full stop before a new sentence, nothing mid-sentence
-        after = t.text.split("{MAPD}", 1)[1]
-        last = entries[3].rstrip(",;.")
-        entries[3] = last + "." if after[:1] == " " and after[1:2].isupper() else last
-        fields.update({f"MAP{letters[i]}": entries[i] for i in range(4)})
+        after = t.text.split("{MAPS}", 1)[1]
+        last = entries[-1].rstrip(",;.")
+        entries[-1] = last + "." if after[:1] == " " and after[1:2].isupper() else last
         fields["BLOCKS"] = ", ".join(block_names[:-1]) + " and " + block_names[-1]
-        text = t.text.format(**fields)
+        text = text.format(MAPS=" ".join(entries), **fields)
     else:
-        text = t.text.format(OPTIONS=t.joiner.join(entries), **fields)
+        text = text.format(OPTIONS=t.joiner.join(entries), **fields)
     return normalize_text(text)
 
 
 def render_direct(n_choices: int, template_id: int, block_name: str) -> str:
-    """Instruction of a Direct episode: names the target block (that is the point of Direct)."""
+    """Instruction of a Direct episode: names the target candidate (that is the point of Direct)."""
     return get_template(n_choices, template_id, direct=True).text.format(BLOCK=block_name)

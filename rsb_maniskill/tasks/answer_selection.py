@@ -1,7 +1,9 @@
-"""The RSB answer-selection task: put the block of the correct answer into the gray zone.
+"""The RSB answer-selection task: put the candidate of the correct answer into the gray zone.
 
-One class serves every suite (``RSB-Math-4`` ... ``RSB-Direct-10``): the suite only changes the
-question source and the number of candidates. The physical primitive never changes.
+One class serves every suite (``RSB-Math-4`` ... ``RSB-Direct-10``, and their ``-Objects``
+variants): the suite only changes the question source and the number of candidates, the
+``targets`` family what the candidates are (blocks or everyday objects, ``rsb_maniskill.objects``).
+The physical primitive never changes.
 
 Determinism: everything about an episode is a function of its episode seed. The question is
 ``seed mod pool size`` of the split's pool (so seeds 0..P-1 visit every question once), the rest
@@ -16,24 +18,24 @@ import sapien
 import torch
 
 from mani_skill.utils.registration import register_env
-from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from rsb_maniskill.agents.aloha import ARMS, AlohaAgilex
-from rsb_maniskill.objects import AnswerTargets, Blocks
-from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
-from rsb_maniskill.semantic import SUITE_IDS, EpisodeSampler, EpisodeSpec, parse_suite_id
+from rsb_maniskill.objects.family import get_family
+from rsb_maniskill.objects.pool import CandidatePool
+from rsb_maniskill.registration import ENVS, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.semantic import EpisodeSampler, EpisodeSpec, parse_suite_id
+from rsb_maniskill.tasks import layout
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.contacts import PairContacts
-from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
+from rsb_maniskill.tasks.scene import FLOOR_Z, TableSceneBuilder, human_camera_config
 from rsb_maniskill.tasks.tabletop import CONTROL_FREQ, SIM_FREQ
 
-# Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0).
-SLOT_X = (0.30, 0.40)
-SLOT_Y = (-0.27, -0.18, -0.09, 0.0, 0.09, 0.18, 0.27)
-SLOT_XY = np.array([(x, y) for x in SLOT_X for y in SLOT_Y], dtype=np.float32)  # 14 slots
-POS_JITTER = 0.008  # keeps >= 7.4 cm between neighbouring block centres
-YAW_JITTER = 0.2  # rad; letters stay upright enough to read
+# Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0); cells: tasks/layout.py.
+# Parked pool members: under the part of the table top that hides the floor from every camera
+# (the human camera looks under the far and right edges), 13 x 6.5 cm apart.
+PARK_X, PARK_Y = (0.0, 0.39), (-0.45, 0.65)
+PARK_Z = FLOOR_Z / 2  # CPU: asleep in mid-air; GPU: they drop to the floor
 ZONE_XY = (0.17, 0.0)  # on the midline: both arms reach it
 ZONE_HALF = 0.05
 ZONE_COLOR = (0.50, 0.50, 0.52, 1.0)
@@ -42,13 +44,13 @@ ZONE_COLOR = (0.50, 0.50, 0.52, 1.0)
 CONTACT_FORCE = 0.5  # N: a finger "touches" a candidate
 LIFT_HEIGHT = 0.01  # m above its resting height
 HOLD_STEPS = 8  # consecutive control steps of closed-gripper contact
-REST_SPEED = 0.05  # m/s: a placed block must be at rest
+REST_SPEED = 0.05  # m/s: a placed candidate must be at rest
 
 MAX_EPISODE_STEPS = TASK_MAX_EPISODE_STEPS
 
 
 class AnswerSelectionEnv(RSBEnv):
-    """Aloha-AgileX at a table with N candidate blocks and a gray answer zone.
+    """Aloha-AgileX at a table with N candidates (blocks or everyday objects) and a gray answer zone.
 
     Args:
         suite_id: one of ``rsb_maniskill.semantic.SUITE_IDS`` (set by the registered id).
@@ -57,21 +59,25 @@ class AnswerSelectionEnv(RSBEnv):
         color_map: 4-choice only: ``"fixed"`` (A=red, B=green, C=blue, D=yellow) or ``"shuffle"``.
         data_dir: directory with GSM8K / MMLU files (else ``$RSB_DATA_DIR``, else the HF hub cache).
         camera_size: (width, height) of the head and wrist cameras; default 320x240.
+        targets: ``"blocks"`` or ``"objects"`` (everyday objects; the ``-Objects`` ids set it).
     """
 
     SUPPORTED_ROBOTS = ["aloha_agilex"]
     SUPPORTED_REWARD_MODES = ["normalized_dense", "dense", "sparse", "none"]
     agent: AlohaAgilex
-    targets: AnswerTargets
+    pool: CandidatePool
 
     def __init__(self, *args, suite_id: str, split: str = "train", instructions: str | None = None,
                  color_map: str = "fixed", data_dir: str | None = None,
-                 camera_size: tuple[int, int] | None = None, robot_uids: str = "aloha_agilex", **kwargs):
+                 camera_size: tuple[int, int] | None = None, targets: str = "blocks",
+                 robot_uids: str = "aloha_agilex", **kwargs):
         self.suite_id = suite_id
         self.suite, self.n_choices = parse_suite_id(suite_id)
+        self.family = get_family(targets)
+        self.targets = targets
         # Built first so that a bad split, template set, colour map or missing data fails fast.
         self.sampler = EpisodeSampler(suite_id, split=split, instructions=instructions,
-                                      color_map=color_map, data_dir=data_dir)
+                                      color_map=color_map, data_dir=data_dir, targets=targets)
         self.split = split
         if camera_size is not None:
             w, h = camera_size
@@ -101,8 +107,8 @@ class AnswerSelectionEnv(RSBEnv):
     def _load_scene(self, options: dict):
         self.table_scene = TableSceneBuilder(self)
         self.table_scene.build()
-        self.targets = Blocks(self.n_choices, self.num_envs, self.device)
-        self.blocks = self.targets.build(self.scene)
+        self.pool = CandidatePool(self.family, self.n_choices, self.sampler.letters, self.num_envs, self.device)
+        self.pool.build(self.scene, _park_positions(len(self.pool.keys)))
         builder = self.scene.create_actor_builder()
         builder.add_box_visual(half_size=[ZONE_HALF, ZONE_HALF, 0.0005],
                                material=sapien.render.RenderMaterial(base_color=ZONE_COLOR, roughness=0.9))
@@ -111,8 +117,7 @@ class AnswerSelectionEnv(RSBEnv):
 
     def _after_reconfigure(self, options: dict):
         fingers = [f for arm in ARMS for f in self.agent.fingers[arm]]
-        self.contacts = PairContacts(self.scene, fingers, self.blocks)
-        self.rest_z = self.targets.rest_height()
+        self.contacts = PairContacts(self.scene, fingers, self.pool.actors)
         self.zone_xy = torch.tensor(ZONE_XY, device=self.device)
         n, b = self.n_choices, self.num_envs
         long = dict(dtype=torch.long, device=self.device)
@@ -142,32 +147,36 @@ class AnswerSelectionEnv(RSBEnv):
             self.question_id[i] = spec.question_id
             self.template_id[i] = spec.template_id
             self.block_of_option[i] = torch.as_tensor(spec.block_of_option, device=self.device)
-        self._place_blocks(env_idx)
+            self.pool.assign(int(i), spec.candidates)
+        self._place_candidates(env_idx)
         self.hold_steps[env_idx] = 0
         self.first_grasped[env_idx] = -1
         self.grasped_correct[env_idx] = False
         self.grasped_wrong[env_idx] = False
         self._grasp_update_pending = False
 
-    def _place_blocks(self, env_idx: torch.Tensor):
-        """Random distinct slots, position and yaw jitter: identity and place are independent."""
-        rng = self._batched_episode_rng[env_idx]
-        n = self.n_choices
-        slots = rng.permutation(len(SLOT_XY))[:, :n]  # (b, n)
-        jitter = rng.uniform(-POS_JITTER, POS_JITTER, size=(n, 2))  # (b, n, 2)
-        yaw = rng.uniform(-YAW_JITTER, YAW_JITTER, size=(n,))  # (b, n)
-        xy = torch.as_tensor(SLOT_XY[slots] + jitter, dtype=torch.float32, device=self.device)
-        yaw = torch.as_tensor(yaw, dtype=torch.float32, device=self.device)
+    def _place_candidates(self, env_idx: torch.Tensor):
+        """Random distinct cells, position and yaw jitter within each candidate's footprint:
+        identity and place are independent."""
+        half = self.pool.half_extents()[env_idx].cpu().numpy()
+        slots, xy, yaw = layout.place(self._batched_episode_rng[env_idx], self.family.layout, half)
         self.block_slot[env_idx] = torch.as_tensor(slots, device=self.device)
-        rest_z = self.rest_z[env_idx]
-        for i, block in enumerate(self.blocks):
-            p = torch.cat([xy[:, i], rest_z[:, i:i + 1] + 5e-4], dim=1)
-            q = torch.stack([torch.cos(yaw[:, i] / 2), torch.zeros_like(yaw[:, i]),
-                             torch.zeros_like(yaw[:, i]), torch.sin(yaw[:, i] / 2)], dim=1)
-            block.set_pose(Pose.create_from_pq(p, q))
-            block.set_linear_velocity(torch.zeros((len(env_idx), 3), device=self.device))
-            block.set_angular_velocity(torch.zeros((len(env_idx), 3), device=self.device))
+        xy = torch.as_tensor(xy, device=self.device)
+        yaw = torch.as_tensor(yaw, device=self.device)
+        z = self.rest_z[env_idx] + 5e-4
+        zero = torch.zeros_like(yaw)
+        q = torch.stack([torch.cos(yaw / 2), zero, zero, torch.sin(yaw / 2)], dim=-1)
+        self.pool.place(env_idx, torch.cat([xy, z[..., None]], dim=-1), q)
         self._block_pose_cache = self._tcp_cache = None
+
+    @property
+    def rest_z(self) -> torch.Tensor:
+        """(B, N) height of each candidate's origin above the table at rest."""
+        return self.pool.rest_z()
+
+    def candidate_actor(self, candidate: int, env: int = 0):
+        """The actor of candidate ``candidate`` in env ``env`` (a pool member: index it by env)."""
+        return self.pool.actor(candidate, env)
 
     def episode_spec(self, seed: int) -> EpisodeSpec:
         """The semantics of the episode ``seed`` (question ``seed mod pool size``), without a reset."""
@@ -183,10 +192,16 @@ class AnswerSelectionEnv(RSBEnv):
         self._block_pose_cache = self._tcp_cache = None
 
     def _block_poses(self) -> torch.Tensor:
-        """(B, N, 7) raw poses, read once per control step (evaluate, obs and reward share it)."""
+        """(B, N, 7) candidate raw poses, read once per control step (evaluate, obs and reward share it)."""
         if self._block_pose_cache is None:
-            self._block_pose_cache = torch.stack([b.pose.raw_pose for b in self.blocks], dim=1)
+            self._block_pose_cache = self.pool.raw_poses()
         return self._block_pose_cache
+
+    def _candidate_forces(self) -> torch.Tensor:
+        """(B, 4 fingers, N) contact force magnitudes between the fingers and the candidates."""
+        forces = self.contacts.forces()  # (B, 4, pool size)
+        idx = self.pool.index[:, None, :].expand(-1, forces.shape[1], -1)
+        return torch.gather(forces, 2, idx)
 
     def _tcp_raw_poses(self) -> list[torch.Tensor]:
         """Left and right TCP raw poses, read once per control step."""
@@ -211,12 +226,12 @@ class AnswerSelectionEnv(RSBEnv):
         self.first_grasped = torch.where(new, grasp_now.float().argmax(1), self.first_grasped)
 
     def evaluate(self) -> dict:
-        forces = self.contacts.forces()  # (B, 4 fingers, N)
+        forces = self._candidate_forces()  # (B, 4 fingers, N)
         pos = self._block_positions()
         if self._grasp_update_pending:
             self._update_grasps(forces, pos)
             self._grasp_update_pending = False
-        speed = torch.linalg.norm(torch.stack([b.linear_velocity for b in self.blocks], dim=1), dim=-1)
+        speed = torch.linalg.norm(self.pool.linear_velocities(), dim=-1)
         in_zone = (pos[..., :2] - self.zone_xy).abs().le(ZONE_HALF).all(-1)
         untouched = (forces < CONTACT_FORCE).all(1)
         at_rest = (pos[..., 2] - self.rest_z < LIFT_HEIGHT) & (speed < REST_SPEED) & untouched
@@ -246,7 +261,7 @@ class AnswerSelectionEnv(RSBEnv):
         obs["zone_pos"] = self.zone.pose.p
         if "state" in self.obs_mode:
             obs["block_pose"] = self._block_poses().flatten(1)  # (B, 7N)
-            obs["block_id"] = torch.arange(self.n_choices, device=self.device).expand(self.num_envs, -1)
+            obs["block_id"] = self.pool.index.clone()  # which block / object model each candidate is
         return obs
 
     def compute_dense_reward(self, obs, action, info: dict):
@@ -264,12 +279,16 @@ class AnswerSelectionEnv(RSBEnv):
         return self.compute_dense_reward(obs, action, info) / 6.0
 
     # ------------------------------------------------------------------ state (for replay)
+    def _task_state_columns(self) -> dict[str, torch.Tensor]:
+        """The task's own state, column block by column block (one source for get and set)."""
+        return dict(question_id=self.question_id[:, None], answer_slot=self.answer_slot[:, None],
+                    target_block=self.target_block[:, None], template_id=self.template_id[:, None],
+                    first_grasped=self.first_grasped[:, None], grasped_correct=self.grasped_correct[:, None],
+                    grasped_wrong=self.grasped_wrong[:, None], block_of_option=self.block_of_option,
+                    block_slot=self.block_slot, pool_index=self.pool.index, hold_steps=self.hold_steps.flatten(1))
+
     def _task_state(self) -> torch.Tensor:
-        cols = [self.question_id[:, None], self.answer_slot[:, None], self.target_block[:, None],
-                self.template_id[:, None], self.first_grasped[:, None], self.grasped_correct[:, None],
-                self.grasped_wrong[:, None], self.block_of_option, self.block_slot,
-                self.hold_steps.flatten(1)]
-        return torch.cat([c.to(torch.float32) for c in cols], dim=1)
+        return torch.cat([c.to(torch.float32) for c in self._task_state_columns().values()], dim=1)
 
     def get_state_dict(self):
         state = super().get_state_dict()
@@ -287,14 +306,32 @@ class AnswerSelectionEnv(RSBEnv):
         if task.ndim == 1:
             task = task[None]
         idx = slice(None) if env_idx is None else env_idx
-        n = self.n_choices
-        self.question_id[idx], self.answer_slot[idx], self.target_block[idx] = task[:, 0], task[:, 1], task[:, 2]
-        self.template_id[idx], self.first_grasped[idx] = task[:, 3], task[:, 4]
-        self.grasped_correct[idx], self.grasped_wrong[idx] = task[:, 5].bool(), task[:, 6].bool()
-        self.block_of_option[idx] = task[:, 7:7 + n]
-        self.block_slot[idx] = task[:, 7 + n:7 + 2 * n]
-        self.hold_steps[idx] = task[:, 7 + 2 * n:].view(-1, len(ARMS), n)
+        start = 0
+        for name, col in self._task_state_columns().items():
+            part = task[:, start:start + col.shape[1]]
+            start += col.shape[1]
+            if name == "hold_steps":
+                self.hold_steps[idx] = part.view(-1, len(ARMS), self.n_choices)
+            elif name == "pool_index":
+                self.pool.set_index(idx, part)
+            elif col.shape[1] == 1:
+                target = getattr(self, name)
+                target[idx] = part[:, 0].to(target.dtype)
+            else:
+                getattr(self, name)[idx] = part
 
 
-for _suite_id in SUITE_IDS:
-    register_env(_suite_id, max_episode_steps=MAX_EPISODE_STEPS, suite_id=_suite_id)(AnswerSelectionEnv)
+def _park_positions(count: int) -> np.ndarray:
+    """(count, 3) spots under the table for pool members not in play: out of the arms' reach,
+    and the table top hides them from the cameras."""
+    rows = 4
+    cols = int(np.ceil(count / rows))
+    xs = np.linspace(*PARK_X, rows)
+    ys = np.linspace(*PARK_Y, cols)
+    spots = [(x, y, PARK_Z) for x in xs for y in ys][:count]
+    return np.asarray(spots, dtype=np.float32)
+
+
+for _env_id, (_steps, _kwargs) in ENVS.items():
+    if "suite_id" in _kwargs:
+        register_env(_env_id, max_episode_steps=_steps, **_kwargs)(AnswerSelectionEnv)

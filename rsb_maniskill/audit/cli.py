@@ -17,7 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "splits. Exit status 1 when a suite fails (a guesser's 95 %% interval wholly above chance + 3 "
                     "points, an ambiguous set, or split overlap).")
     p.add_argument("suites", nargs="*", metavar="SUITE",
-                   help="suite ids, 'paper' (the six paper suites) or 'all'; omit with --specs")
+                   help="suite ids (RSB-Math-4, RSB-Math-4-Objects, ...), 'paper' (the six paper suites), 'all', "
+                        "'paper-objects' or 'all-objects'; omit with --specs")
     p.add_argument("--split", default="test", choices=("train", "test"), help="split to audit (default test)")
     p.add_argument("-n", "--episodes", type=int, default=3000, help="audited episodes per suite (default 3000)")
     p.add_argument("--train-episodes", type=int, default=None, help="train-split episodes for the probe (default: -n)")
@@ -30,20 +31,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_audit)
 
 
-def _suite_ids(names: list[str]) -> list[str]:
+def _suite_ids(names: list[str]) -> list[tuple[str, str]]:
+    """(suite id, targets) pairs named by ids and groups."""
     from rsb_maniskill.evaluation.metrics import PAPER_SUITES
+    from rsb_maniskill.registration import OBJECTS_SUFFIX, env_suite
     from rsb_maniskill.semantic.suites import SUITE_IDS
 
-    out: list[str] = []
+    groups = {"all": SUITE_IDS, "paper": PAPER_SUITES}
+    out: list[tuple[str, str]] = []
     for name in names:
-        if name == "all":
-            out += list(SUITE_IDS)
-        elif name == "paper":
-            out += list(PAPER_SUITES)
-        elif name in SUITE_IDS:
-            out.append(name)
-        else:
-            raise ValueError(f"unknown suite {name!r}; valid: {', '.join(SUITE_IDS)}, paper, all")
+        base, objects = (name[:-len("-objects")], True) if name.endswith("-objects") else (name, False)
+        if base in groups:
+            out += [(sid, "objects" if objects else "blocks") for sid in groups[base]]
+            continue
+        try:
+            out.append(env_suite(name))
+        except ValueError:
+            raise ValueError(f"unknown suite {name!r}; valid: {', '.join(SUITE_IDS)}, the same with "
+                             f"{OBJECTS_SUFFIX!r}, paper, all, paper-objects, all-objects") from None
     return list(dict.fromkeys(out))
 
 
@@ -89,10 +94,10 @@ def cmd_audit(args: argparse.Namespace) -> int:
             if not suites:
                 print("rsb audit: error: name at least one SUITE (or 'paper', 'all'), or pass --specs", file=sys.stderr)
                 return 2
-            for sid in suites:
-                print(f"rsb audit: {sid} ...", file=sys.stderr, flush=True)
+            for sid, targets in suites:
+                print(f"rsb audit: {sid} ({targets}) ...", file=sys.stderr, flush=True)
                 audits.append(audit_suite(sid, args.split, args.episodes, n_train=args.train_episodes,
-                                          data_dir=args.data_dir))
+                                          data_dir=args.data_dir, targets=targets))
     except (ValueError, SemanticError) as err:
         print(f"rsb audit: error: {err}", file=sys.stderr)
         return 2

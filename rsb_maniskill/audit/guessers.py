@@ -137,3 +137,14 @@ def named_guessers(n_choices: int, letters: Sequence[str]) -> list[Guesser]:
         Guesser("number not in question", "value that does not appear in the question text", _negate(_in_question), True),
     ]
     return out
+
+
+def candidate_guessers(specs: Sequence[EpisodeSpec]) -> list[Guesser]:
+    """"Always the mug": one guesser per candidate category the episodes show (everyday objects;
+    blocks have one category and are covered by the block guessers)."""
+    cats = sorted({c.split(":", 1)[0] for sp in specs for c in sp.candidates})
+    if len(cats) < 2:
+        return []
+    return [Guesser(f"category {c}", f"always the candidate that is a {c}",
+                    lambda sp, c=c: [float(sp.candidates[b].split(":", 1)[0] == c) for b in sp.block_of_option])
+            for c in cats]

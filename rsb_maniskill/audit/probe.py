@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from rsb_maniskill.objects.catalog import CATEGORY_KEYS
 from rsb_maniskill.semantic.normalize import numeric_values, option_key
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
@@ -28,7 +29,7 @@ NUMERIC_FEATURES = (
 )
 TEXT_FEATURES = (
     "chars", "words", "rel_chars", "len_rank", "sim_mean", "sim_max", "sim_rank", "capital", "has_digit",
-    "punct", "full_stop", "commas", "slot", "block", "answer_rate", "seen_count",
+    "punct", "full_stop", "commas", "slot", "block", "category", "answer_rate", "seen_count",
 )
 FEATURES = NUMERIC_FEATURES + TEXT_FEATURES
 
@@ -97,6 +98,12 @@ class AnswerPrior:
         return (self.answer.get(key, 0) + 1.0) / (s + m), float(s)
 
 
+def _category_index(candidate: str) -> float:
+    """Everyday-object category of a candidate as a number (NaN for blocks: "block" feature)."""
+    cat = candidate.split(":", 1)[0]
+    return float(CATEGORY_KEYS.index(cat)) if cat in CATEGORY_KEYS else np.nan
+
+
 def option_features(sp: EpisodeSpec, prior: AnswerPrior | None = None) -> np.ndarray:
     """(N, len(FEATURES)) features of an episode's options; NaN where a feature does not apply."""
     opts = sp.options
@@ -119,6 +126,7 @@ def option_features(sp: EpisodeSpec, prior: AnswerPrior | None = None) -> np.nda
         np.array([o.endswith(".") for o in opts], dtype=float),
         np.array([o.count(",") for o in opts], dtype=float),
         np.arange(n, dtype=float) / (n - 1), np.asarray(sp.block_of_option, dtype=float),
+        np.array([_category_index(sp.candidates[b]) for b in sp.block_of_option], dtype=float),
         prior_cols[:, 0], prior_cols[:, 1],
     ], axis=1)
     out = np.concatenate([num, text], axis=1)

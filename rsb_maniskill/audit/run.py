@@ -13,7 +13,7 @@ from rsb_maniskill.semantic.normalize import option_key
 from rsb_maniskill.semantic.sampler import EpisodeSampler
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
-from .guessers import credit, named_guessers
+from .guessers import candidate_guessers, credit, named_guessers
 from .probe import learned_probe
 from .splits import SplitOverlap, split_overlap
 
@@ -120,7 +120,7 @@ def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[Epis
         raise ValueError(f"{suite_id}: episodes with different numbers of choices cannot be audited together")
     chance = 1.0 / n
     results = []
-    for g in named_guessers(n, test[0].letters):
+    for g in named_guessers(n, test[0].letters) + candidate_guessers(test):
         cr, ap = np.empty(len(test)), np.zeros(len(test), dtype=bool)
         for i, sp in enumerate(test):
             s = g.score(sp)
@@ -150,7 +150,8 @@ def suite_overlap(train: EpisodeSampler, test: EpisodeSampler) -> SplitOverlap:
 
 
 def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: int | None = None,
-                data_dir: str | os.PathLike | None = None, margin: float = MARGIN) -> SuiteAudit:
+                data_dir: str | os.PathLike | None = None, margin: float = MARGIN,
+                targets: str = "blocks") -> SuiteAudit:
     """Audit ``n`` episodes of ``split`` (the evaluation protocol's seeds) of a suite.
 
     The probe trains on ``n_train`` (default ``n``) train-split episodes of seeds 0, 1, ...; the
@@ -158,9 +159,10 @@ def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: i
     """
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
-    train_s = EpisodeSampler(suite_id, "train", data_dir=data_dir)
-    test_s = train_s if split == "train" else EpisodeSampler(suite_id, split, data_dir=data_dir)
+    train_s = EpisodeSampler(suite_id, "train", data_dir=data_dir, targets=targets)
+    test_s = train_s if split == "train" else EpisodeSampler(suite_id, split, data_dir=data_dir, targets=targets)
     train = [train_s.episode(s) for s in range(n if n_train is None else n_train)]
     test = [test_s.episode(EVAL_SEED_BASE + i) for i in range(n)]
     overlap = suite_overlap(train_s, test_s if split == "test" else EpisodeSampler(suite_id, "test", data_dir=data_dir))
-    return audit_specs(suite_id, train, test, split=split, margin=margin, overlap=overlap)
+    name = suite_id if targets == "blocks" else f"{suite_id}-{targets.capitalize()}"
+    return audit_specs(name, train, test, split=split, margin=margin, overlap=overlap)

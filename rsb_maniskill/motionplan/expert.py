@@ -46,6 +46,7 @@ DOWN_Q = np.array([0.70710678, 0.0, 0.70710678, 0.0])
 PREGRASP_DZ = 0.080  # fingertips clear the target and (for every height up to 5.5 cm) its neighbours
 PREGRASP_CLEARANCE = 0.045  # TCP above the tallest candidate's top when that is higher
 CARRY_CLEARANCE = 0.050  # carried candidate's bottom this far above the tallest candidate
+MIN_CARRY_CLEARANCE = 0.015  # ... or down to this where the arm cannot reach that high
 PLACE_DZ = 0.006  # release with the candidate 6 mm above the table
 RETREAT_DZ = 0.090
 # Gripper: a fully open gripper (9.5 cm gap plus 8 mm pads) may touch neighbours, so it opens
@@ -149,22 +150,27 @@ class ScriptedExpert:
         grasp_z = float(options[0][0][2])  # every grasp frame of a candidate shares its height
         above = grasp_z + max(PREGRASP_DZ, self.tallest + PREGRASP_CLEARANCE - grasp_z)
         carry_z = self.tallest + CARRY_CLEARANCE + grasp_z  # the bottom clears every candidate
+        self._lowest_carry = self.tallest + MIN_CARRY_CLEARANCE + grasp_z
 
-        # approach: the grasp with the least wrist turn first; screw, IK + joint move, RRT in
-        # that order of preference over all grasps
+        # approach: the grasp with the least wrist turn first whose descent and lift are also
+        # reachable; screw, IK + joint move, RRT in that order of preference over all grasps
         self.stage = "pregrasp"
-        path = None
+        plan = None
         for straight, allow_rrt in ((True, False), (False, False), (False, True)):
             for tcp, yaw, width in options:
                 quat = down_quat(yaw)
                 path = self.planner.move_to(pose7([*tcp[:2], above], quat), straight=straight, allow_rrt=allow_rrt)
-                if path is not None:
+                if path is None:
+                    continue
+                lift = self._lift_height(path, pose7([*tcp[:2], grasp_z], quat), carry_z)
+                if lift is not None:
+                    plan = path, tcp[:2], quat, yaw, width, lift
                     break
-            if path is not None:
+            if plan is not None:
                 break
-        if path is None:
+        if plan is None:
             return self._fail("ik_failed:pregrasp")
-        bxy = tcp[:2]
+        path, bxy, quat, yaw, width, carry_z = plan
         self.open_action = gripper_action(min(MAX_OPENING, width / 2 + GRASP_CLEARANCE))
         yield self._arm_chunk(path, self.open_action)
 
@@ -178,10 +184,16 @@ class ScriptedExpert:
         if not self._grasping():
             return self._fail("grasp_missed")
 
-        chunk = self._line("lift", pose7([*bxy, carry_z], quat), CLOSED, 0)
-        if chunk is None:
-            return
-        yield chunk
+        self.stage = "lift"
+        path = None
+        for z in np.linspace(carry_z, self._lowest_carry, 4):
+            path = self.planner.move_to(pose7([*bxy, z], quat), allow_rrt=False)
+            if path is not None:
+                carry_z = float(z)
+                break
+        if path is None:
+            return self._fail("ik_failed:lift")
+        yield self._arm_chunk(path, CLOSED)
         if not self._grasping():
             return self._fail("grasp_missed")
 
@@ -279,6 +291,21 @@ class ScriptedExpert:
         chunk = hold_actions(self.action, steps, self.arm, grip)
         self.action = chunk[-1].copy()
         return chunk
+
+    def _lift_height(self, approach: np.ndarray, grasp: np.ndarray, carry_z: float) -> float | None:
+        """The highest carry height (``carry_z`` or lower, never below a 1.5 cm clearance) the
+        arm can lift to straight up from ``grasp``, planned from the end of ``approach``;
+        None if even the descent to ``grasp`` is out of reach."""
+        q = self.planner.qpos()
+        q[self.planner.index] = approach[-1]
+        down = self.planner.screw(grasp, q)
+        if down is None:
+            return None
+        q[self.planner.index] = down[-1]
+        for z in np.linspace(carry_z, self._lowest_carry, 4):
+            if self.planner.screw(np.concatenate([grasp[:2], [z], grasp[3:]]), q) is not None:
+                return float(z)
+        return None
 
     def _grasping(self) -> bool:
         return bool(self.agent.is_grasping(self.block, self.arm)[0])

@@ -415,7 +415,7 @@ CATEGORIES: dict[str, tuple[str, _Builder, tuple[tuple[float, float, float], ...
     "crayon_box": ("box of crayons", _crayon_box, ((0.95, 0.8, 0.1), (0.1, 0.55, 0.3), (0.9, 0.45, 0.1))),
     "plant_pot": ("potted plant", _plant_pot, ((0.72, 0.36, 0.2), (0.9, 0.9, 0.88), (0.3, 0.3, 0.35))),
     "spray_bottle": ("spray bottle", _spray_bottle, ((0.2, 0.6, 0.9), (0.3, 0.75, 0.35), (0.9, 0.5, 0.7))),
-    "wallet": ("wallet", _wallet, ((0.35, 0.2, 0.1), (0.1, 0.1, 0.1), (0.6, 0.1, 0.15))),
+    "wallet": ("wallet", _wallet, ((0.35, 0.2, 0.1), (0.1, 0.1, 0.1), (0.55, 0.4, 0.25))),
 }
 CATEGORY_KEYS: tuple[str, ...] = tuple(CATEGORIES)
 MODEL_KEYS: tuple[str, ...] = tuple(f"{c}:{v}" for c in CATEGORY_KEYS for v in range(NUM_VARIANTS))

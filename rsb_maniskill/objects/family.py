@@ -92,8 +92,9 @@ class ObjectFamily:
 
     name = "objects"
     noun, nouns = "object", "objects"
-    layout = Layout(pitch=(0.12, 0.105), pos_jitter=0.010, yaw_jitter=0.35,
-                    yaw_choices=(0.0, np.pi / 2, np.pi, -np.pi / 2))
+    # Long sides roughly along x (either way round): the grasp across them keeps the wrist within
+    # reach at the edges of the layout.
+    layout = Layout(pitch=(0.12, 0.105), pos_jitter=0.010, yaw_jitter=0.5, yaw_choices=(0.0, np.pi))
 
     def lettered(self, n: int) -> bool:
         return False

@@ -131,7 +131,7 @@ UNSEEN_DIRECT: tuple[Template, ...] = tuple(Template(t, "") for t in (
 ))
 
 
-_NOUN = re.compile(r"\b([Bb])lock(s?)\b")
+_NOUN = re.compile(r"\b(?:([Aa]) )?([Bb])lock(s?)\b")
 
 
 def template_family(n_choices: int, direct: bool = False,
@@ -170,7 +170,15 @@ def _with_noun(text: str, noun: str) -> str:
     """The template's "block(s)" as another family's noun ("object(s)")."""
     if noun == "block":
         return text
-    return _NOUN.sub(lambda m: (noun.capitalize() if m[1] == "B" else noun) + m[2], text)
+
+    def swap(m: re.Match) -> str:
+        word = (noun.capitalize() if m[2] == "B" else noun) + m[3]
+        if m[1] is None:
+            return word
+        article = m[1] + ("n" if noun[0] in "aeiou" else "")
+        return f"{article} {word}"
+
+    return _NOUN.sub(swap, text)
 
 
 def render_instruction(n_choices: int, template_id: int, question: str, options: Sequence[str],

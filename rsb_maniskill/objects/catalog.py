@@ -157,7 +157,9 @@ def _toy_car(s, c, k):
     parts.append(_box(cab / 2, W / 2 * 0.85, 0.008 * s, x=-0.05 * L, z=z0 + body_h + 0.008 * s, rgb=(0.6, 0.8, 0.95)))
     for x in (-0.32 * L, 0.32 * L):
         for y in (-W / 2, W / 2):
-            parts.append(Part("cylinder", (wheel_r, 0.004 * s), (x, y, wheel_r), _Q_Y, BLACK))
+            parts.append(Part("cylinder", (wheel_r, 0.004 * s), (x, y, wheel_r), _Q_Y, BLACK, collide=False))
+    # one collision box stands in for the four wheels (fewer contacts to solve each step)
+    parts.append(_box(0.32 * L + wheel_r, W / 2 + 0.004 * s, z0 / 2, z=z0 / 2, visible=False))
     return parts, (_grasp_across(W, z0 + body_h + 0.01 * s),)
 
 
@@ -187,8 +189,8 @@ def _mug(s, c, k):
     parts = [Part("cylinder", (r, h / 2), (0, 0, h / 2), _Q_Z, c),
              Part("cylinder", (r * 0.85, 0.001), (0, 0, h + 0.0005), _Q_Z, (0.25, 0.15, 0.1), collide=False),
              _box(0.004 * s, 0.004 * s, h * 0.3, x=r + 0.012 * s, z=h * 0.5, rgb=c),
-             _box(0.008 * s, 0.004 * s, 0.004 * s, x=r + 0.006 * s, z=h * (0.2 + 0.05 * k), rgb=c),
-             _box(0.008 * s, 0.004 * s, 0.004 * s, x=r + 0.006 * s, z=h * 0.8, rgb=c)]
+             _box(0.008 * s, 0.004 * s, 0.004 * s, x=r + 0.006 * s, z=h * (0.2 + 0.05 * k), rgb=c, collide=False),
+             _box(0.008 * s, 0.004 * s, 0.004 * s, x=r + 0.006 * s, z=h * 0.8, rgb=c, collide=False)]
     return parts, (_grasp_across(2 * r, h),)
 
 
@@ -213,10 +215,10 @@ def _bottle(s, c, k):
 def _book(s, c, k):
     L, W, H = 0.074 * s, 0.054 * s, (0.016 + 0.006 * k) * s
     parts = [_box(L / 2, W / 2, H / 2, rgb=(0.95, 0.93, 0.85)),
-             _box(L / 2 + 0.001, W / 2 + 0.001, 0.0015, z=0.0015, rgb=c),
-             _box(L / 2 + 0.001, W / 2 + 0.001, 0.0015, z=H - 0.0015, rgb=c),
-             _box(0.0015, W / 2 + 0.001, H / 2, x=-L / 2 - 0.0005, rgb=c)]
-    return parts, (_grasp_across(W + 0.002, H),)
+             _box(L / 2 + 0.001, W / 2 + 0.001, 0.0015, z=0.0015, rgb=c, collide=False),
+             _box(L / 2 + 0.001, W / 2 + 0.001, 0.0015, z=H - 0.0015, rgb=c, collide=False),
+             _box(0.0015, W / 2 + 0.001, H / 2, x=-L / 2 - 0.0005, rgb=c, collide=False)]
+    return parts, (_grasp_across(W, H),)
 
 
 def _banana(s, c, k):

@@ -1,7 +1,7 @@
 """ManiSkill's batched values (a leading env dimension, torch or numpy) seen one env at a time.
 
-Kept apart from torch: tensors are recognised by their ``detach`` method, so these helpers cost no
-import and serve the evaluator and the scripted expert alike.
+Tensors are recognised by their ``detach`` method, so these helpers import no torch. The evaluator
+and the generation worker read env 0 through them.
 """
 from __future__ import annotations
 

@@ -4,16 +4,16 @@
         [--seed-start 0] [--num-procs 2] [--failures outputs/expert_failures.jsonl]
 
 Runs ``ScriptedExpert(env).run()`` on seeds ``seed-start .. seed-start+seeds-1`` of each suite
-(default: the eight suites, 200 seeds each) with state observations on the CPU backend, one env
-per process. Success is the env's own ``info["success"]``. Every failure is appended to the JSONL
-file with suite, seed, reason, arm and steps. Suites built on GSM8K / MMLU read ``$RSB_DATA_DIR``.
+(default: the eight suites, 200 seeds each) with state observations on the CPU backend, in
+worker processes (the pool of ``rsb generate`` and ``rsb eval``), one env per suite each. Success
+is the env's own ``info["success"]``. Every failure is appended to the JSONL file with suite,
+seed, reason, arm and steps. Suites built on GSM8K / MMLU read ``$RSB_DATA_DIR``.
 The issue's target: >= 98 % success on every suite.
 """
 from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import os
 import sys
 import time
@@ -21,6 +21,8 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+from rsb_maniskill.workers import InProcess, ProcessPool, deal
 
 DEFAULT_FAILURES = "outputs/expert_failures.jsonl"
 
@@ -61,6 +63,12 @@ def run_episode(job: tuple[str, int]) -> dict:
     rec.update(suite=suite, seed=seed, reset_time=reset_time, wall_time=time.perf_counter() - t0,
                target_block=int(env.unwrapped.target_block[0]))
     return rec
+
+
+def run_episodes(jobs: list[tuple[str, int]], emit) -> None:
+    """A worker's share: one record per (suite, seed), sent as each episode ends."""
+    for job in jobs:
+        emit(run_episode(job))
 
 
 def summarise(records: list[dict]) -> dict[str, dict]:
@@ -121,14 +129,13 @@ def main(argv: list[str] | None = None) -> int:
             Path(path).parent.mkdir(parents=True, exist_ok=True)
             Path(path).write_text("")
     t0 = time.perf_counter()
-    records = []
-    if args.num_procs > 1:
-        ctx = mp.get_context("spawn")  # sapien and torch threads don't survive fork well
-        with ctx.Pool(args.num_procs) as pool:
-            it = pool.imap_unordered(run_episode, jobs, chunksize=4)
-            records = _collect(it, args)
-    else:
-        records = _collect(map(run_episode, jobs), args)
+    records: list[dict] = []
+    shares = deal(jobs, args.num_procs)  # round-robin, so every worker sees every suite
+    executor = ProcessPool() if len(shares) > 1 else InProcess()
+    outcome = executor.run(run_episodes, shares, lambda rec: _collect(rec, records, args))
+    if outcome.errors or outcome.interrupted:
+        print(f"stopped early: {outcome.errors or 'interrupted'}", file=sys.stderr)
+        return 1
     elapsed = time.perf_counter() - t0
     records.sort(key=lambda r: (suites.index(r["suite"]), r["seed"]))
     rows = summarise(records)
@@ -137,18 +144,15 @@ def main(argv: list[str] | None = None) -> int:
     return 0 if all(r["success"] >= 0.98 for r in rows.values()) else 1
 
 
-def _collect(it, args) -> list[dict]:
-    records = []
-    for rec in it:
-        records.append(rec)
-        if not rec["success"]:
-            with open(args.failures, "a") as f:
-                f.write(json.dumps(rec) + "\n")
-            print(f"FAIL {rec['suite']} seed {rec['seed']}: {rec['reason']}", file=sys.stderr, flush=True)
-        if args.records:
-            with open(args.records, "a") as f:
-                f.write(json.dumps(rec) + "\n")
-    return records
+def _collect(rec: dict, records: list[dict], args) -> None:
+    records.append(rec)
+    if not rec["success"]:
+        with open(args.failures, "a") as f:
+            f.write(json.dumps(rec) + "\n")
+        print(f"FAIL {rec['suite']} seed {rec['seed']}: {rec['reason']}", file=sys.stderr, flush=True)
+    if args.records:
+        with open(args.records, "a") as f:
+            f.write(json.dumps(rec) + "\n")
 
 
 if __name__ == "__main__":

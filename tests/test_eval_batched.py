@@ -7,7 +7,7 @@ import pytest
 import torch
 from test_eval_runner import HORIZON, SUITE, FakeRSBEnv, ScriptedPolicy
 
-from rsb_maniskill.evaluation.runner import batched_loop, episode_loop
+from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop, episode_loop
 
 SEEDS = [10_000_000 + i for i in range(8)]
 
@@ -60,13 +60,12 @@ def _strip(records):
 @pytest.mark.parametrize("mode", ["normal", "blank", "shuffled"])
 @pytest.mark.parametrize("num_envs", [1, 3, 8])
 def test_batched_records_equal_one_env_records(num_envs, mode):
+    settings = EpisodeSettings(suite_id=SUITE, seeds=SEEDS, label="p", instruction_mode=mode)
     single = []
-    episode_loop(FakeRSBEnv(), ScriptedPolicy(), SUITE, SEEDS, SEEDS, single.append, label="p",
-                 instruction_mode=mode)
+    episode_loop(FakeRSBEnv(), ScriptedPolicy(), settings, SEEDS, single.append)
     env = FakeBatchedEnv(num_envs)
     batched = []
-    batched_loop(env, [ScriptedPolicy() for _ in range(num_envs)], SUITE, SEEDS, SEEDS, batched.append,
-                 label="p", instruction_mode=mode)
+    batched_loop(env, [ScriptedPolicy() for _ in range(num_envs)], settings, SEEDS, batched.append)
     assert sorted(_strip(batched), key=lambda r: r["seed"]) == _strip(single)
     assert all(r["steps"] <= HORIZON for r in batched)
 
@@ -80,7 +79,8 @@ def test_finished_envs_hold_their_last_action():
     env = FakeBatchedEnv(2)
     records = []
     # seed % 4 == 0 succeeds at step 8; seed % 4 == 3 runs to the 20-step limit
-    batched_loop(env, [Counting(), Counting()], SUITE, [8, 11], [8, 11], records.append, label="p")
+    batched_loop(env, [Counting(), Counting()], EpisodeSettings(suite_id=SUITE, seeds=[8, 11], label="p"), [8, 11],
+                 records.append)
     assert [r["steps"] for r in records] == [8, HORIZON]
     acts = torch.stack(env.actions)  # (steps, envs, 14)
     assert len(acts) == HORIZON
@@ -90,7 +90,8 @@ def test_finished_envs_hold_their_last_action():
 
 def test_one_policy_per_env_is_required():
     with pytest.raises(ValueError, match="one policy per env"):
-        batched_loop(FakeBatchedEnv(2), [ScriptedPolicy()], SUITE, SEEDS, SEEDS, list().append, label="p")
+        batched_loop(FakeBatchedEnv(2), [ScriptedPolicy()], EpisodeSettings(suite_id=SUITE, seeds=SEEDS, label="p"),
+                     SEEDS, list().append)
 
 
 @pytest.mark.gpu

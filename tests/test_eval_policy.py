@@ -1,20 +1,26 @@
-"""Policy interface: load_policy specs and their errors, chunk checks, the random policy."""
+"""Policy interface: load_policy specs and their errors, the built-in table, chunk checks, the random policy."""
 from __future__ import annotations
 
+import subprocess
 import sys
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from rsb_maniskill.evaluation.baselines import ExpertPolicy
 from rsb_maniskill.evaluation.policy import (
+    POLICIES,
     Policy,
     RandomPolicy,
     as_chunk,
     builtin_policies,
     load_policy,
     policy_name,
+    policy_spec,
     register_policy,
+    resolve_factory,
 )
 
 
@@ -71,15 +77,59 @@ def test_load_policy_errors(user_module, spec, err, match):
 def test_builtin_registry():
     assert "random" in builtin_policies()
     register_policy("constant-test", lambda: ConstantPolicy(value=2.0))
-    assert load_policy("constant-test").value == 2.0
+    try:
+        assert load_policy("constant-test").value == 2.0
+    finally:
+        del POLICIES["constant-test"]
     with pytest.raises(ValueError):
         register_policy("bad:name", ConstantPolicy)
+
+
+def _fake_env(space, num_envs=1):
+    return types.SimpleNamespace(action_space=space, unwrapped=types.SimpleNamespace(num_envs=num_envs))
+
+
+def test_builtin_table():
+    """One table: every name resolves to its factory, says whether it needs the env, and its obs mode."""
+    assert builtin_policies() == ("blind", "oracle", "random", "remote")
+    assert resolve_factory("random") == RandomPolicy.for_env
+    for name in builtin_policies():
+        assert callable(resolve_factory(name))
+    assert {n: policy_spec(n).obs_mode for n in builtin_policies()} == {
+        "blind": "state", "oracle": "state", "random": "state", "remote": "rgb"}
+    assert policy_spec("my_pkg.policies:make").obs_mode == "rgb" and not policy_spec("my_pkg.policies:make").needs_env
+    # the privileged baselines are built with the env, and only with a one-env env
+    space = np.zeros((2, 14))  # unused by the expert's constructor
+    assert isinstance(load_policy("oracle", env=_fake_env(space)), ExpertPolicy)
+    assert load_policy("blind", env=_fake_env(space)).blind
+    with pytest.raises(ValueError, match="built with the env"):
+        load_policy("oracle")
+    with pytest.raises(ValueError, match="one env at a time"):
+        load_policy("blind", env=_fake_env(space, num_envs=4))
+    # and `rsb eval` says so before building anything
+    from rsb_maniskill.evaluation.cli import EvalError, check_policy_spec
+
+    check_policy_spec("random", num_envs=4)
+    with pytest.raises(EvalError, match="use --num-procs, not --num-envs"):
+        check_policy_spec("oracle", num_envs=4)
+
+
+def test_naming_a_policy_imports_nothing():
+    """The table holds module paths: importing it loads neither the baselines nor the websocket client."""
+    code = ("import sys, rsb_maniskill.evaluation.policy as p; p.policy_spec('remote'); "
+            "print([m for m in ('rsb_maniskill.evaluation.remote', 'rsb_maniskill.evaluation.baselines') "
+            "if m in sys.modules])")
+    repo = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=repo, timeout=120,
+                         env={"PYTHONPATH": str(repo), "PATH": ""})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
 
 
 def test_random_policy_from_box():
     gym = pytest.importorskip("gymnasium")
     space = gym.spaces.Box(low=np.full(14, -0.5, np.float32), high=np.ones(14, np.float32), dtype=np.float32)
-    p = load_policy("random", space=space, chunk_size=4, seed=1)
+    p = load_policy("random", env=_fake_env(space), chunk_size=4, seed=1)
     p.reset("anything", {})
     a = p.act({})
     assert a.shape == (4, 14) and a.dtype == np.float32

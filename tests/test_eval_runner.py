@@ -1,4 +1,5 @@
-"""run_episodes against a tiny fake env exposing the RSB task contract (no simulator)."""
+"""run_episodes (the driver and the one-env loop) against a tiny fake env exposing the RSB task
+contract (no simulator)."""
 from __future__ import annotations
 
 import gymnasium as gym
@@ -9,7 +10,7 @@ import torch
 from rsb_maniskill.evaluation.protocol import shuffled_instruction
 from rsb_maniskill.evaluation.records import read_records
 from rsb_maniskill.evaluation.report import results_from_records, summary_dict
-from rsb_maniskill.evaluation.runner import run_episodes
+from rsb_maniskill.evaluation.jobs import run_episodes
 
 SUITE = "RSB-Math-4"
 HORIZON = 20

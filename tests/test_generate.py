@@ -18,15 +18,11 @@ import h5py
 import numpy as np
 import pytest
 
-from rsb_maniskill.motionplan.generate import (
-    GenerateConfig,
-    GenerateError,
-    WorkPlan,
-    generate,
-    output_path,
-    plan_work,
-)
-from rsb_maniskill.replay import carry_metadata
+from rsb_maniskill.motionplan.config import output_path
+from rsb_maniskill.motionplan.dataset import annotate_episodes, check_pair
+from rsb_maniskill.motionplan.generate import GenerateConfig, GenerateError, generate
+from rsb_maniskill.motionplan.replay import carry_metadata
+from rsb_maniskill.motionplan.shards import WorkPlan, plan_work
 
 try:
     from rsb_maniskill.motionplan import ScriptedExpert  # noqa: F401
@@ -62,6 +58,21 @@ class FlakyExpert:
         for _ in range(3):
             self.env.step(hold)
         return ExpertResult(False, "stand_in_failure", 3, 0.0, 0.0, "left")
+
+
+class OverclaimingExpert:
+    """Claims success after three idle steps: the env's own verdict must overrule it."""
+
+    def __init__(self, env):
+        self.env = env
+
+    def run(self):
+        from rsb_maniskill.motionplan import ExpertResult
+
+        hold = self.env.unwrapped.agent.rest_action()
+        for _ in range(3):
+            self.env.step(hold)
+        return ExpertResult(True, "", 3, 0.0, 0.0, "left")
 
 
 def _cfg(tmp_path, **kw) -> GenerateConfig:
@@ -168,7 +179,34 @@ def test_unknown_suite_and_unwritable_dir_leave_no_files(tmp_path):
     assert _all_files(tmp_path) == [blocker]
 
 
+def test_annotate_episodes_joins_by_seed_after_the_pair_is_written(tmp_path):
+    """The public path for RSB metadata: a rewrite of the finished json, matched by episode_seed."""
+    h5 = tmp_path / "part.h5"
+    with h5py.File(h5, "w") as f:
+        for i in range(3):
+            f.create_group(f"traj_{i}")
+    episodes = [dict(episode_id=i, episode_seed=s, elapsed_steps=10 + i) for i, s in enumerate((4, 7, 9))]
+    h5.with_suffix(".json").write_text(json.dumps(dict(env_info={"env_id": ENV_ID}, episodes=episodes)))
+    assert annotate_episodes(h5, {7: {"instruction": "pick B", "question_index": 7}, 5: {"instruction": "x"}}) == 1
+    data = check_pair(h5)
+    assert data["episodes"][1] == dict(episode_id=1, episode_seed=7, elapsed_steps=11, instruction="pick B",
+                                       question_index=7)
+    assert data["episodes"][0] == episodes[0] and data["episodes"][2] == episodes[2]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["part.h5", "part.json"]  # no temp file left
+
+
 # ---------------------------------------------------------------------------- generation
+@needs_expert
+def test_the_envs_verdict_overrules_the_expert(tmp_path):
+    summary = generate(_cfg(tmp_path, num=1, max_attempts=2, expert="test_generate:OverclaimingExpert"))
+    assert summary.path is None and summary.completed == 0
+    assert [(f["seed"], f["reason"]) for f in summary.failures] == [(0, "env_not_successful"),
+                                                                     (1, "env_not_successful")]
+    assert "failed on 2 seeds in a row" in summary.errors[0] and summary.exit_code == 1
+    assert _all_files(tmp_path) == []  # nothing kept: no file, no directory
+
+
+
 @needs_expert
 def test_generated_dataset_is_valid_and_self_describing(dataset):
     data = _check_dataset(dataset.path)

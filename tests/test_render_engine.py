@@ -96,8 +96,8 @@ def test_a_hundred_envs_in_one_process(loader_logs_instances):
             for suite in suites:
                 for mode in ("normal", "blank", "shuffled"):
                     obs = "state" if mode != "shuffled" else "rgb"
-                    cycle(make_env(EvalJob(suite, (EVAL_SEED_BASE,), "random", "random", instruction_mode=mode,
-                                           obs_mode=obs)))
+                    cycle(make_env(EvalJob(suite_id=suite, seeds=(EVAL_SEED_BASE,), policy="random", label="random",
+                                           instruction_mode=mode, obs_mode=obs)))
                 for kw in settings:
                     cycle(gym.make(suite, **kw))
         cycle(gym.make("RSB-TableTop-v1", obs_mode="rgb"))

@@ -30,14 +30,15 @@ from .protocol import (
 )
 from .records import INSTRUCTION_MODES, RECORD_FIELDS, RecordWriter, completed_seeds, read_records
 from .report import markdown_tables, plot_summary, results_from_records, summary_dict, write_report
-from .jobs import EvalJob, run_job
-from .runner import batched_loop, build_record, episode_loop, run_episodes
+from .jobs import EvalJob, drive, run_episodes, run_job
+from .runner import EpisodeSettings, batched_loop, build_record, episode_loop
 
 __all__ = [
-    "Average", "EPISODES_PER_SUITE", "EvalJob", "batched_loop", "episode_loop", "run_job", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "ErrorAnalysis", "INSTRUCTION_MODES",
-    "PAPER_SUITES", "Policy", "RECORD_FIELDS", "RandomPolicy", "Rate", "RecordWriter", "SuiteMetrics",
-    "apply_instruction_mode", "as_chunk", "average", "build_record", "builtin_policies", "completed_seeds",
-    "derangement", "eval_seeds", "load_policy", "markdown_tables", "nsg", "num_choices", "plot_summary",
-    "policy_name", "read_records", "register_policy", "results_from_records", "run_episodes", "shuffled_instruction",
-    "summarize", "suite_metrics", "summary_dict", "wilson_interval", "write_report",
+    "Average", "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "EpisodeSettings", "ErrorAnalysis",
+    "EvalJob", "INSTRUCTION_MODES", "PAPER_SUITES", "Policy", "RECORD_FIELDS", "RandomPolicy", "Rate",
+    "RecordWriter", "SuiteMetrics", "apply_instruction_mode", "as_chunk", "average", "batched_loop", "build_record",
+    "builtin_policies", "completed_seeds", "derangement", "drive", "episode_loop", "eval_seeds", "load_policy",
+    "markdown_tables", "nsg", "num_choices", "plot_summary", "policy_name", "read_records", "register_policy",
+    "results_from_records", "run_episodes", "run_job", "shuffled_instruction", "summarize", "suite_metrics",
+    "summary_dict", "wilson_interval", "write_report",
 ]

@@ -31,15 +31,19 @@ class EvalError(RuntimeError):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.evaluation.policy import POLICIES
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
     from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
+    from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
+
+    state_only = [name for name, spec in POLICIES.items() if spec.obs_mode == "state"]
 
     p = subparsers.add_parser(
         "eval", help="evaluate a policy: GSR / TSR / nSG per suite (paper protocol)",
         description="Runs POLICY on the evaluation split (unseen instructions, fixed seeds 10,000,000 + i) "
                     "of each suite and writes per-episode records and GSR / TSR / nSG summaries. "
                     "Rerunning the same command resumes an interrupted run.")
-    p.add_argument("policy", help="built-in (oracle, blind, random, remote) or package.module:factory")
+    p.add_argument("policy", help=f"built-in ({', '.join(POLICIES)}) or package.module:factory")
     p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="keyword argument of the policy factory (VALUE parsed as JSON, else a string); repeatable")
     p.add_argument("--suites", nargs="+", default=["paper"], metavar="SUITE",
@@ -52,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--name", default=None, help="row label in records and tables (default: the policy spec)")
     p.add_argument("--out", default=None, help="results directory (default: results/<name>)")
     p.add_argument("-o", "--obs-mode", default=None,
-                   help="observations (default: rgb; state for oracle, blind and random)")
+                   help=f"observations (default: rgb; state for {', '.join(state_only)})")
     p.add_argument("-c", "--control-mode", default=None, help="controller (default: the robot's pd_joint_pos)")
     p.add_argument("-e", "--env-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="extra gym.make keyword, e.g. camera_size=[224,224] (VALUE as JSON, else a string)")
@@ -60,7 +64,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--num-procs", type=int, default=1, help="CPU worker processes (default 1)")
     p.add_argument("--num-envs", type=int, default=1,
                    help="parallel envs on the GPU backend (physx_cuda), one policy instance each (default 1)")
-    p.add_argument("--max-steps", type=int, default=None, help="step cap per episode (default: the task's 300)")
+    p.add_argument("--max-steps", type=int, default=None,
+                   help=f"step cap per episode (default: the task's {TASK_MAX_EPISODE_STEPS})")
     p.add_argument("--videos", type=int, default=0, metavar="K", help="mp4 of the first K episodes of each suite")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run_eval)
@@ -94,16 +99,12 @@ def resolve_suites(names: list[str]) -> list[str]:
     return out
 
 
-def check_policy_spec(spec: str) -> None:
-    """Fail before any env is built when a ``module:factory`` spec cannot resolve."""
-    from rsb_maniskill.evaluation.jobs import PRIVILEGED_POLICIES
-    from rsb_maniskill.evaluation.policy import builtin_policies, resolve_factory
+def check_policy_spec(spec: str, num_envs: int = 1) -> None:
+    """Fail before any env is built when a spec cannot resolve, or cannot run on parallel envs."""
+    from rsb_maniskill.evaluation.policy import policy_spec, resolve_factory
 
-    if spec in PRIVILEGED_POLICIES:
-        return
-    if ":" not in spec and spec not in builtin_policies():
-        names = ", ".join(sorted((*PRIVILEGED_POLICIES, *builtin_policies())))
-        raise EvalError(f"policy {spec!r} is neither a built-in ({names}) nor of the form package.module:factory")
+    if num_envs > 1 and policy_spec(spec).single_env:
+        raise EvalError(f"policy {spec!r} drives one env at a time: use --num-procs, not --num-envs")
     try:
         resolve_factory(spec)
     except ImportError as err:
@@ -162,10 +163,12 @@ def run_eval(args: argparse.Namespace) -> int:
 
 
 def _run_eval(args: argparse.Namespace) -> int:
-    from rsb_maniskill.evaluation.jobs import STATE_ONLY_POLICIES, EvalJob, run_job
+    from rsb_maniskill.evaluation.jobs import EvalJob, run_job
+    from rsb_maniskill.evaluation.policy import policy_spec
     from rsb_maniskill.evaluation.protocol import eval_seeds
     from rsb_maniskill.evaluation.records import read_records
     from rsb_maniskill.evaluation.report import markdown_tables, results_from_records, write_report
+    from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
 
     suites = resolve_suites(args.suites)
     for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-procs", args.num_procs, 1),
@@ -195,7 +198,7 @@ def _run_eval(args: argparse.Namespace) -> int:
         raise EvalError(f"--env-arg cannot set {', '.join(fixed)}: the protocol fixes split=test, instructions=unseen")
     if args.data_dir:
         env_kwargs["data_dir"] = args.data_dir
-    check_policy_spec(args.policy)
+    check_policy_spec(args.policy, args.num_envs)
     check_data(suites, env_kwargs.get("data_dir"))
 
     label = args.name or args.policy
@@ -207,8 +210,8 @@ def _run_eval(args: argparse.Namespace) -> int:
         probe.unlink()
     except OSError as err:
         raise EvalError(f"cannot write to results directory {out}: {err.strerror or err}; choose another --out") from err
-    obs_mode = args.obs_mode or ("state" if args.policy in STATE_ONLY_POLICIES else "rgb")
-    max_steps = args.max_steps or 300
+    obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
+    max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
     settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
                     control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs)
     check_manifest(out, label, settings)

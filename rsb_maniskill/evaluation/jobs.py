@@ -1,48 +1,41 @@
-"""One evaluation job (a policy on one suite in one instruction mode), run the way the user asks:
-one process, several CPU processes, or ``num_envs`` parallel envs on the GPU backend.
+"""The evaluation driver: one suite x instruction mode of a policy, resumed, written and shown.
 
-A job is a picklable description, so that spawned workers rebuild the env and the policy
-themselves. Whatever runs the episodes, the records go to one file written by this process only:
-workers send their records over a queue. Resuming skips the seeds already in that file.
+:func:`drive` is the one place that resumes (skips the seeds already in the records file), owns the
+file (this process is its only writer) and the progress bar. What runs the episodes is up to its
+caller:
+
+- :func:`run_job` builds env and policy from an :class:`EvalJob` (a picklable description) in
+  this process, in worker processes (one env each, records sent back over a queue), or on
+  ``num_envs`` parallel envs of the GPU backend;
+- :func:`run_episodes` runs a policy object on an env you built.
 """
 from __future__ import annotations
 
 import os
-import queue as queue_module
-import traceback
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
-from .policy import RandomPolicy, load_policy
-from .protocol import EVAL_ENV_KWARGS
-from .records import RecordWriter, completed_seeds, read_records
-from .runner import DEFAULT_MAX_STEPS, batched_loop, episode_loop, ProgressBar, run_episodes
+from rsb_maniskill.workers import Executor, InProcess, Interrupted, ProcessPool, deal
 
-# Built-in policies that read the simulator's ground truth: built with the env, one env each.
-PRIVILEGED_POLICIES = ("oracle", "blind")
-# Policies that ignore observations: state obs and no renderer unless videos are asked for.
-STATE_ONLY_POLICIES = ("oracle", "blind", "random")
+from .policy import load_policy, policy_name, policy_spec
+from .protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED
+from .records import RecordWriter, read_records
+from .runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
+
+Write = Callable[[dict], None]
 
 
-@dataclass(frozen=True)
-class EvalJob:
+@dataclass(frozen=True, kw_only=True)
+class EvalJob(EpisodeSettings):
     """Everything a worker needs to rebuild the env and the policy and run episodes."""
 
-    suite_id: str
-    seeds: tuple[int, ...]
     policy: str  # built-in name or "package.module:factory"
-    label: str  # the records' ``policy`` field and the table row
     policy_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    instruction_mode: str = "normal"
     obs_mode: str = "rgb"
     control_mode: str | None = None
     sim_backend: str = "physx_cpu"
     num_envs: int = 1
-    max_steps: int = DEFAULT_MAX_STEPS
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)  # e.g. data_dir, camera_size
-    video_dir: str | None = None
-    num_videos: int = 0
-    keep_spec: bool = True
 
 
 def make_env(job: EvalJob) -> Any:
@@ -62,135 +55,150 @@ def make_env(job: EvalJob) -> Any:
     return gym.make(job.suite_id, **kwargs)
 
 
-def make_policy(spec: str, env: Any, kwargs: Mapping[str, Any] | None = None) -> Any:
-    """Built-ins get what they need from the env; user policies get only their ``kwargs``."""
-    kwargs = dict(kwargs or {})
-    if spec in PRIVILEGED_POLICIES:
-        from . import baselines
+class ProgressBar:
+    """tqdm bar over a suite's episodes with the running GSR / TSR; a no-op when disabled."""
 
-        if env.unwrapped.num_envs != 1:
-            raise ValueError(f"policy {spec!r} drives one env at a time; use num_procs instead of num_envs")
-        return getattr(baselines, spec)(env, **kwargs)
-    if spec == "random":
-        space = getattr(env.unwrapped, "single_action_space", None) or env.action_space
-        return RandomPolicy.from_action_space(space, **kwargs)
-    return load_policy(spec, **kwargs)
+    def __init__(self, label: str, suite_id: str, mode: str, total: int, initial: int, enabled: bool) -> None:
+        self.bar = None
+        self.n = self.grasped = self.success = 0
+        if enabled:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, initial=initial, desc=f"{label} {suite_id} [{mode}]", unit="ep")
+
+    def add(self, record: Mapping[str, Any]) -> None:
+        self.n += 1
+        self.grasped += bool(record["grasped_any"] or record["success"])
+        self.success += bool(record["success"])
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(GSR=f"{self.grasped / self.n:.0%}", TSR=f"{self.success / self.n:.0%}", refresh=False)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
-def job_records(out_path: str | os.PathLike, job: EvalJob) -> list[dict]:
+def job_records(out_path: str | os.PathLike, settings: EpisodeSettings) -> list[dict]:
+    """The records of ``out_path`` that belong to this policy label, suite and instruction mode."""
     return [r for r in read_records(out_path)
-            if r.get("suite_id") == job.suite_id and r.get("instruction_mode") == job.instruction_mode
-            and r.get("policy") == job.label]
+            if r.get("suite_id") == settings.suite_id and r.get("instruction_mode") == settings.instruction_mode
+            and r.get("policy") == settings.label]
 
 
-def remaining_seeds(out_path: str | os.PathLike, job: EvalJob) -> list[int]:
-    done = completed_seeds(out_path, job.suite_id, job.instruction_mode, job.label)
-    return [s for s in job.seeds if s not in done]
+def drive(settings: EpisodeSettings, out_path: str | os.PathLike, run: Callable[[list[int], Write], None],
+          progress: bool = True) -> list[dict]:
+    """Resume, write and show one evaluation: ``run(todo, write)`` runs the seeds not yet recorded.
 
-
-def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progress: bool = True) -> list[dict]:
-    """Run the seeds of ``job`` not yet in ``out_path``; returns all of the job's records."""
-    todo = remaining_seeds(out_path, job)
+    Reads ``out_path`` once; ``write`` appends a record (durably) and advances the bar. Returns every
+    record of this label / suite / mode in file order, old and new.
+    """
+    records = job_records(out_path, settings)
+    done = {int(r["seed"]) for r in records}
+    todo = [s for s in settings.seeds if s not in done]
     if not todo:
-        return job_records(out_path, job)
-    if job.num_envs > 1:
-        _run_batched_job(job, todo, out_path, progress)
-    elif num_procs <= 1 or len(todo) == 1:
-        env = make_env(job)
-        try:
-            run_episodes(env, make_policy(job.policy, env, job.policy_kwargs), job.suite_id, job.seeds, out_path,
-                         job.instruction_mode, job.max_steps, progress, policy_label=job.label,
-                         keep_spec=job.keep_spec, video_dir=job.video_dir, num_videos=job.num_videos)
-        finally:
-            env.close()
-    else:
-        _run_processes(job, todo, out_path, num_procs, progress)
-    return job_records(out_path, job)
-
-
-# ------------------------------------------------------------------ CPU worker processes
-def _loop_kwargs(job: EvalJob) -> dict[str, Any]:
-    return dict(instruction_mode=job.instruction_mode, max_steps=job.max_steps, label=job.label,
-                keep_spec=job.keep_spec, video_dir=job.video_dir, num_videos=job.num_videos)
-
-
-def _worker(job: EvalJob, todo: list[int], worker: int, q: Any) -> None:
-    error = None
+        return records
+    bar = ProgressBar(settings.label, settings.suite_id, settings.instruction_mode, len(settings.seeds),
+                      len(settings.seeds) - len(todo), progress)
     try:
-        env = make_env(job)
-        try:
-            policy = make_policy(job.policy, env, job.policy_kwargs)
-            episode_loop(env, policy, job.suite_id, job.seeds, todo, lambda r: q.put(("record", r)),
-                         **_loop_kwargs(job))
-        finally:
-            env.close()
-    except KeyboardInterrupt:
-        error = "interrupted"
-    except BaseException as err:  # reported by the parent, with the traceback
-        error = f"{err!r}\n{traceback.format_exc()}"
-    q.put(("done", worker, error))
-
-
-def _run_processes(job: EvalJob, todo: list[int], out_path: str | os.PathLike, num_procs: int,
-                   progress: bool) -> None:
-    """Round-robin split of ``todo`` over spawned workers; this process writes every record."""
-    import multiprocessing as mp
-
-    ctx = mp.get_context("spawn")  # SAPIEN / torch state must not be forked
-    q = ctx.Queue()
-    k = min(num_procs, len(todo))
-    procs = [ctx.Process(target=_worker, args=(job, todo[i::k], i, q), daemon=True) for i in range(k)]
-    bar = ProgressBar(job.label, job.suite_id, job.instruction_mode, len(job.seeds), len(job.seeds) - len(todo),
-                       progress)
-    errors: dict[int, str] = {}
-    finished: set[int] = set()
-    try:
-        with RecordWriter(out_path) as writer:
-            for p in procs:
-                p.start()
-            while len(finished) < k:
-                try:
-                    msg = q.get(timeout=1.0)
-                except queue_module.Empty:
-                    for i, p in enumerate(procs):  # died without saying so (killed, segfault)
-                        if i not in finished and p.exitcode is not None and q.empty():
-                            finished.add(i)
-                            errors[i] = f"worker {i} exited with code {p.exitcode}"
-                    continue
-                if msg[0] == "record":
-                    writer.write(msg[1])
-                    bar.add(msg[1])
-                else:
-                    finished.add(msg[1])
-                    if msg[2]:
-                        errors[msg[1]] = msg[2]
-    finally:
-        bar.close()
-        for p in procs:
-            if p.is_alive():
-                p.terminate()
-            p.join(timeout=10)
-    if errors:
-        first = min(errors)
-        raise RuntimeError(f"{len(errors)} of {k} evaluation workers failed on {job.suite_id} "
-                           f"(finished episodes are saved; rerun to resume). Worker {first}: {errors[first]}")
-
-
-# ------------------------------------------------------------------ GPU: num_envs parallel envs
-def _run_batched_job(job: EvalJob, todo: list[int], out_path: str | os.PathLike, progress: bool) -> None:
-    if job.policy in PRIVILEGED_POLICIES:
-        raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs")
-    env = make_env(job)
-    bar = ProgressBar(job.label, job.suite_id, job.instruction_mode, len(job.seeds), len(job.seeds) - len(todo),
-                       progress)
-    try:
-        policies = [make_policy(job.policy, env, job.policy_kwargs) for _ in range(env.unwrapped.num_envs)]
         with RecordWriter(out_path) as writer:
             def write(record: dict) -> None:
-                writer.write(record)
+                records.append(writer.write(record))
                 bar.add(record)
 
-            batched_loop(env, policies, job.suite_id, job.seeds, todo, write, **_loop_kwargs(job))
+            run(todo, write)
     finally:
         bar.close()
+    return records
+
+
+def run_episodes(
+    env_factory: Callable[[], Any] | Any,
+    policy: Any,
+    suite_id: str,
+    seeds: Sequence[int],
+    out_path: str | os.PathLike,
+    instruction_mode: str = "normal",
+    max_steps: int = DEFAULT_MAX_STEPS,
+    progress: bool = True,
+    *,
+    policy_label: str | None = None,
+    reset_options: dict | None = None,
+    instruction_lookup: Callable[[int], str] | None = None,
+    shuffle_seed: int = SHUFFLE_SEED,
+    keep_spec: bool = True,
+    video_dir: str | os.PathLike | None = None,
+    num_videos: int = 0,
+) -> list[dict]:
+    """Evaluate ``policy`` on ``seeds`` of ``suite_id``, appending one record per episode to ``out_path``.
+
+    Args:
+        env_factory: zero-argument callable making a one-env RSB env of ``suite_id`` (evaluation
+            split), or an env. It is only built when seeds remain, and closed if built here.
+        policy: a :class:`~rsb_maniskill.evaluation.policy.Policy`.
+        seeds: the full seed list of this evaluation (``protocol.eval_seeds``); seeds already
+            recorded for this policy / suite / mode in ``out_path`` are skipped.
+        instruction_mode, max_steps, video_dir, num_videos, ...: see
+            :class:`~rsb_maniskill.evaluation.runner.EpisodeSettings` (make the env with
+            ``render_mode="rgb_array"`` for videos).
+    Returns:
+        Every record of this (policy, suite, mode) in ``out_path``, old and new, in file order.
+    """
+    settings = EpisodeSettings(
+        suite_id=suite_id, seeds=tuple(seeds), label=policy_label or policy_name(policy),
+        instruction_mode=instruction_mode, max_steps=max_steps, reset_options=reset_options,
+        instruction_lookup=instruction_lookup, shuffle_seed=shuffle_seed, keep_spec=keep_spec,
+        video_dir=None if video_dir is None else str(video_dir), num_videos=num_videos)
+
+    def run(todo: list[int], write: Write) -> None:
+        own_env = not hasattr(env_factory, "step")
+        env = env_factory() if own_env else env_factory
+        try:
+            episode_loop(env, policy, settings, todo, write)
+        finally:
+            if own_env:
+                env.close()
+
+    return drive(settings, out_path, run, progress)
+
+
+def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progress: bool = True,
+            executor: Executor | None = None) -> list[dict]:
+    """Run the seeds of ``job`` not yet in ``out_path``; returns all of the job's records.
+
+    The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``executor``'s
+    tasks); with one, or with parallel GPU envs (``job.num_envs > 1``), they run in this process.
+    A failed worker's finished episodes are kept (RuntimeError naming it); a signal stops the
+    workers and raises :class:`~rsb_maniskill.workers.Interrupted`, a KeyboardInterrupt.
+    """
+    if job.num_envs > 1 and policy_spec(job.policy).single_env:
+        raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs")
+
+    def run(todo: list[int], write: Write) -> None:
+        shards = deal(todo, 1 if job.num_envs > 1 else num_procs)
+        chosen = executor or (ProcessPool() if len(shards) > 1 else InProcess())
+        outcome = chosen.run(run_shard, [(job, shard) for shard in shards], write)
+        if outcome.interrupted:
+            raise Interrupted(outcome.interrupted)
+        errors = {**outcome.errors, **{t.index: "interrupted" for t in outcome.tasks if t.interrupted}}
+        if errors:
+            first = min(errors)
+            raise RuntimeError(f"{len(errors)} of {len(shards)} evaluation workers failed on {job.suite_id} "
+                               f"(finished episodes are saved; rerun to resume). Worker {first}: {errors[first]}")
+
+    return drive(job, out_path, run, progress)
+
+
+def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> None:
+    """A worker's share: build env and policy from the job, run its seeds, send each record."""
+    job, seeds = task
+    env = make_env(job)
+    try:
+        if job.num_envs > 1:
+            policies = [load_policy(job.policy, env=env, **job.policy_kwargs) for _ in range(env.unwrapped.num_envs)]
+            batched_loop(env, policies, job, seeds, write)
+        else:
+            episode_loop(env, load_policy(job.policy, env=env, **job.policy_kwargs), job, seeds, write)
+    finally:
         env.close()
+

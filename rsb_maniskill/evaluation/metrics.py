@@ -14,6 +14,8 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable, Mapping, Sequence
 
+from rsb_maniskill.semantic.suites import parse_suite_id
+
 # Two-sided 95%: the 0.975 quantile of the standard normal.
 Z95 = 1.959963984540054
 
@@ -24,14 +26,8 @@ PAPER_SUITES: tuple[str, ...] = (
 
 
 def num_choices(suite_id: str) -> int:
-    """N of a suite id, its trailing number (``"RSB-General-10"`` -> 10)."""
-    try:
-        n = int(str(suite_id).rsplit("-", 1)[1])
-    except (IndexError, ValueError):
-        raise ValueError(f"suite id {suite_id!r} does not end with the number of choices, e.g. 'RSB-Math-4'") from None
-    if n < 2:
-        raise ValueError(f"suite id {suite_id!r}: need at least 2 choices")
-    return n
+    """N of a suite id (``"RSB-General-10"`` -> 10), as the semantic engine parses it."""
+    return parse_suite_id(suite_id)[1]
 
 
 def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:

@@ -1,4 +1,5 @@
-"""The policy interface of the evaluator, and loading a user policy from ``module:factory``.
+"""The policy interface of the evaluator, the table of built-in policies, and loading a policy
+from a built-in name or ``module:factory``.
 
 A policy is anything with ``reset(instruction, obs)`` and ``act(obs) -> (T, action_dim)`` chunk.
 The runner calls ``reset`` once per episode with the instruction (after the instruction-mode
@@ -9,6 +10,7 @@ observation as numpy arrays in the env's nested dict layout (leading env dim rem
 from __future__ import annotations
 
 import importlib
+from dataclasses import dataclass
 from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
@@ -23,6 +25,11 @@ class Policy(Protocol):
 
     def act(self, obs: dict) -> np.ndarray:
         """Action chunk of shape (T, action_dim), T >= 1, executed in order before the next call."""
+
+
+def env_action_space(env: Any) -> Any:
+    """The action space of one env of ``env`` (ManiSkill's ``single_action_space`` when batched)."""
+    return getattr(env.unwrapped, "single_action_space", None) or env.action_space
 
 
 def policy_name(policy: Any) -> str:
@@ -70,6 +77,11 @@ class RandomPolicy:
         low, high = np.asarray(space.low), np.asarray(space.high)
         return cls(low.reshape(-1, low.shape[-1])[0], high.reshape(-1, high.shape[-1])[0], **kwargs)
 
+    @classmethod
+    def for_env(cls, env: Any, **kwargs: Any) -> "RandomPolicy":
+        """Over the action space of one env of ``env``."""
+        return cls.from_action_space(env_action_space(env), **kwargs)
+
     def reset(self, instruction: str, obs: dict) -> None:
         pass
 
@@ -77,26 +89,48 @@ class RandomPolicy:
         return self.rng.uniform(self.low, self.high, size=(self.chunk_size, self.low.shape[0])).astype(np.float32)
 
 
-def _remote(**kwargs: Any) -> Any:
-    from .remote import RemotePolicy  # needs the `eval` extra (websockets, msgpack)
+@dataclass(frozen=True)
+class PolicySpec:
+    """A built-in policy: where its factory lives, and what building and running it takes.
 
-    return RemotePolicy(**kwargs)
+    ``factory`` is ``"package.module:attr"`` (imported on first use, so naming a policy imports
+    nothing) or a callable. A factory that ``needs_env`` is called as ``factory(env, **kwargs)``.
+    """
+
+    factory: str | Callable[..., Any]
+    needs_env: bool = False
+    single_env: bool = False  # reads the simulator of env 0: one env at a time, never parallel envs
+    obs_mode: str = "rgb"  # the observations it reads by default
 
 
-# Built-in policy names -> factories. The privileged ones (oracle, blind) need the env and are
-# built by ``jobs.make_policy``.
-_REGISTRY: dict[str, Callable[..., Any]] = {"random": RandomPolicy.from_action_space, "remote": _remote}
+# The one table of built-in names. Privileged baselines are built with the env and drive one env;
+# policies that ignore observations get state obs (and so no renderer) by default.
+POLICIES: dict[str, PolicySpec] = {
+    "oracle": PolicySpec("rsb_maniskill.evaluation.baselines:oracle", needs_env=True, single_env=True,
+                         obs_mode="state"),
+    "blind": PolicySpec("rsb_maniskill.evaluation.baselines:blind", needs_env=True, single_env=True,
+                        obs_mode="state"),
+    "random": PolicySpec("rsb_maniskill.evaluation.policy:RandomPolicy.for_env", needs_env=True, obs_mode="state"),
+    "remote": PolicySpec("rsb_maniskill.evaluation.remote:RemotePolicy"),  # needs the `eval` extra
+}
+_USER_SPEC = PolicySpec("")  # what a "package.module:factory" spec is: no env, rgb observations
 
 
-def register_policy(name: str, factory: Callable[..., Any]) -> None:
-    """Make ``load_policy(name)`` call ``factory``; names hold no ':' so they never clash with specs."""
+def register_policy(name: str, factory: str | Callable[..., Any], *, needs_env: bool = False,
+                    single_env: bool = False, obs_mode: str = "rgb") -> None:
+    """Make ``load_policy(name)`` use ``factory``; names hold no ':' so they never clash with specs."""
     if ":" in name:
         raise ValueError(f"built-in policy names cannot contain ':', got {name!r}")
-    _REGISTRY[name] = factory
+    POLICIES[name] = PolicySpec(factory, needs_env, single_env, obs_mode)
 
 
 def builtin_policies() -> tuple[str, ...]:
-    return tuple(sorted(_REGISTRY))
+    return tuple(sorted(POLICIES))
+
+
+def policy_spec(spec: str) -> PolicySpec:
+    """The table entry of a built-in name; user specs get the defaults (no env, rgb)."""
+    return POLICIES.get(spec, _USER_SPEC)
 
 
 def resolve_factory(spec: str) -> Callable[..., Any]:
@@ -106,13 +140,18 @@ def resolve_factory(spec: str) -> Callable[..., Any]:
     missing or non-callable attribute)."""
     if not isinstance(spec, str) or not spec:
         raise ValueError(f"policy spec must be a non-empty string, got {spec!r}")
-    if spec in _REGISTRY:
-        return _REGISTRY[spec]
+    if spec in POLICIES:
+        factory = POLICIES[spec].factory
+        return factory if callable(factory) else _import_attr(factory)
     if ":" not in spec:
         raise ValueError(
             f"policy {spec!r} is neither a built-in ({', '.join(builtin_policies())}) nor of the form "
             "'package.module:factory'"
         )
+    return _import_attr(spec)
+
+
+def _import_attr(spec: str) -> Callable[..., Any]:
     module_name, _, attr = spec.partition(":")
     if not module_name or not attr:
         raise ValueError(f"policy spec {spec!r} must be 'package.module:factory' with both parts non-empty")
@@ -130,13 +169,23 @@ def resolve_factory(spec: str) -> Callable[..., Any]:
     return factory
 
 
-def load_policy(spec: str, *, check: bool = True, **kwargs: Any) -> Policy:
+def load_policy(spec: str, *, env: Any = None, check: bool = True, **kwargs: Any) -> Policy:
     """Build a policy from a built-in name or ``"package.module:factory"`` and ``kwargs``.
 
     ``factory`` is any callable (a class or a function) returning an object with ``reset`` and
-    ``act`` (checked unless ``check=False``). Errors name the part of the spec that failed.
+    ``act`` (checked unless ``check=False``). Built-ins that need the env (``oracle``, ``blind``,
+    ``random``) get ``env``; user policies never see it. Errors name the part of the spec that failed.
     """
-    policy = resolve_factory(spec)(**kwargs)
+    entry = policy_spec(spec)
+    factory = resolve_factory(spec)
+    if entry.needs_env:
+        if env is None:
+            raise ValueError(f"policy {spec!r} is built with the env: pass env=...")
+        if entry.single_env and getattr(env.unwrapped, "num_envs", 1) != 1:
+            raise ValueError(f"policy {spec!r} drives one env at a time; use num_procs instead of num_envs")
+        policy = factory(env, **kwargs)
+    else:
+        policy = factory(**kwargs)
     if not check:
         return policy
     missing = [m for m in ("reset", "act") if not callable(getattr(policy, m, None))]

@@ -100,13 +100,15 @@ class RecordWriter:
         self.validate = validate
         self._f = open(self.path, "a", encoding="utf-8")
 
-    def write(self, record: Mapping[str, Any]) -> None:
+    def write(self, record: Mapping[str, Any]) -> dict:
+        """Append ``record``; returns it as a reader will get it back (plain JSON values)."""
         if self.validate:
             validate_record(record)
         line = json.dumps(dict(record), default=_json_default, ensure_ascii=False)
         self._f.write(line + "\n")
         self._f.flush()
         os.fsync(self._f.fileno())
+        return json.loads(line)
 
     def close(self) -> None:
         if not self._f.closed:

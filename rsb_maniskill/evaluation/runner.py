@@ -1,57 +1,72 @@
-"""Run a policy on a list of episode seeds of one suite, one env, recording each episode as it ends.
+"""The episode loops: a policy on a list of seeds of one suite, each finished episode handed to ``write``.
 
-The runner knows the env only through the RSB task contract (no task import here):
+The loops know the env only through the RSB task contract (no task import here):
 ``env.unwrapped.get_language_instruction()``, ``env.unwrapped.episode_specs``, optionally
 ``env.unwrapped.episode_spec(seed)`` (an episode's semantics without a reset), and the latched
-grasp / placement flags in ``info`` (torch or numpy, leading env dim). It resumes by skipping the
-seeds already in the records file, so an interrupted run loses at most the episode in flight.
+grasp / placement flags in ``info`` (torch or numpy, leading env dim).
 
-:func:`episode_loop` is the loop itself; it hands each record to a ``write`` callable, so worker
-processes (``jobs.py``) can send their records to the one process that owns the file.
+:func:`episode_loop` drives one env, :func:`batched_loop` ``num_envs`` parallel envs; both read
+what to run from one :class:`EpisodeSettings` and give the same records, episode for episode.
+Resuming, the records file and the progress bar belong to the driver (``jobs.py``), which also
+runs these loops in worker processes.
 """
 from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from rsb_maniskill.batch import env_row, first_value, single_env_obs
 from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
 
-from .policy import as_chunk, policy_name
+from .policy import as_chunk, env_action_space
 from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
-from .records import INSTRUCTION_MODES, RecordWriter, completed_seeds, read_records
+from .records import INSTRUCTION_MODES
 
 # info flags copied into every record, and extra ones kept when the env provides them.
 RECORD_FLAGS = ("grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success")
 EXTRA_FLAGS = ("grasped_wrong", "fail")
 DEFAULT_MAX_STEPS = TASK_MAX_EPISODE_STEPS  # the tasks' own limit
-VIDEO_FPS = 25  # the control rate: videos play in real time
 
 
-def _first(x: Any) -> Any:
-    """Python scalar of env 0 from a tensor / array / scalar."""
-    if hasattr(x, "detach"):  # torch, without importing it
-        x = x.detach().cpu().numpy()
-    a = np.asarray(x)
-    return a.reshape(-1)[0].item() if a.size else None
+@dataclass(frozen=True, kw_only=True)
+class EpisodeSettings:
+    """What to run and how to record it: the one argument of the loops besides env, policy and seeds.
 
+    ``seeds`` is the whole evaluation: it fixes the shuffled-mode donors and which episodes (the
+    first ``num_videos``) are filmed, whichever process runs which of them.
+    """
 
-def single_env_obs(obs: Any) -> Any:
-    """Nested obs of a one-env batch as numpy with the leading env dim removed."""
-    if isinstance(obs, Mapping):
-        return {k: single_env_obs(v) for k, v in obs.items()}
-    if hasattr(obs, "detach"):
-        obs = obs.detach().cpu().numpy()
-    if isinstance(obs, np.ndarray) and obs.ndim >= 1:
-        return obs[0]
-    return obs
+    suite_id: str
+    seeds: tuple[int, ...]
+    label: str  # the records' ``policy`` field and the table row
+    instruction_mode: str = "normal"  # normal, blank ("" for the policy) or shuffled (another episode's)
+    max_steps: int = DEFAULT_MAX_STEPS  # cap on env steps, on top of the env's own time limit
+    video_dir: str | None = None  # an mp4 of each of the first num_videos seeds, from env.render()
+    num_videos: int = 0
+    keep_spec: bool = True  # the full EpisodeSpec in each record ("episode")
+    shuffle_seed: int = SHUFFLE_SEED
+    reset_options: Mapping[str, Any] | None = None
+    # seed -> instruction, to find shuffled donors without a reset; in-process runs only (a callable
+    # does not travel to worker processes). Default: the task's episode_spec(seed), else a reset.
+    instruction_lookup: Callable[[int], str] | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+        if self.instruction_mode not in INSTRUCTION_MODES:
+            raise ValueError(f"instruction_mode must be one of {INSTRUCTION_MODES}, got {self.instruction_mode!r}")
+        if len(set(self.seeds)) != len(self.seeds):
+            raise ValueError("seeds contain duplicates")
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
 
 
 def info_flag(info: Mapping[str, Any], key: str, default: Any = False) -> Any:
-    return _first(info[key]) if key in info else default
+    return first_value(info[key]) if key in info else default
 
 
 def build_record(
@@ -114,12 +129,7 @@ class _Donors:
         return self.seeds[j], self.text(self.seeds[j])
 
 
-def _action_dim(env: Any) -> int:
-    space = getattr(env.unwrapped, "single_action_space", None) or env.action_space
-    return int(space.shape[-1])
-
-
-def default_instruction_lookup(env: Any, reset_options: dict | None = None) -> Callable[[int], str]:
+def default_instruction_lookup(env: Any, reset_options: Mapping[str, Any] | None = None) -> Callable[[int], str]:
     """seed -> instruction: from the task's ``episode_spec(seed)`` if it has one, else by a reset."""
     base = env.unwrapped
     if callable(getattr(base, "episode_spec", None)):
@@ -132,96 +142,52 @@ def default_instruction_lookup(env: Any, reset_options: dict | None = None) -> C
     return by_reset
 
 
-def run_episodes(
-    env_factory: Callable[[], Any] | Any,
-    policy: Any,
-    suite_id: str,
-    seeds: Sequence[int],
-    out_path: str | os.PathLike,
-    instruction_mode: str = "normal",
-    max_steps: int = DEFAULT_MAX_STEPS,
-    progress: bool = True,
-    *,
-    policy_label: str | None = None,
-    reset_options: dict | None = None,
-    instruction_lookup: Callable[[int], str] | None = None,
-    shuffle_seed: int = SHUFFLE_SEED,
-    keep_spec: bool = True,
-    video_dir: str | os.PathLike | None = None,
-    num_videos: int = 0,
-) -> list[dict]:
-    """Evaluate ``policy`` on ``seeds`` of ``suite_id``, appending one record per episode to ``out_path``.
+class _Episodes:
+    """What both loops set up from the settings: the instruction ablation, the filmed seeds, the
+    action dimension, and the record of a finished episode."""
 
-    Args:
-        env_factory: zero-argument callable making a one-env RSB env of ``suite_id`` (evaluation
-            split), or an env. It is only built when seeds remain, and closed if built here.
-        policy: a :class:`~rsb_maniskill.evaluation.policy.Policy`.
-        seeds: the full seed list of this evaluation (``protocol.eval_seeds``); seeds already
-            recorded for this policy / suite / mode in ``out_path`` are skipped.
-        instruction_mode: ``normal``, ``blank`` ("" for the policy) or ``shuffled`` (another
-            episode's instruction, fixed pairing over ``seeds``).
-        max_steps: cap on env steps, on top of the env's own time limit.
-        instruction_lookup: seed -> instruction, to find shuffled donors (default:
-            :func:`default_instruction_lookup`).
-        video_dir, num_videos: an mp4 of each of the first ``num_videos`` seeds of ``seeds``, from
-            ``env.render()`` (make the env with ``render_mode="rgb_array"``).
-    Returns:
-        Every record of this (policy, suite, mode) in ``out_path``, old and new, in file order.
-    """
-    if instruction_mode not in INSTRUCTION_MODES:
-        raise ValueError(f"instruction_mode must be one of {INSTRUCTION_MODES}, got {instruction_mode!r}")
-    if len(set(seeds)) != len(seeds):
-        raise ValueError("seeds contain duplicates")
-    label = policy_label or policy_name(policy)
-    out_path = Path(out_path)
-    done = completed_seeds(out_path, suite_id, instruction_mode, label)
-    todo = [s for s in seeds if s not in done]
+    def __init__(self, env: Any, settings: EpisodeSettings, *, resets_allowed: bool) -> None:
+        self.settings = settings
+        self.action_dim = int(env_action_space(env).shape[-1])
+        self.filmed = set(settings.seeds[:settings.num_videos]) if settings.video_dir is not None else set()
+        self.donors = None
+        if settings.instruction_mode == "shuffled":
+            lookup = settings.instruction_lookup
+            if lookup is None:
+                if not resets_allowed and not callable(getattr(env.unwrapped, "episode_spec", None)):
+                    raise ValueError("shuffled mode on parallel envs needs the task's episode_spec(seed)")
+                lookup = default_instruction_lookup(env, settings.reset_options)
+            self.donors = _Donors(settings.seeds, lookup, settings.shuffle_seed)
 
-    if todo:
-        own_env = not hasattr(env_factory, "step")
-        env = env_factory() if own_env else env_factory
-        bar = ProgressBar(label, suite_id, instruction_mode, len(seeds), len(seeds) - len(todo), progress)
-        try:
-            with RecordWriter(out_path) as writer:
-                def write(record: dict) -> None:
-                    writer.write(record)
-                    bar.add(record)
+    def donor(self, seed: int, own: str | None = None) -> tuple[int, str] | None:
+        """Shuffled mode: (donor seed, its instruction); ``own`` defaults to the looked-up text.
 
-                episode_loop(env, policy, suite_id, seeds, todo, write, instruction_mode=instruction_mode,
-                             max_steps=max_steps, label=label, reset_options=reset_options,
-                             instruction_lookup=instruction_lookup, shuffle_seed=shuffle_seed,
-                             keep_spec=keep_spec, video_dir=video_dir, num_videos=num_videos)
-        finally:
-            bar.close()
-            if own_env:
-                env.close()
-    return [r for r in read_records(out_path)
-            if r.get("suite_id") == suite_id and r.get("instruction_mode") == instruction_mode
-            and r.get("policy") == label]
+        Call it before the episode's own reset: a reset-based lookup resets the env on other seeds.
+        """
+        if self.donors is None:
+            return None
+        return self.donors(seed, self.donors.text(seed) if own is None else own)
 
+    def instruction(self, own: str, donor: tuple[int, str] | None) -> tuple[str, dict[str, Any]]:
+        """The text the policy is given, and the record's ablation fields."""
+        mode = self.settings.instruction_mode
+        extra: dict[str, Any] = {}
+        if donor is not None:
+            extra["donor_seed"] = donor[0]
+        if mode != "normal":
+            extra["original_instruction"] = own
+        return apply_instruction_mode(own, mode, donor[1] if donor else None), extra
 
-class ProgressBar:
-    """tqdm bar over a suite's episodes with the running GSR / TSR; a no-op when disabled."""
-
-    def __init__(self, label: str, suite_id: str, mode: str, total: int, initial: int, enabled: bool) -> None:
-        self.bar = None
-        self.n = self.grasped = self.success = 0
-        if enabled:
-            from tqdm.auto import tqdm
-
-            self.bar = tqdm(total=total, initial=initial, desc=f"{label} {suite_id} [{mode}]", unit="ep")
-
-    def add(self, record: Mapping[str, Any]) -> None:
-        self.n += 1
-        self.grasped += bool(record["grasped_any"] or record["success"])
-        self.success += bool(record["success"])
-        if self.bar is not None:
-            self.bar.update(1)
-            self.bar.set_postfix(GSR=f"{self.grasped / self.n:.0%}", TSR=f"{self.success / self.n:.0%}", refresh=False)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+    def record(self, *, seed: int, spec: Any, given: str, info: Mapping[str, Any], steps: int,
+               extra: dict[str, Any], frames: list | None) -> dict[str, Any]:
+        """The record of a finished episode; writes its video first when it was filmed."""
+        s = self.settings
+        if frames is not None:
+            extra["video"] = write_video(frames, s.video_dir, f"{s.suite_id}_{s.instruction_mode}_seed{seed}").name
+        if s.keep_spec and hasattr(spec, "to_dict"):
+            extra["episode"] = spec.to_dict()
+        return build_record(suite_id=s.suite_id, seed=seed, spec=spec, instruction=given,
+                            instruction_mode=s.instruction_mode, info=info, steps=steps, policy=s.label, extra=extra)
 
 
 def _render(env: Any) -> np.ndarray:
@@ -232,129 +198,63 @@ def _render(env: Any) -> np.ndarray:
 
 
 def write_video(frames: Sequence[np.ndarray], video_dir: str | os.PathLike, name: str) -> Path:
-    """mp4 at the control rate, with ManiSkill's writer."""
+    """mp4 at the control rate (real time), with ManiSkill's writer."""
     from mani_skill.utils.visualization.misc import images_to_video
 
-    images_to_video(list(frames), str(video_dir), name, fps=VIDEO_FPS, verbose=False)
+    from rsb_maniskill.tasks.tabletop import CONTROL_FREQ
+
+    images_to_video(list(frames), str(video_dir), name, fps=CONTROL_FREQ, verbose=False)
     return Path(video_dir) / f"{name}.mp4"
 
 
-def _finish_record(*, suite_id: str, seed: int, spec: Any, given: str, instruction_mode: str, info: Mapping[str, Any],
-                   steps: int, label: str, extra: dict[str, Any], frames: list | None, video_dir: Any,
-                   keep_spec: bool) -> dict[str, Any]:
-    """The record of a finished episode; writes its video first when it was filmed."""
-    if frames is not None:
-        extra["video"] = write_video(frames, video_dir, f"{suite_id}_{instruction_mode}_seed{seed}").name
-    if keep_spec and hasattr(spec, "to_dict"):
-        extra["episode"] = spec.to_dict()
-    return build_record(suite_id=suite_id, seed=seed, spec=spec, instruction=given,
-                        instruction_mode=instruction_mode, info=info, steps=steps, policy=label, extra=extra)
-
-
-def episode_loop(
-    env: Any,
-    policy: Any,
-    suite_id: str,
-    seeds: Sequence[int],
-    todo: Sequence[int],
-    write: Callable[[dict], None],
-    *,
-    instruction_mode: str = "normal",
-    max_steps: int = DEFAULT_MAX_STEPS,
-    label: str,
-    reset_options: dict | None = None,
-    instruction_lookup: Callable[[int], str] | None = None,
-    shuffle_seed: int = SHUFFLE_SEED,
-    keep_spec: bool = True,
-    video_dir: str | os.PathLike | None = None,
-    num_videos: int = 0,
-) -> None:
-    """Run the episodes ``todo`` (a subset of ``seeds``) and ``write`` each record as it ends.
-
-    ``seeds`` is the whole evaluation: it fixes the shuffled-mode donors and which episodes
-    (the first ``num_videos``) get a video, whichever process runs them.
-    """
+def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequence[int],
+                 write: Callable[[dict], None]) -> None:
+    """Run the episodes ``todo`` (a subset of ``settings.seeds``) on one env; ``write`` each record as it ends."""
     base = env.unwrapped
-    action_dim = _action_dim(env)
+    episodes = _Episodes(env, settings, resets_allowed=True)
     batched_actions = len(env.action_space.shape) == 2
-    donors = None
-    if instruction_mode == "shuffled":
-        donors = _Donors(seeds, instruction_lookup or default_instruction_lookup(env, reset_options), shuffle_seed)
-    filmed = set(seeds[:num_videos]) if video_dir is not None else set()
 
     for seed in todo:
         t0 = time.monotonic()
-        extra: dict[str, Any] = {}
-        donor_text = None
-        if donors is not None:
-            # Before this episode's own reset: a reset-based lookup resets the env on other seeds.
-            extra["donor_seed"], donor_text = donors(seed, donors.text(seed))
-        obs, info = env.reset(seed=seed, options=reset_options)
+        donor = episodes.donor(seed)
+        obs, info = env.reset(seed=seed, options=settings.reset_options)
         instructions = base.get_language_instruction()
         if len(instructions) != 1:
             raise ValueError(f"episode_loop drives one env, this one has {len(instructions)}; "
                              "use batched_loop for parallel envs")
-        instruction = instructions[0]
         spec = base.episode_specs[0]
-        given = apply_instruction_mode(instruction, instruction_mode, donor_text)
-        if instruction_mode != "normal":
-            extra["original_instruction"] = instruction
-        frames = [_render(env)[0]] if seed in filmed else None
+        given, extra = episodes.instruction(instructions[0], donor)
+        frames = [_render(env)[0]] if seed in episodes.filmed else None
 
         policy.reset(given, single_env_obs(obs))
         steps, finished = 0, False
-        while not finished and steps < max_steps:
-            chunk = as_chunk(policy.act(single_env_obs(obs)), action_dim)
+        while not finished and steps < settings.max_steps:
+            chunk = as_chunk(policy.act(single_env_obs(obs)), episodes.action_dim)
             for action in chunk:
                 a = action[None] if batched_actions else action
                 obs, _, terminated, truncated, info = env.step(a)
                 steps += 1
                 if frames is not None:
                     frames.append(_render(env)[0])
-                finished = bool(_first(terminated)) or bool(_first(truncated))
-                if finished or steps >= max_steps:
+                finished = bool(first_value(terminated)) or bool(first_value(truncated))
+                if finished or steps >= settings.max_steps:
                     break
         extra["wall_s"] = round(time.monotonic() - t0, 3)
-        write(_finish_record(suite_id=suite_id, seed=seed, spec=spec, given=given, instruction_mode=instruction_mode,
-                             info=info, steps=steps, label=label, extra=extra, frames=frames, video_dir=video_dir,
-                             keep_spec=keep_spec))
-
-
-def _env_row(x: Any, i: int) -> Any:
-    """Row ``i`` of a batched (nested) obs, as numpy."""
-    if isinstance(x, Mapping):
-        return {k: _env_row(v, i) for k, v in x.items()}
-    if hasattr(x, "detach"):
-        return x[i].detach().cpu().numpy()
-    return np.asarray(x)[i]
+        write(episodes.record(seed=seed, spec=spec, given=given, info=info, steps=steps, extra=extra, frames=frames))
 
 
 def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:
-    return {k: _env_row(v, i) for k, v in info.items() if hasattr(v, "__len__") or hasattr(v, "detach")}
+    return {k: env_row(v, i) for k, v in info.items() if hasattr(v, "__len__") or hasattr(v, "detach")}
 
 
-def batched_loop(
-    env: Any,
-    policies: Sequence[Any],
-    suite_id: str,
-    seeds: Sequence[int],
-    todo: Sequence[int],
-    write: Callable[[dict], None],
-    *,
-    instruction_mode: str = "normal",
-    max_steps: int = DEFAULT_MAX_STEPS,
-    label: str,
-    shuffle_seed: int = SHUFFLE_SEED,
-    keep_spec: bool = True,
-    video_dir: str | os.PathLike | None = None,
-    num_videos: int = 0,
-) -> None:
+def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, todo: Sequence[int],
+                 write: Callable[[dict], None]) -> None:
     """Episodes in waves of ``num_envs``: env i of a wave runs one seed with ``policies[i]``.
 
     All envs of a wave are reset together with their seeds (a list); each env's record is taken at
     the step it terminates or truncates, and it then holds its last action until the wave ends. The
     last wave is padded with repeats of its last seed whose outcome is discarded. Records equal
-    those of :func:`~rsb_maniskill.evaluation.runner.episode_loop`, episode for episode.
+    those of :func:`episode_loop`, episode for episode.
     """
     import torch
 
@@ -362,42 +262,30 @@ def batched_loop(
     b = base.num_envs
     if len(policies) != b:
         raise ValueError(f"need one policy per env: {b} envs, {len(policies)} policies")
-    space = getattr(base, "single_action_space", None) or env.action_space
-    action_dim = int(space.shape[-1])
-    donors = None
-    if instruction_mode == "shuffled":
-        if not callable(getattr(base, "episode_spec", None)):
-            raise ValueError("shuffled mode on parallel envs needs the task's episode_spec(seed)")
-        donors = _Donors(seeds, default_instruction_lookup(env), shuffle_seed)
-    filmed = set(seeds[:num_videos]) if video_dir is not None else set()
+    episodes = _Episodes(env, settings, resets_allowed=False)
 
     for start in range(0, len(todo), b):
         wave = list(todo[start:start + b])
         n = len(wave)
-        obs, info = env.reset(seed=wave + [wave[-1]] * (b - n))
+        obs, info = env.reset(seed=wave + [wave[-1]] * (b - n), options=settings.reset_options)
         specs = list(base.episode_specs)
         instructions = base.get_language_instruction()
         given, extras = [], []
         for i, seed in enumerate(wave):
-            extra: dict[str, Any] = {}
-            donor_text = None
-            if donors is not None:
-                extra["donor_seed"], donor_text = donors(seed, instructions[i])
-            if instruction_mode != "normal":
-                extra["original_instruction"] = instructions[i]
-            given.append(apply_instruction_mode(instructions[i], instruction_mode, donor_text))
+            text, extra = episodes.instruction(instructions[i], episodes.donor(seed, instructions[i]))
+            given.append(text)
             extras.append(extra)
-            policies[i].reset(given[i], _env_row(obs, i))
-        frames = {i: [] for i, s in enumerate(wave) if s in filmed}
+            policies[i].reset(text, env_row(obs, i))
+        frames = {i: [] for i, s in enumerate(wave) if s in episodes.filmed}
         _collect_frames(env, frames)
         pending: list[list[np.ndarray]] = [[] for _ in range(b)]
-        last = np.zeros((b, action_dim), dtype=np.float32)
+        last = np.zeros((b, episodes.action_dim), dtype=np.float32)
         steps = [0] * b
         active = [i < n for i in range(b)]
         while any(active):
             for i in range(b):
                 if active[i] and not pending[i]:
-                    pending[i] = list(as_chunk(policies[i].act(_env_row(obs, i)), action_dim))
+                    pending[i] = list(as_chunk(policies[i].act(env_row(obs, i)), episodes.action_dim))
                 if active[i]:
                     last[i] = pending[i].pop(0)
             action = torch.as_tensor(last, device=base.device)
@@ -407,14 +295,11 @@ def batched_loop(
                 if not active[i]:
                     continue
                 steps[i] += 1
-                done = bool(_first(terminated[i:i + 1])) or bool(_first(truncated[i:i + 1])) or steps[i] >= max_steps
-                if done:
+                if (bool(first_value(terminated[i:i + 1])) or bool(first_value(truncated[i:i + 1]))
+                        or steps[i] >= settings.max_steps):
                     active[i] = False
-                    write(_finish_record(suite_id=suite_id, seed=wave[i], spec=specs[i], given=given[i],
-                                         instruction_mode=instruction_mode, info=_row_info(info, i),
-                                         steps=steps[i], label=label,
-                                         extra=extras[i], frames=frames.pop(i, None), video_dir=video_dir,
-                                         keep_spec=keep_spec))
+                    write(episodes.record(seed=wave[i], spec=specs[i], given=given[i], info=_row_info(info, i),
+                                          steps=steps[i], extra=extras[i], frames=frames.pop(i, None)))
 
 
 def _collect_frames(env: Any, frames: dict[int, list], active: Sequence[bool] | None = None) -> None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from rsb_maniskill.motionplan.generate import DEFAULT_EXPERT
+from rsb_maniskill.motionplan.config import DEFAULT_EXPERT
 
 # The replay sub-parser must hand every argument, options included, to ManiSkill's own parser:
 # a prefix character no option uses makes argparse treat them all as positionals.
@@ -65,7 +65,8 @@ def register(subparsers) -> None:
 
 def run_generate(args: argparse.Namespace) -> int:
     from rsb_maniskill.motionplan.dataset import DatasetError
-    from rsb_maniskill.motionplan.generate import GenerateConfig, GenerateError, describe, generate, parse_shard
+    from rsb_maniskill.motionplan.generate import GenerateConfig, GenerateError, describe, generate
+    from rsb_maniskill.motionplan.shards import parse_shard
 
     extra = {k: v for k, v in (("instructions", args.instructions), ("color_map", args.color_map),
                                ("data_dir", args.data_dir)) if v is not None}
@@ -86,6 +87,7 @@ def run_generate(args: argparse.Namespace) -> int:
 
 def run_merge(args: argparse.Namespace) -> int:
     from rsb_maniskill.motionplan.dataset import DatasetError, check_pair, merge_pairs
+    from rsb_maniskill.motionplan.summary import combine_rsb_blocks
 
     try:
         blocks = []
@@ -102,22 +104,7 @@ def run_merge(args: argparse.Namespace) -> int:
     return 0
 
 
-def combine_rsb_blocks(blocks: list[dict | None]) -> dict | None:
-    """One ``rsb`` block for merged shards: counts summed, failures and skipped questions joined."""
-    if not blocks or any(b is None for b in blocks):
-        return None
-    out = {k: v for k, v in blocks[0].items() if k not in ("shard", "num_procs")}
-    out["shards"] = [b.get("shard") for b in blocks]
-    for key in ("requested", "completed"):
-        out[key] = sum(b.get(key, 0) for b in blocks)
-    out["complete"] = all(b.get("complete", False) for b in blocks)
-    out["interrupted"] = next((b["interrupted"] for b in blocks if b.get("interrupted")), None)
-    out["failures"] = sorted((f for b in blocks for f in b.get("failures", [])), key=lambda f: f["seed"])
-    out["skipped_questions"] = sorted(q for b in blocks for q in b.get("skipped_questions", []))
-    return out
-
-
 def run_replay(args: argparse.Namespace) -> int:
-    from rsb_maniskill.replay import main
+    from rsb_maniskill.motionplan.replay import main
 
     return main(args.replay_args)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import h5py
 
@@ -101,6 +101,31 @@ def dump_json(path: str | os.PathLike, data: dict) -> None:
     from mani_skill.utils.io_utils import dump_json as ms_dump_json
 
     ms_dump_json(path, data, indent=2)
+
+
+def write_json_atomic(path: str | os.PathLike, data: dict) -> None:
+    """Rewrites a json file through a temp name in its directory, so readers never see half of it."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.json")
+    dump_json(tmp, data)
+    os.replace(tmp, path)
+
+
+def annotate_episodes(h5_path: str | os.PathLike, fields_by_seed: Mapping[int, Mapping]) -> int:
+    """Adds fields to the json entries of a finished trajectory pair, matched by ``episode_seed``.
+
+    The way RSB metadata (instruction, options, ...) joins ManiSkill's own episode fields: after
+    the recorder has closed the pair, never inside it. Returns the number of entries annotated."""
+    jp = json_path_of(h5_path)
+    data = load_json(jp)
+    n = 0
+    for ep in data["episodes"]:
+        fields = fields_by_seed.get(ep["episode_seed"])
+        if fields:
+            ep.update(fields)
+            n += 1
+    write_json_atomic(jp, data)
+    return n
 
 
 def check_pair(h5_path: str | os.PathLike) -> dict:

@@ -1,0 +1,170 @@
+"""One generation worker: the expert over its share of seeds, successful episodes recorded to a part file.
+
+The part is ManiSkill's RecordEpisode pair (``.h5`` + ``.json``); once it is closed, each kept
+episode's json entry gets its semantics (``EpisodeSpec.to_dict()``), question index, expert timings
+and video through :func:`~rsb_maniskill.motionplan.dataset.annotate_episodes`, a plain rewrite of
+the finished json. A signal stops the worker between episodes (never while one is being written)
+and still leaves a valid part.
+"""
+from __future__ import annotations
+
+import importlib
+import os
+import signal
+import traceback
+from pathlib import Path
+from typing import Any, Callable
+
+from mani_skill.utils.wrappers.record import RecordEpisode
+
+from rsb_maniskill.batch import first_value
+from rsb_maniskill.workers import Interrupted, InterruptGuard
+
+from . import dataset
+from .config import SOURCE_DESC, GenerateConfig, GenerateError, make_env_kwargs
+from .shards import WorkPlan, seed_schedule
+
+
+class DemoRecorder(RecordEpisode):
+    """ManiSkill's recorder that also keeps the last ``info``: the env's own verdict on the episode."""
+
+    last_info: dict = {}  # replaced at every reset and step
+
+    def reset(self, *args: Any, **kwargs: Any):
+        obs, self.last_info = super().reset(*args, **kwargs)
+        return obs, self.last_info
+
+    def step(self, action: Any):
+        out = super().step(action)
+        self.last_info = out[-1]
+        return out
+
+    @property
+    def env_success(self) -> bool:
+        return bool(first_value(self.last_info.get("success", False)))
+
+
+def load_expert(path: str) -> Callable:
+    """``"module:attr"`` -> the expert class (``attr(env).run() -> ExpertResult``)."""
+    module, _, attr = path.partition(":")
+    try:
+        return getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as err:
+        raise GenerateError(f"cannot load expert {path!r}: {err}") from err
+
+
+def worker_summary(worker: int, part: str | Path, **fields: Any) -> dict:
+    """What a worker reports to the parent (also for a worker that failed before starting)."""
+    summary = dict(worker=worker, part=str(part), kept=0, failures=[], skipped_questions=[], interrupted=None,
+                   error=None, plan_time=0.0, sim_time=0.0, kept_steps=0)
+    summary.update(fields)
+    return summary
+
+
+def run_worker(cfg: GenerateConfig, plan: WorkPlan, part_h5: str | Path, video_dir: str | Path | None,
+               report: Callable[[dict], None]) -> dict:
+    """Generates this worker's share into ``part_h5`` (a valid pair even when interrupted)."""
+    import gymnasium as gym
+
+    import rsb_maniskill  # noqa: F401  (registers the RSB envs)
+    from rsb_maniskill.tasks.tabletop import CONTROL_FREQ
+
+    part_h5 = Path(part_h5)
+    expert_cls = load_expert(cfg.expert)
+    summary = worker_summary(plan.worker, part_h5)
+    meta: dict[int, dict] = {}  # seed -> what the part's json entry gets once it is closed
+    with InterruptGuard() as guard:
+        env = DemoRecorder(gym.make(cfg.env_id, **make_env_kwargs(cfg)), output_dir=str(part_h5.parent),
+                           trajectory_name=part_h5.stem, save_video=cfg.save_video, save_on_reset=False,
+                           record_reward=True, video_fps=CONTROL_FREQ, source_type="motionplanning",
+                           source_desc=SOURCE_DESC)
+        try:
+            _run_share(cfg, plan, env, expert_cls, guard, summary, meta, video_dir, report)
+        except Interrupted as err:
+            guard.disarm()
+            summary["interrupted"] = signal.Signals(err.signum).name
+        except Exception as err:
+            guard.disarm()
+            summary["error"] = f"worker {plan.worker}: {err}"
+            if not isinstance(err, RuntimeError):
+                summary["error"] += "\n" + traceback.format_exc()
+        finally:
+            guard.disarm()
+            env.close()  # writes the json of the kept episodes, closes the h5
+            if meta:
+                dataset.annotate_episodes(part_h5, meta)
+    return summary
+
+
+def _run_share(cfg: GenerateConfig, plan: WorkPlan, env: DemoRecorder, expert_cls: Callable,
+               guard: InterruptGuard, summary: dict, meta: dict[int, dict], video_dir: str | Path | None,
+               report: Callable[[dict], None]) -> None:
+    schedule = seed_schedule(plan, cfg.max_attempts)
+    consecutive_failures, pending_question, kept = 0, None, None
+    while summary["kept"] < plan.wanted:
+        try:
+            seed, q = schedule.send(kept) if kept is not None else next(schedule)
+        except StopIteration:
+            break
+        if pending_question is not None and q != pending_question:
+            summary["skipped_questions"].append(pending_question)  # attempts exhausted
+        pending_question = q
+        env.reset(seed=seed)
+        spec = env.unwrapped.episode_specs[0]
+        result, kept, reason = _attempt(env, expert_cls)
+        msg = dict(type="episode", worker=plan.worker, seed=seed, question_index=seed % plan.pool_size,
+                   kept=kept, reason="" if kept else reason,
+                   steps=getattr(result, "steps", 0), plan_time=getattr(result, "plan_time", 0.0),
+                   sim_time=getattr(result, "sim_time", 0.0), arm=getattr(result, "arm", ""))
+        with guard.critical():
+            if kept:
+                env.flush_trajectory()
+                meta[seed] = _episode_meta(cfg, spec, msg, env, video_dir)
+                summary["kept"] += 1
+                summary["kept_steps"] += msg["steps"]
+                pending_question = None
+                consecutive_failures = 0
+            else:
+                env.flush_trajectory(save=False)
+                if cfg.save_video:
+                    env.flush_video(save=False)
+                summary["failures"].append(dict(seed=seed, question_index=msg["question_index"],
+                                                reason=reason, steps=msg["steps"]))
+                consecutive_failures += 1
+            summary["plan_time"] += msg["plan_time"]
+            summary["sim_time"] += msg["sim_time"]
+        report(msg)
+        if plan.questions is None and consecutive_failures >= cfg.max_attempts:
+            raise RuntimeError(f"the expert failed on {consecutive_failures} seeds in a row "
+                               f"(last: seed {seed}, {reason}); stopping this worker")
+    if pending_question is not None and summary["kept"] < plan.wanted:
+        summary["skipped_questions"].append(pending_question)
+
+
+def _attempt(env: DemoRecorder, expert_cls: Callable) -> tuple[Any, bool, str]:
+    """Runs the expert on the episode just reset: (its result, kept, why not)."""
+    try:
+        result = expert_cls(env).run()
+    except Exception as err:  # a planner crash costs one seed, not the run
+        return None, False, f"error:{type(err).__name__}: {err}"
+    reason = result.reason or ("" if env.env_success else "env_not_successful")
+    return result, bool(result.success and env.env_success), reason
+
+
+def _episode_meta(cfg: GenerateConfig, spec: Any, msg: dict, env: DemoRecorder,
+                  video_dir: str | Path | None) -> dict:
+    """The json fields of a kept episode; writes its video first when asked for one."""
+    entry = dict(spec.to_dict())
+    entry["question_index"] = msg["question_index"]
+    entry["expert"] = dict(arm=msg["arm"], steps=msg["steps"], plan_time=round(msg["plan_time"], 4),
+                           sim_time=round(msg["sim_time"], 4))
+    if cfg.save_video:
+        from mani_skill.utils.visualization.misc import images_to_video
+
+        from rsb_maniskill.tasks.tabletop import CONTROL_FREQ
+
+        name = f"seed{msg['seed']:06d}"
+        images_to_video(env.render_images, str(video_dir), video_name=name, fps=CONTROL_FREQ, verbose=False)
+        entry["video"] = os.path.relpath(Path(video_dir) / f"{name}.mp4", Path(cfg.out))
+        env.flush_video(save=False)
+    return entry

@@ -18,13 +18,13 @@ from typing import Any
 import gymnasium as gym
 from gymnasium.envs.registration import WrapperSpec
 
+from rsb_maniskill.objects.family import OBJECTS_SUFFIX
 from rsb_maniskill.semantic.suites import SUITE_IDS
 
 MODULE = "rsb_maniskill"
 TASK_MAX_EPISODE_STEPS = 300  # 12 s at 25 Hz; the expert needs about 7 s (see docs/tasks.md)
 TABLETOP_ID = "RSB-TableTop-v1"
 TABLETOP_MAX_EPISODE_STEPS = 500
-OBJECTS_SUFFIX = "-Objects"  # "RSB-Math-4-Objects": the suite with everyday objects (Beyond Blocks)
 OBJECT_ENV_IDS: tuple[str, ...] = tuple(sid + OBJECTS_SUFFIX for sid in SUITE_IDS)
 # id -> (max_episode_steps, default kwargs), as the tasks register themselves with ManiSkill
 ENVS: dict[str, tuple[int, dict[str, Any]]] = {

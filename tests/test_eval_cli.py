@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import signal
+import os
 import subprocess
 import sys
 import time
@@ -196,3 +197,22 @@ def test_shuffled_and_blank_modes_on_the_real_task(tmp_path):
     rows = summary(out)["rows"]
     assert set(rows) == {"random (blank)", "random (shuffled)"}
     assert summary_dict(results_from_records(records))["rows"].keys() == rows.keys()
+
+
+def test_paper_objects_prints_the_beyond_blocks_table(tmp_path, capsys):
+    """`--suites paper-objects`: the six paper suites with everyday objects, and the appendix's
+    Scene | GSR | TSR table with its Avg row."""
+    if not os.environ.get("RSB_DATA_DIR"):
+        pytest.skip("HardMath / General need GSM8K / MMLU: set RSB_DATA_DIR (CI uses ../shared/data)")
+    out = tmp_path / "res"
+    assert main(["eval", "oracle", "--suites", "paper-objects", "-n", "2", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "Beyond Blocks: oracle" in text
+    table = text.split("Beyond Blocks: oracle", 1)[1]
+    for suite in ("RSB-Math-4", "RSB-HardMath-10", "RSB-General-10"):
+        assert f"| {suite} | 100.0 | 100.0 |" in table
+    assert "| **Avg** | **100.0** | **100.0** |" in table
+    suites = summary(out)["rows"]["oracle"]["suites"]
+    assert sorted(suites) == sorted(s + "-Objects" for s in ("RSB-Math-4", "RSB-Math-10", "RSB-HardMath-4",
+                                                               "RSB-HardMath-10", "RSB-General-4", "RSB-General-10"))
+    assert all(s["n_choices"] in (4, 10) for s in suites.values())

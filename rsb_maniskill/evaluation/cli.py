@@ -47,7 +47,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="keyword argument of the policy factory (VALUE parsed as JSON, else a string); repeatable")
     p.add_argument("--suites", nargs="+", default=["paper"], metavar="SUITE",
-                   help="suite ids, 'paper' (the six of the paper, default) or 'all' (with the Direct controls)")
+                   help="suite ids (RSB-Math-4, RSB-Math-4-Objects, ...), 'paper' (the six of the paper, default), "
+                        "'all' (with the Direct controls), 'paper-objects' / 'all-objects' (the same with everyday "
+                        "objects: the Beyond Blocks table)")
     p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
                    help=f"episodes per suite (default {EPISODES_PER_SUITE}); the first n are a prefix of any longer run")
     p.add_argument("--instruction", nargs="+", default=["normal"], choices=INSTRUCTION_MODES,
@@ -85,15 +87,18 @@ def parse_kv(items: list[str], what: str) -> dict[str, Any]:
 
 
 def resolve_suites(names: list[str]) -> list[str]:
-    from rsb_maniskill.evaluation.metrics import PAPER_SUITES
+    from rsb_maniskill.evaluation.metrics import PAPER_OBJECT_SUITES, PAPER_SUITES
+    from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
     from rsb_maniskill.semantic.suites import SUITE_IDS
 
+    groups = {"paper": PAPER_SUITES, "all": SUITE_IDS, "paper-objects": PAPER_OBJECT_SUITES,
+              "all-objects": tuple(s + OBJECTS_SUFFIX for s in SUITE_IDS)}
     out: list[str] = []
     for name in names:
-        group = PAPER_SUITES if name == "paper" else SUITE_IDS if name == "all" else (name,)
-        for s in group:
-            if s not in SUITE_IDS:
-                raise EvalError(f"unknown suite {s!r}; valid: {', '.join(SUITE_IDS)}, 'paper' or 'all'")
+        for s in groups.get(name, (name,)):
+            if split_env_id(s)[0] not in SUITE_IDS:
+                raise EvalError(f"unknown suite {s!r}; valid: {', '.join(SUITE_IDS)}, each with {OBJECTS_SUFFIX!r}, "
+                                f"{', '.join(repr(g) for g in groups)}")
             if s not in out:
                 out.append(s)
     return out
@@ -116,12 +121,13 @@ def check_policy_spec(spec: str, num_envs: int = 1) -> None:
 def check_data(suites: list[str], data_dir: str | None) -> None:
     """Load each suite's evaluation pool now: missing GSM8K / MMLU fails before any episode runs."""
     from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
+    from rsb_maniskill.objects.family import split_env_id
     from rsb_maniskill.semantic import EpisodeSampler
     from rsb_maniskill.semantic.errors import SemanticError
 
     for suite in suites:
         try:
-            EpisodeSampler(suite, data_dir=data_dir, **EVAL_ENV_KWARGS)
+            EpisodeSampler(split_env_id(suite)[0], data_dir=data_dir, **EVAL_ENV_KWARGS)
         except SemanticError as err:
             raise EvalError(f"{suite}: {err}") from err
 

@@ -14,6 +14,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable, Mapping, Sequence
 
+from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
 from rsb_maniskill.semantic.suites import parse_suite_id
 
 # Two-sided 95%: the 0.975 quantile of the standard normal.
@@ -23,11 +24,14 @@ Z95 = 1.959963984540054
 PAPER_SUITES: tuple[str, ...] = (
     "RSB-Math-4", "RSB-Math-10", "RSB-HardMath-4", "RSB-HardMath-10", "RSB-General-4", "RSB-General-10",
 )
+# The same six with everyday objects (the paper's Beyond Blocks tables, appendix).
+PAPER_OBJECT_SUITES: tuple[str, ...] = tuple(s + OBJECTS_SUFFIX for s in PAPER_SUITES)
 
 
 def num_choices(suite_id: str) -> int:
-    """N of a suite id (``"RSB-General-10"`` -> 10), as the semantic engine parses it."""
-    return parse_suite_id(suite_id)[1]
+    """N of a suite id (``"RSB-General-10"``, ``"RSB-General-10-Objects"`` -> 10), as the semantic
+    engine parses it."""
+    return parse_suite_id(split_env_id(suite_id)[0])[1]
 
 
 def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
@@ -167,14 +171,17 @@ def suite_metrics(records: Iterable[Mapping[str, Any]], suite_id: str) -> SuiteM
 
 
 def suite_order(suite_ids: Iterable[str]) -> list[str]:
-    """The paper's six suites in its column order, then any others (Direct) by name and N."""
+    """The paper's six suites in its column order, then their objects twins, then any others
+    (Direct) by name and N."""
     ids = set(suite_ids)
+    paper = PAPER_SUITES + PAPER_OBJECT_SUITES
 
     def key(s: str) -> tuple:
-        head, _, n = s.rpartition("-")
-        return (head, int(n) if n.isdigit() else 0, s)
+        base, targets = split_env_id(s)
+        head, _, n = base.rpartition("-")
+        return (targets, head, int(n) if n.isdigit() else 0, s)
 
-    return [s for s in PAPER_SUITES if s in ids] + sorted(ids - set(PAPER_SUITES), key=key)
+    return [s for s in paper if s in ids] + sorted(ids - set(paper), key=key)
 
 
 def group_by_suite(records: Iterable[Mapping[str, Any]]) -> dict[str, list[Mapping[str, Any]]]:

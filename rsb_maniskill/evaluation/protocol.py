@@ -14,9 +14,10 @@ from typing import Sequence
 
 import numpy as np
 
+from rsb_maniskill.objects.family import split_env_id
 from rsb_maniskill.semantic.suites import SUITE_IDS
 
-from .metrics import PAPER_SUITES, num_choices
+from .metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, num_choices
 from .records import INSTRUCTION_MODES
 
 EVAL_SEED_BASE = 10_000_000
@@ -27,7 +28,8 @@ EVAL_ENV_KWARGS: dict[str, str] = {"split": "test", "instructions": "unseen"}
 SHUFFLE_SEED = 0
 
 __all__ = [
-    "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "INSTRUCTION_MODES", "PAPER_SUITES", "SHUFFLE_SEED",
+    "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "INSTRUCTION_MODES", "PAPER_OBJECT_SUITES",
+    "PAPER_SUITES", "SHUFFLE_SEED",
     "SUITE_IDS", "apply_instruction_mode", "derangement", "eval_seeds", "num_choices", "shuffled_instruction",
 ]
 
@@ -38,8 +40,8 @@ def eval_seeds(suite_id: str, n: int = EPISODES_PER_SUITE) -> list[int]:
     The first n of a longer run are the same episodes, so a 100-episode smoke test is a prefix of
     the full 500-episode evaluation.
     """
-    if suite_id not in SUITE_IDS:
-        raise ValueError(f"unknown suite id {suite_id!r}; valid ids: {', '.join(SUITE_IDS)}")
+    if split_env_id(suite_id)[0] not in SUITE_IDS:
+        raise ValueError(f"unknown suite id {suite_id!r}; valid ids: {', '.join(SUITE_IDS)} (and each with -Objects)")
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
     return [EVAL_SEED_BASE + i for i in range(n)]

@@ -14,7 +14,9 @@ import re
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from .metrics import PAPER_SUITES, Average, SuiteMetrics, average, suite_order, summarize
+from rsb_maniskill.objects.family import OBJECTS_SUFFIX
+
+from .metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, SuiteMetrics, average, suite_order, summarize
 from .records import dedupe
 
 Results = Mapping[str, Mapping[str, SuiteMetrics]]
@@ -158,12 +160,29 @@ def markdown_tables(results: Results) -> str:
             pooled = _pool_errors(errs)
             vals.append(_pct(pooled[key], 2))
         err_rows.append([name] + vals)
+    parts += _beyond_blocks_tables(results)
     n_failed = [str(sum(m.errors.n_grasped_failed for m in results[label].values())) for label in labels]
     err_rows.append(["Grasped-but-failed episodes (count)"] + n_failed)
     parts.append("### Error analysis, all suites pooled (%, paper Table 7)\n\n"
                  "Shares of the grasped-but-failed episodes, except no-grasp (share of all episodes).\n\n"
                  + _table(["Error type"] + labels, err_rows))
     return "\n\n".join(parts) + "\n"
+
+
+def _beyond_blocks_tables(results: Results) -> list[str]:
+    """Paper appendix tables (Beyond Blocks): Scene | GSR | TSR over the objects suites, with Avg."""
+    out = []
+    for label, row in results.items():
+        suites = [s for s in PAPER_OBJECT_SUITES if s in row]
+        if not suites:
+            continue
+        avg = average(row, PAPER_OBJECT_SUITES)
+        head, note = _avg_label([avg])
+        rows = [[s.removesuffix(OBJECTS_SUFFIX), _pct(row[s].gsr.value), _pct(row[s].tsr.value)] for s in suites]
+        rows.append([head, f"**{_pct(avg.gsr)}**", f"**{_pct(avg.tsr)}**"])
+        out.append(f"### Beyond Blocks: {label} (everyday objects, paper appendix tables)\n\n"
+                   + _table(["Scene", "GSR", "TSR"], rows) + note)
+    return out
 
 
 def _pool_errors(errs: Sequence[Any]) -> dict[str, float | None]:

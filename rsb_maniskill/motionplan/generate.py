@@ -40,10 +40,12 @@ __all__ = ["GenerateConfig", "GenerateError", "GenerateSummary", "describe", "ge
 
 def _validate(cfg: GenerateConfig) -> int:
     """Checks everything knowable before any file is written; returns the pool size."""
+    from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
     from rsb_maniskill.semantic import SUITE_IDS, EpisodeSampler, SemanticError
 
-    if cfg.env_id not in SUITE_IDS:
-        raise GenerateError(f"unknown suite {cfg.env_id!r}; valid: {', '.join(SUITE_IDS)}")
+    suite_id, targets = split_env_id(cfg.env_id)
+    if suite_id not in SUITE_IDS:
+        raise GenerateError(f"unknown suite {cfg.env_id!r}; valid: {', '.join(SUITE_IDS)}, each also with {OBJECTS_SUFFIX!r}")
     if cfg.questions is None and (cfg.num is None or cfg.num < 1):
         raise GenerateError("give -n N (number of demos) or --questions all")
     if cfg.num is not None and cfg.num < 1:
@@ -56,7 +58,7 @@ def _validate(cfg: GenerateConfig) -> int:
         raise GenerateError(f"--seed-start must be >= 0, got {cfg.seed_start}")
     sampler_kwargs = {k: v for k, v in cfg.env_kwargs.items() if k in ("instructions", "color_map", "data_dir")}
     try:
-        return EpisodeSampler(cfg.env_id, split=cfg.split, **sampler_kwargs).num_questions
+        return EpisodeSampler(suite_id, split=cfg.split, targets=targets, **sampler_kwargs).num_questions
     except (ValueError, SemanticError) as err:
         raise GenerateError(str(err)) from err
 

@@ -23,6 +23,17 @@ BLOCK_COLORS: dict[str, tuple[float, float, float]] = {  # RGB of the 4-choice b
     "yellow": (0.95, 0.82, 0.10),
 }
 TARGETS: tuple[str, ...] = ("blocks", "objects")
+OBJECTS_SUFFIX = "-Objects"  # env id of a suite with everyday objects: "RSB-Math-4-Objects"
+
+
+def split_env_id(env_id: str) -> tuple[str, str]:
+    """``"RSB-Math-4-Objects"`` -> ``("RSB-Math-4", "objects")``; other ids -> ``(id, "blocks")``.
+
+    Does not check the suite: ``semantic.parse_suite_id`` does."""
+    eid = env_id.split(":", 1)[-1]
+    if eid.endswith(OBJECTS_SUFFIX):
+        return eid[:-len(OBJECTS_SUFFIX)], "objects"
+    return eid, "blocks"
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from the grasp frame, so the same plan serves every shape.
 """
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass
 from typing import Iterator
@@ -45,6 +46,7 @@ DOWN_Q = np.array([0.70710678, 0.0, 0.70710678, 0.0])
 # below the TCP). For a 4 cm block: TCP 11 cm up to approach, 12 cm to carry.
 PREGRASP_DZ = 0.080  # fingertips clear the target and (for every height up to 5.5 cm) its neighbours
 PREGRASP_CLEARANCE = 0.045  # TCP above the tallest candidate's top when that is higher
+APPROACH_DZS = (0.0, -0.006, 0.010)  # a screw plan can fail at one height and not at the next
 CARRY_CLEARANCE = 0.050  # carried candidate's bottom this far above the tallest candidate
 MIN_CARRY_CLEARANCE = 0.015  # ... or down to this where the arm cannot reach that high
 PLACE_DZ = 0.006  # release with the candidate 6 mm above the table
@@ -157,9 +159,10 @@ class ScriptedExpert:
         self.stage = "pregrasp"
         plan = None
         for straight, allow_rrt in ((True, False), (False, False), (False, True)):
-            for tcp, yaw, width in options:
+            for (tcp, yaw, width), dz in itertools.product(options, APPROACH_DZS):
                 quat = down_quat(yaw)
-                path = self.planner.move_to(pose7([*tcp[:2], above], quat), straight=straight, allow_rrt=allow_rrt)
+                path = self.planner.move_to(pose7([*tcp[:2], above + dz], quat), straight=straight,
+                                            allow_rrt=allow_rrt)
                 if path is None:
                     continue
                 lift = self._lift_height(path, pose7([*tcp[:2], grasp_z], quat), carry_z)

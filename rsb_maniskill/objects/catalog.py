@@ -158,8 +158,9 @@ def _toy_car(s, c, k):
     for x in (-0.32 * L, 0.32 * L):
         for y in (-W / 2, W / 2):
             parts.append(Part("cylinder", (wheel_r, 0.004 * s), (x, y, wheel_r), _Q_Y, BLACK, collide=False))
-    # one collision box stands in for the four wheels (fewer contacts to solve each step)
-    parts.append(_box(0.32 * L + wheel_r, W / 2 + 0.004 * s, z0 / 2, z=z0 / 2, visible=False))
+    # one collision box stands in for the four wheels (fewer contacts to solve each step); it
+    # stays inside the body's width so the fingertips close on the body, not on it
+    parts.append(_box(0.32 * L + wheel_r, W / 2 * 0.9, z0 / 2, z=z0 / 2, visible=False))
     return parts, (_grasp_across(W, z0 + body_h + 0.01 * s),)
 
 

@@ -70,6 +70,8 @@ class AlohaAgilex(BaseAgent):
     """Two ARX5-style 6-DoF arms with parallel grippers on a fixed base, plus a head camera."""
 
     uid = "aloha_agilex"
+    arms: tuple[str, ...] = ARMS  # the robot contract the task and expert use: arms, fingers[arm],
+    # tcp_pose(arm), grippers_closed(), is_grasping(actor, arm), rest_arm_qpos(arm), the joint names
     urdf_path = str(ASSET_DIR / URDF_NAME)
     urdf_config = dict(
         _materials=dict(finger=dict(static_friction=2.0, dynamic_friction=2.0, restitution=0.0)),
@@ -138,10 +140,6 @@ class AlohaAgilex(BaseAgent):
         """Pose of the tool centre point (12 cm along link6's x axis) of ``arm``."""
         return self.tcp[arm].pose
 
-    @property
-    def tcp_poses(self) -> dict[str, Pose]:
-        return {a: self.tcp[a].pose for a in ARMS}
-
     def gripper_opening(self, arm: str) -> torch.Tensor:
         """Finger joint position (0 = closed, FINGER_TRAVEL = open), per env."""
         return self.robot.get_qpos()[:, self.finger_qpos_index[arm]]
@@ -155,13 +153,6 @@ class AlohaAgilex(BaseAgent):
         """(B, 2) :meth:`is_gripper_closed` of the left and right arm, in one read."""
         idx = [self.finger_qpos_index[a] for a in ARMS]
         return self.robot.get_drive_targets()[:, idx] < 0.5 * GRIPPER_OPEN
-
-    def finger_contact(self, arm: str, actor: Actor, min_force: float = 0.1) -> torch.Tensor:
-        """Either finger of ``arm`` touches ``actor``."""
-        f1, f2 = self.fingers[arm]
-        force1 = torch.linalg.norm(self.scene.get_pairwise_contact_forces(f1, actor), dim=1)
-        force2 = torch.linalg.norm(self.scene.get_pairwise_contact_forces(f2, actor), dim=1)
-        return (force1 >= min_force) | (force2 >= min_force)
 
     def is_grasping(self, actor: Actor, arm: str | None = None, min_force: float = 0.5,
                     max_angle: float = 85.0) -> torch.Tensor:
@@ -194,6 +185,17 @@ class AlohaAgilex(BaseAgent):
         for a in ARMS:
             parts += [q[:, self.arm_qpos_index[a]], (q[:, self.finger_qpos_index[a]] / GRIPPER_OPEN).clamp(0, 1)[:, None]]
         return torch.cat(parts, dim=1)
+
+    def tcp_link_name(self, arm: str) -> str:
+        return f"{PREFIX[arm]}_tcp_link"
+
+    def finger_joint_name(self, arm: str) -> str:
+        """The driven finger joint of ``arm`` (the other finger mimics it)."""
+        return f"{PREFIX[arm]}_joint7"
+
+    def rest_arm_qpos(self, arm: str) -> np.ndarray:
+        """Joints 1-6 of ``arm`` in the rest pose."""
+        return REST_ARM_QPOS[arm].copy()
 
     def rest_action(self) -> torch.Tensor:
         """pd_joint_pos action that holds the rest pose with both grippers open."""

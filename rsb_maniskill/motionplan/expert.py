@@ -28,9 +28,8 @@ from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
-import torch
 
-from rsb_maniskill.agents.aloha import ARM_JOINT_NAMES, PREFIX, REST_ARM_QPOS
+from rsb_maniskill.batch import first_value as _first
 from rsb_maniskill.motionplan.planner import (
     ARM_ACTION_SLICE,
     GRIPPER_ACTION_INDEX,
@@ -232,7 +231,7 @@ class ScriptedExpert:
         yield chunk
 
         self.stage = "rest"
-        path = self.planner.joint_move(REST_ARM_QPOS[self.arm][self._rest_order()])
+        path = self.planner.joint_move(self.agent.rest_arm_qpos(self.arm)[self._rest_order()])
         if path is None:
             return self._fail("plan_failed:rest")
         yield self._arm_chunk(path, 1.0)
@@ -317,7 +316,7 @@ class ScriptedExpert:
         self.reason = reason
 
     def _rest_order(self) -> np.ndarray:
-        """Permutation taking REST_ARM_QPOS (joint1..6) to the plan's column order."""
+        """Permutation taking the rest qpos (joint1..6) to the plan's column order."""
         start = ARM_ACTION_SLICE[self.arm].start
         return self.planner.action_index - start
 
@@ -331,15 +330,8 @@ class ScriptedExpert:
             q = ctrl._target_qpos[0].cpu().numpy()
             targets.update({j.name: float(v) for j, v in zip(ctrl.joints, q)})
         action = np.zeros(14, dtype=np.float32)
-        for k, name in enumerate(ARM_JOINT_NAMES):
+        for k, name in enumerate(self.agent.arm_joint_names):
             action[k] = targets[name]
         for arm, i in GRIPPER_ACTION_INDEX.items():
-            action[i] = gripper_action(targets[f"{PREFIX[arm]}_joint7"])
+            action[i] = gripper_action(targets[self.agent.finger_joint_name(arm)])
         return action
-
-def _first(x) -> object:
-    if isinstance(x, torch.Tensor):
-        return x.reshape(-1)[0].item()
-    if isinstance(x, np.ndarray):
-        return x.reshape(-1)[0]
-    return x

@@ -20,7 +20,7 @@ import torch
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
-from rsb_maniskill.agents.aloha import ARMS, AlohaAgilex
+from rsb_maniskill.agents.aloha import AlohaAgilex
 from rsb_maniskill.objects.family import get_family
 from rsb_maniskill.objects.pool import CandidatePool
 from rsb_maniskill.registration import ENVS, TASK_MAX_EPISODE_STEPS
@@ -116,7 +116,7 @@ class AnswerSelectionEnv(RSBEnv):
         self.zone = builder.build_kinematic(name="answer_zone")
 
     def _after_reconfigure(self, options: dict):
-        fingers = [f for arm in ARMS for f in self.agent.fingers[arm]]
+        fingers = [f for arm in self.agent.arms for f in self.agent.fingers[arm]]
         self.contacts = PairContacts(self.scene, fingers, self.pool.actors)
         self.zone_xy = torch.tensor(ZONE_XY, device=self.device)
         n, b = self.n_choices, self.num_envs
@@ -127,7 +127,7 @@ class AnswerSelectionEnv(RSBEnv):
         self.template_id = torch.zeros(b, **long)
         self.block_of_option = torch.zeros(b, n, **long)
         self.block_slot = torch.zeros(b, n, **long)
-        self.hold_steps = torch.zeros(b, len(ARMS), n, **long)
+        self.hold_steps = torch.zeros(b, len(self.agent.arms), n, **long)
         self.first_grasped = torch.full((b,), -1, **long)
         self.grasped_correct = torch.zeros(b, dtype=torch.bool, device=self.device)
         self.grasped_wrong = torch.zeros(b, dtype=torch.bool, device=self.device)
@@ -206,14 +206,14 @@ class AnswerSelectionEnv(RSBEnv):
     def _tcp_raw_poses(self) -> list[torch.Tensor]:
         """Left and right TCP raw poses, read once per control step."""
         if self._tcp_cache is None:
-            self._tcp_cache = [self.agent.tcp_pose(a).raw_pose for a in ARMS]
+            self._tcp_cache = [self.agent.tcp_pose(a).raw_pose for a in self.agent.arms]
         return self._tcp_cache
 
     def _block_positions(self) -> torch.Tensor:
         return self._block_poses()[..., :3]
 
     def _update_grasps(self, forces: torch.Tensor, pos: torch.Tensor):
-        touch = (forces >= CONTACT_FORCE).view(self.num_envs, len(ARMS), 2, self.n_choices).any(2)
+        touch = (forces >= CONTACT_FORCE).view(self.num_envs, len(self.agent.arms), 2, self.n_choices).any(2)
         closed = self.agent.grippers_closed()  # (B, 2)
         contact = touch & closed[..., None]  # (B, arms, N)
         self.hold_steps = torch.where(contact, self.hold_steps + 1, torch.zeros_like(self.hold_steps))
@@ -239,7 +239,7 @@ class AnswerSelectionEnv(RSBEnv):
         is_target = torch.arange(self.n_choices, device=self.device)[None] == self.target_block[:, None]
         placed_correct = (placed & is_target).any(1)
         placed_wrong = (placed & ~is_target).any(1)
-        held = (forces >= CONTACT_FORCE).view(self.num_envs, len(ARMS), 2, self.n_choices).all(2).any(1)
+        held = (forces >= CONTACT_FORCE).view(self.num_envs, len(self.agent.arms), 2, self.n_choices).all(2).any(1)
         return dict(
             success=placed_correct & ~placed_wrong,
             fail=placed_wrong,
@@ -257,7 +257,7 @@ class AnswerSelectionEnv(RSBEnv):
 
     # ------------------------------------------------------------------ observations / rewards
     def _get_obs_extra(self, info: dict):
-        obs = {f"{a}_tcp_pose": pose for a, pose in zip(ARMS, self._tcp_raw_poses())}
+        obs = {f"{a}_tcp_pose": pose for a, pose in zip(self.agent.arms, self._tcp_raw_poses())}
         obs["zone_pos"] = self.zone.pose.p
         if "state" in self.obs_mode:
             obs["block_pose"] = self._block_poses().flatten(1)  # (B, 7N)
@@ -311,7 +311,7 @@ class AnswerSelectionEnv(RSBEnv):
             part = task[:, start:start + col.shape[1]]
             start += col.shape[1]
             if name == "hold_steps":
-                self.hold_steps[idx] = part.view(-1, len(ARMS), self.n_choices)
+                self.hold_steps[idx] = part.view(-1, len(self.agent.arms), self.n_choices)
             elif name == "pool_index":
                 self.pool.set_index(idx, part)
             elif col.shape[1] == 1:

@@ -12,6 +12,7 @@ processes (``jobs.py``) can send their records to the one process that owns the 
 from __future__ import annotations
 
 import os
+import re
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -244,7 +245,9 @@ def _finish_record(*, suite_id: str, seed: int, spec: Any, given: str, instructi
                    keep_spec: bool) -> dict[str, Any]:
     """The record of a finished episode; writes its video first when it was filmed."""
     if frames is not None:
-        extra["video"] = write_video(frames, video_dir, f"{suite_id}_{instruction_mode}_seed{seed}").name
+        # The policy label leads the name: rows of one results directory share videos/.
+        name = f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', label)}_{suite_id}_{instruction_mode}_seed{seed}"
+        extra["video"] = write_video(frames, video_dir, name).name
     if keep_spec and hasattr(spec, "to_dict"):
         extra["episode"] = spec.to_dict()
     return build_record(suite_id=suite_id, seed=seed, spec=spec, instruction=given,

@@ -90,7 +90,15 @@ def test_request_layout_and_actions_back(moved_env):
                                                                       if k != "right_wrist_camera"}}, "")
 
 
-def test_bad_preset_arguments():
+def test_bad_preset_arguments(tmp_path, capsys):
+    from rsb_maniskill.cli import main
+
+    for args, msg in ((["-a", "preset=openpi-droid"], "unknown preset 'openpi-droid'"),
+                      (["-a", "preset=openpi-aloha", "-o", "state"], "use an rgb obs mode"),
+                      (["-a", "image_size=224"], "image_size applies to a preset")):
+        assert main(["eval", "remote", *args, "--suites", "RSB-Math-4", "-n", "1", "--out", str(tmp_path / "x")]) == 2
+        assert msg in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()  # refused before anything was written
     with pytest.raises(ValueError, match="unknown preset 'openpi-droid'; known: openpi-aloha"):
         make_preset("openpi-droid")
     with pytest.raises(ValueError, match="image_size"):

@@ -197,6 +197,13 @@ def _run_eval(args: argparse.Namespace) -> int:
         env_kwargs["data_dir"] = args.data_dir
     check_policy_spec(args.policy)
     check_data(suites, env_kwargs.get("data_dir"))
+    if args.policy == "remote":
+        from rsb_maniskill.evaluation.openpi_preset import check_remote_args
+
+        try:
+            check_remote_args(policy_kwargs, args.obs_mode or "rgb")
+        except ValueError as err:
+            raise EvalError(str(err)) from err
 
     label = args.name or args.policy
     out = Path(args.out or Path("results") / label.replace(":", "_").replace("/", "_"))

@@ -199,3 +199,16 @@ def make_preset(name: str, **kwargs: Any) -> OpenpiAloha:
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}")
     return PRESETS[name](**kwargs)
+
+
+def check_remote_args(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:
+    """Before any env is built: a ``remote`` policy's preset arguments and the obs mode they need."""
+    if policy_kwargs.get("preset") is None:
+        if policy_kwargs.get("image_size") is not None:
+            raise ValueError("image_size applies to a preset: add -a preset=openpi-aloha")
+        return
+    size = {"image_size": policy_kwargs["image_size"]} if policy_kwargs.get("image_size") is not None else {}
+    make_preset(policy_kwargs["preset"], **size)
+    if "rgb" not in obs_mode:
+        raise ValueError(f"preset {policy_kwargs['preset']!r} sends camera images: "
+                         f"use an rgb obs mode, not {obs_mode!r}")

@@ -38,12 +38,29 @@ install_software_vulkan() {
   fi
 }
 
+install_chromium() {
+  # The report page's test (tests/test_html_report.py) drives a headless Chromium. Debian ships
+  # one; Ubuntu's `chromium` is a snap wrapper that containers cannot run.
+  command -v chromium >/dev/null 2>&1 && return 0
+  command -v apt-get >/dev/null 2>&1 || { echo "setup: no apt-get; install Chromium (or set RSB_CHROMIUM) for the report's browser test" >&2; return 0; }
+  . /etc/os-release
+  if [ "${ID:-}" != debian ]; then
+    echo "setup: note: install Chromium or Chrome (or set RSB_CHROMIUM) for the report's browser test" >&2
+    return 0
+  fi
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null \
+    || echo "setup: warning: apt-get install chromium failed; the report's browser test will fail" >&2
+}
+
 if have_nvidia; then
   echo "setup: NVIDIA GPU found; using its Vulkan driver"
   command -v apt-get >/dev/null 2>&1 && ! ldconfig -p | grep -q libvulkan.so.1 && { $SUDO apt-get update -qq; $SUDO apt-get install -y -qq libvulkan1 >/dev/null; } || true
 else
   install_software_vulkan
 fi
+
+install_chromium
 
 if [ ! -x "$VENV/bin/python" ]; then
   $PY -m venv "$VENV"

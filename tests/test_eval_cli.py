@@ -118,7 +118,7 @@ def test_videos_of_the_first_episodes(tmp_path):
     out = tmp_path / "res"
     assert rsb_eval("oracle", "--suites", "RSB-Math-10", "-n", "2", "--videos", "1", "--out", str(out)) == 0
     videos = sorted((out / "videos").glob("*.mp4"))
-    assert [v.name for v in videos] == [f"RSB-Math-10_normal_seed{eval_seeds('RSB-Math-10', 1)[0]}.mp4"]
+    assert [v.name for v in videos] == [f"oracle_RSB-Math-10_normal_seed{eval_seeds('RSB-Math-10', 1)[0]}.mp4"]
     import imageio.v3 as iio
 
     frames = iio.imread(videos[0])

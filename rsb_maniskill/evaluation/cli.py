@@ -7,7 +7,7 @@
 Output directory (``--out``, default ``results/<name>``): ``episodes.jsonl`` (one record per
 finished episode; rerunning the same command resumes), ``run.json`` (the settings each policy row
 was run with; a resumed run must use the same ones), ``summary.{json,csv,md}``, one
-``summary_<row>.png`` per row, and ``videos/``. See docs/evaluation.md.
+``summary_<row>.png`` per row, ``report.html`` (``rsb report``) and ``videos/``. See docs/evaluation.md.
 """
 from __future__ import annotations
 
@@ -206,6 +206,13 @@ def _run_eval(args: argparse.Namespace) -> int:
         env_kwargs["data_dir"] = args.data_dir
     check_policy_spec(args.policy, args.num_envs)
     check_data(suites, env_kwargs.get("data_dir"))
+    if args.policy == "remote":
+        from rsb_maniskill.evaluation.openpi_preset import check_remote_args
+
+        try:
+            check_remote_args(policy_kwargs, args.obs_mode or "rgb")
+        except ValueError as err:
+            raise EvalError(str(err)) from err
 
     label = args.name or args.policy
     out = Path(args.out or Path("results") / label.replace(":", "_").replace("/", "_"))
@@ -242,9 +249,12 @@ def _run_eval(args: argparse.Namespace) -> int:
     all_records = read_records(records_path)
     results = results_from_records(all_records)
     if results:
+        from rsb_maniskill.evaluation.html_report import write_html_report
+
         paths = write_report(results, out)
+        page = write_html_report(out, records=all_records)
         print(markdown_tables(results))
-        print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}")
+        print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\nreport: {page}")
     if interrupted:
         print(f"rsb eval: interrupted; finished episodes are in {records_path}. "
               "Rerun the same command to resume.", file=sys.stderr)

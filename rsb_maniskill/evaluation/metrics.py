@@ -135,6 +135,20 @@ def _flag(record: Mapping[str, Any], key: str) -> bool:
     return bool(value)
 
 
+# An episode's class in the error analysis, in the order the report lists them.
+OUTCOMES: tuple[str, ...] = ("success", "not_placed", "wrong_target", "no_grasp")
+
+
+def outcome(record: Mapping[str, Any]) -> str:
+    """``success``; else ``no_grasp`` without any grasp; else (grasped but failed) ``not_placed``
+    when the correct block was grasped at some point, ``wrong_target`` when only wrong ones were."""
+    if _flag(record, "success"):
+        return "success"
+    if not _flag(record, "grasped_any"):
+        return "no_grasp"
+    return "not_placed" if _flag(record, "grasped_correct") else "wrong_target"
+
+
 def suite_metrics(records: Iterable[Mapping[str, Any]], suite_id: str) -> SuiteMetrics:
     """Metrics of the records of one suite (records of other suites are an error, not ignored)."""
     n_choices = num_choices(suite_id)
@@ -143,18 +157,14 @@ def suite_metrics(records: Iterable[Mapping[str, Any]], suite_id: str) -> SuiteM
         if r.get("suite_id", suite_id) != suite_id:
             raise ValueError(f"record of suite {r.get('suite_id')!r} passed to suite_metrics({suite_id!r})")
         n += 1
-        ok = _flag(r, "success")
-        g = _flag(r, "grasped_any") or ok
+        kind = outcome(r)
+        ok, g = kind == "success", kind != "no_grasp"
         no_grasp_success += ok and not _flag(r, "grasped_any")
         grasped += g
         success += ok
-        if not g:
-            no_grasp += 1
-        elif not ok:
-            if _flag(r, "grasped_correct"):
-                not_placed += 1
-            else:
-                wrong_target += 1
+        no_grasp += kind == "no_grasp"
+        not_placed += kind == "not_placed"
+        wrong_target += kind == "wrong_target"
     gsr = Rate.of(grasped, n)
     tsr = Rate.of(success, n)
     # nSG interval: Wilson on the conditional rate success | grasped, mapped through the affine nSG

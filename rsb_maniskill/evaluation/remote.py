@@ -127,6 +127,9 @@ class RemotePolicy:
             that ``serve.py``'s server resets the wrapped policy; off by default because other
             servers do not expect the key.
         connect_timeout: seconds to keep retrying a refused connection (openpi's client waits forever).
+        preset: ``"openpi-aloha"``: send openpi's Aloha keys and layout and read the reply as Aloha-layout
+            actions (``openpi_preset.py``); then ``image_size`` (default 224) sets the image size and
+            ``action_horizon`` defaults to 10.
     """
 
     def __init__(
@@ -142,7 +145,20 @@ class RemotePolicy:
         connect_timeout: float = 60.0,
         request_timeout: float | None = 300.0,
         name: str = "remote",
+        preset: str | None = None,
+        image_size: int | list[int] | None = None,
     ) -> None:
+        self.preset = None
+        if preset is not None:
+            from .openpi_preset import make_preset
+
+            if obs_transform is not None:
+                raise ValueError("give RemotePolicy either a preset or an obs_transform, not both")
+            self.preset = make_preset(preset, **({} if image_size is None else {"image_size": image_size}))
+            obs_transform = self.preset.request
+            action_horizon = action_horizon or self.preset.action_horizon
+        elif image_size is not None:
+            raise ValueError("image_size applies to a preset: add preset='openpi-aloha'")
         self.uri = host if host.startswith(("ws://", "wss://")) else f"ws://{host}"
         if port is not None and not host.startswith(("ws://", "wss://")):
             self.uri += f":{port}"
@@ -214,6 +230,8 @@ class RemotePolicy:
         if "actions" not in reply:
             raise RuntimeError(f"policy server {self.uri} reply has no 'actions' (keys: {sorted(map(str, reply))})")
         chunk = as_chunk(np.array(reply["actions"]))
+        if self.preset is not None:
+            chunk = self.preset.env_actions(chunk)
         return chunk[: self.action_horizon] if self.action_horizon else chunk
 
     def close(self) -> None:

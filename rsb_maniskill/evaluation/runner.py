@@ -13,6 +13,7 @@ runs these loops in worker processes.
 from __future__ import annotations
 
 import os
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -183,7 +184,9 @@ class _Episodes:
         """The record of a finished episode; writes its video first when it was filmed."""
         s = self.settings
         if frames is not None:
-            extra["video"] = write_video(frames, s.video_dir, f"{s.suite_id}_{s.instruction_mode}_seed{seed}").name
+            # The policy label leads the name: rows of one results directory share videos/.
+            name = f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', s.label)}_{s.suite_id}_{s.instruction_mode}_seed{seed}"
+            extra["video"] = write_video(frames, s.video_dir, name).name
         if s.keep_spec and hasattr(spec, "to_dict"):
             extra["episode"] = spec.to_dict()
         return build_record(suite_id=s.suite_id, seed=seed, spec=spec, instruction=given,

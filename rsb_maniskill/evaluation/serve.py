@@ -17,6 +17,7 @@ import time
 import traceback
 from typing import Any
 
+from .openpi_preset import PRESETS, make_preset
 from .policy import as_chunk, load_policy
 from .remote import INSTALL_HINT, packb, unflatten_obs, unpackb
 
@@ -29,23 +30,28 @@ class PolicyAdapter:
     The request's ``prompt`` is the instruction and the ``observation/...`` keys are un-flattened
     into the nested obs. The policy is reset on a connection's first request, when the request
     carries ``episode_start`` (``RemotePolicy(mark_episode_start=True)``), or when the prompt changes.
+    With a ``preset`` (``openpi_preset.OpenpiAloha``) the request is in openpi's Aloha layout instead,
+    and so is the reply.
     """
 
-    def __init__(self, policy: Any, prompt_key: str = "prompt", obs_prefix: str = "observation") -> None:
+    def __init__(self, policy: Any, prompt_key: str = "prompt", obs_prefix: str = "observation",
+                 preset: Any = None) -> None:
         self.policy = policy
         self.prompt_key = prompt_key
         self.obs_prefix = obs_prefix
+        self.preset = preset
         self._prompt: str | None = None
 
     def infer(self, request: dict) -> dict:
         request = dict(request)
         prompt = str(request.pop(self.prompt_key, ""))
         start = bool(request.pop("episode_start", False))
-        obs = unflatten_obs(request, self.obs_prefix)
+        obs = self.preset.obs_from_request(request) if self.preset else unflatten_obs(request, self.obs_prefix)
         if start or prompt != self._prompt:
             self.policy.reset(prompt, obs)
             self._prompt = prompt
-        return {"actions": as_chunk(self.policy.act(obs))}
+        chunk = as_chunk(self.policy.act(obs))
+        return {"actions": self.preset.aloha_actions(chunk) if self.preset else chunk}
 
 
 def _health_check(connection: Any, request: Any) -> Any:
@@ -70,6 +76,7 @@ class PolicyServer:
         metadata: dict | None = None,
         prompt_key: str = "prompt",
         obs_prefix: str = "observation",
+        preset: Any = None,
     ) -> None:
         try:
             from websockets.sync.server import serve
@@ -79,6 +86,7 @@ class PolicyServer:
         self.metadata = dict(metadata or {})
         self.prompt_key = prompt_key
         self.obs_prefix = obs_prefix
+        self.preset = preset
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._server = serve(
@@ -88,10 +96,10 @@ class PolicyServer:
         self.port = int(self._server.socket.getsockname()[1])
 
     def _infer_fn(self) -> Any:
-        if callable(getattr(self.policy, "infer", None)):
+        if self.preset is None and callable(getattr(self.policy, "infer", None)):
             return self.policy.infer
         # One adapter per connection: a new client starts a new episode.
-        return PolicyAdapter(self.policy, self.prompt_key, self.obs_prefix).infer
+        return PolicyAdapter(self.policy, self.prompt_key, self.obs_prefix, self.preset).infer
 
     def _handle(self, ws: Any) -> None:
         from websockets.exceptions import ConnectionClosed
@@ -138,9 +146,10 @@ class PolicyServer:
         self.shutdown()
 
 
-def serve_policy(policy: Any, host: str = "0.0.0.0", port: int = 8000, metadata: dict | None = None) -> None:
+def serve_policy(policy: Any, host: str = "0.0.0.0", port: int = 8000, metadata: dict | None = None,
+                 preset: Any = None) -> None:
     """Serve ``policy`` until interrupted (blocks)."""
-    server = PolicyServer(policy, host, port, metadata)
+    server = PolicyServer(policy, host, port, metadata, preset=preset)
     logger.info("serving %s on ws://%s:%d", type(policy).__name__, host, server.port)
     try:
         server.serve_forever()
@@ -155,14 +164,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("policy", help="'package.module:factory' returning an object with reset/act (or infer)")
     p.add_argument("--host", default="0.0.0.0")
     p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                   help="requests and replies in this layout (openpi-aloha: openpi's Aloha keys, state and actions)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO)
     policy = load_policy(args.policy, check=False)
-    if not callable(getattr(policy, "infer", None)) and not all(
-        callable(getattr(policy, m, None)) for m in ("reset", "act")
-    ):
-        p.error(f"{args.policy} built a {type(policy).__name__}, which has neither infer() nor reset()/act()")
-    serve_policy(policy, args.host, args.port)
+    has_act = all(callable(getattr(policy, m, None)) for m in ("reset", "act"))
+    built = f"{args.policy} built a {type(policy).__name__}"
+    if args.preset and not has_act:
+        p.error(f"{built}, which has no reset()/act(): --preset adapts requests and replies for those")
+    if not has_act and not callable(getattr(policy, "infer", None)):
+        p.error(f"{built}, which has neither infer() nor reset()/act()")
+    serve_policy(policy, args.host, args.port, preset=make_preset(args.preset) if args.preset else None)
     return 0
 
 

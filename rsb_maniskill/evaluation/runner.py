@@ -54,6 +54,9 @@ class EpisodeSettings:
     # seed -> instruction, to find shuffled donors without a reset; in-process runs only (a callable
     # does not travel to worker processes). Default: the task's episode_spec(seed), else a reset.
     instruction_lookup: Callable[[int], str] | None = None
+    # Render the cameras at every step, as a plain env.step does; by default they are rendered only
+    # when the policy asks for a chunk (same records, less time). For benchmarks and checks.
+    render_every_step: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
@@ -190,6 +193,57 @@ class _Episodes:
                             instruction_mode=s.instruction_mode, info=info, steps=steps, policy=s.label, extra=extra)
 
 
+class Observations:
+    """Render on demand: steps the env without rendering its cameras, renders them when asked.
+
+    A chunked policy reads observations only when it asks for a new chunk, so the cameras (most of
+    a visual step's cost on the CPU renderer) are rendered only then: :meth:`step` computes state
+    and ``info`` (the metrics) at every step, :meth:`current` the full observation of the last step,
+    once. ManiSkill has no switch for this; the env computes its observation for ``obs_mode``, so
+    the step runs under ``state_dict`` and :meth:`current` calls ``get_obs(info)`` under the real
+    mode: the same observation the step would have returned (rendering changes no physics).
+    Envs without visual observations, or without ManiSkill's ``get_obs``, are stepped as they are.
+    """
+
+    SKIP_MODE = "state_dict"
+
+    def __init__(self, env: Any, every_step: bool = False) -> None:
+        self.env, self.base = env, env.unwrapped
+        self.mode = getattr(self.base, "_obs_mode", None)
+        self.lazy = (not every_step and isinstance(self.mode, str)
+                     and self.mode not in ("none", "state", "state_dict") and callable(getattr(self.base, "get_obs", None)))
+        self.renders = 0  # camera renders done by current(): one per chunk asked for
+        self.obs: Any = None
+        self.info: Any = None
+        self.stale = False
+
+    def reset(self, **kwargs: Any) -> tuple[Any, Any]:
+        self.obs, self.info = self.env.reset(**kwargs)
+        self.stale = False
+        return self.obs, self.info
+
+    def step(self, action: Any) -> tuple[Any, Any, Any, Any]:
+        """``env.step(action)`` without its observation: (reward, terminated, truncated, info)."""
+        if self.lazy:
+            self.base._obs_mode = self.SKIP_MODE
+            try:
+                out = self.env.step(action)
+            finally:
+                self.base._obs_mode = self.mode
+        else:
+            out = self.env.step(action)
+        self.obs, self.info, self.stale = out[0], out[4], self.lazy
+        return out[1:]
+
+    def current(self) -> Any:
+        """The observation of the last reset or step, rendered now if the step skipped it."""
+        if self.stale:
+            self.obs = self.base.get_obs(self.info)
+            self.stale = False
+            self.renders += 1
+        return self.obs
+
+
 def _render(env: Any) -> np.ndarray:
     """``env.render()`` of every env as a (B, H, W, 3) numpy array."""
     img = env.render()
@@ -213,11 +267,12 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
     base = env.unwrapped
     episodes = _Episodes(env, settings, resets_allowed=True)
     batched_actions = len(env.action_space.shape) == 2
+    observations = Observations(env, settings.render_every_step)
 
     for seed in todo:
         t0 = time.monotonic()
         donor = episodes.donor(seed)
-        obs, info = env.reset(seed=seed, options=settings.reset_options)
+        obs, info = observations.reset(seed=seed, options=settings.reset_options)
         instructions = base.get_language_instruction()
         if len(instructions) != 1:
             raise ValueError(f"episode_loop drives one env, this one has {len(instructions)}; "
@@ -229,10 +284,10 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         policy.reset(given, single_env_obs(obs))
         steps, finished = 0, False
         while not finished and steps < settings.max_steps:
-            chunk = as_chunk(policy.act(single_env_obs(obs)), episodes.action_dim)
+            chunk = as_chunk(policy.act(single_env_obs(observations.current())), episodes.action_dim)
             for action in chunk:
                 a = action[None] if batched_actions else action
-                obs, _, terminated, truncated, info = env.step(a)
+                _, terminated, truncated, info = observations.step(a)
                 steps += 1
                 if frames is not None:
                     frames.append(_render(env)[0])
@@ -263,11 +318,12 @@ def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, t
     if len(policies) != b:
         raise ValueError(f"need one policy per env: {b} envs, {len(policies)} policies")
     episodes = _Episodes(env, settings, resets_allowed=False)
+    observations = Observations(env, settings.render_every_step)
 
     for start in range(0, len(todo), b):
         wave = list(todo[start:start + b])
         n = len(wave)
-        obs, info = env.reset(seed=wave + [wave[-1]] * (b - n), options=settings.reset_options)
+        obs, info = observations.reset(seed=wave + [wave[-1]] * (b - n), options=settings.reset_options)
         specs = list(base.episode_specs)
         instructions = base.get_language_instruction()
         given, extras = [], []
@@ -283,13 +339,16 @@ def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, t
         steps = [0] * b
         active = [i < n for i in range(b)]
         while any(active):
+            need = [i for i in range(b) if active[i] and not pending[i]]
+            if need:
+                obs = observations.current()
+            for i in need:
+                pending[i] = list(as_chunk(policies[i].act(env_row(obs, i)), episodes.action_dim))
             for i in range(b):
-                if active[i] and not pending[i]:
-                    pending[i] = list(as_chunk(policies[i].act(env_row(obs, i)), episodes.action_dim))
                 if active[i]:
                     last[i] = pending[i].pop(0)
             action = torch.as_tensor(last, device=base.device)
-            obs, _, terminated, truncated, info = env.step(action)
+            _, terminated, truncated, info = observations.step(action)
             _collect_frames(env, frames, active)
             for i in range(n):
                 if not active[i]:

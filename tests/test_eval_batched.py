@@ -88,6 +88,56 @@ def test_finished_envs_hold_their_last_action():
     assert acts[-1, 1, 0] == HORIZON
 
 
+class BatchedScripted:
+    """The batched form: one object for all envs, one act_batch call per step that needs chunks."""
+
+    name = "scripted"
+
+    def __init__(self, horizon=3):
+        self.horizon, self.calls, self.instructions = horizon, [], []
+
+    def reset_batch(self, instructions, obs):
+        assert obs["agent"]["qpos"].shape == (len(instructions), 14)
+        self.instructions.append(list(instructions))
+
+    def act_batch(self, obs, envs):
+        assert isinstance(obs["agent"]["qpos"], np.ndarray) and obs["agent"]["qpos"].shape == (len(envs), 14)
+        self.calls.append(list(envs))
+        return np.zeros((len(envs), self.horizon, 14), dtype=np.float32)
+
+
+@pytest.mark.parametrize("mode", ["normal", "shuffled"])
+def test_batched_policy_records_equal_one_env_records(mode):
+    settings = EpisodeSettings(suite_id=SUITE, seeds=SEEDS, label="p", instruction_mode=mode)
+    single = []
+    episode_loop(FakeRSBEnv(), ScriptedPolicy(), settings, SEEDS, single.append)
+    policy, batched = BatchedScripted(), []
+    batched_loop(FakeBatchedEnv(3), policy, settings, SEEDS, batched.append)
+    assert sorted(_strip(batched), key=lambda r: r["seed"]) == _strip(single)
+    # one call per step for all envs needing a chunk; waves of 3, 3, 2 real envs
+    assert [len(x) for x in policy.instructions] == [3, 3, 2]
+    assert policy.calls[0] == [0, 1, 2] and policy.calls[-1] in ([0], [1], [0, 1])
+    per_env = sum(-(-r["steps"] // 3) for r in batched)  # what one policy per env would be asked
+    assert sum(len(c) for c in policy.calls) == per_env and len(policy.calls) < per_env
+
+
+def test_batched_policy_output_is_checked():
+    class Wrong(BatchedScripted):
+        def act_batch(self, obs, envs):
+            return np.zeros((len(envs), 3, 7), dtype=np.float32)
+
+    settings = EpisodeSettings(suite_id=SUITE, seeds=SEEDS, label="p")
+    with pytest.raises(ValueError, match="dim 7"):
+        batched_loop(FakeBatchedEnv(2), Wrong(), settings, SEEDS, list().append)
+
+    class Short(BatchedScripted):
+        def act_batch(self, obs, envs):
+            return np.zeros((1, 3, 14), dtype=np.float32)
+
+    with pytest.raises(ValueError, match="1 chunks for 2 envs"):
+        batched_loop(FakeBatchedEnv(2), Short(), settings, SEEDS, list().append)
+
+
 def test_one_policy_per_env_is_required():
     with pytest.raises(ValueError, match="one policy per env"):
         batched_loop(FakeBatchedEnv(2), [ScriptedPolicy()], EpisodeSettings(suite_id=SUITE, seeds=SEEDS, label="p"),

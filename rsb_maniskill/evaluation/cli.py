@@ -63,7 +63,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--data-dir", default=None, help="GSM8K / MMLU directory (else $RSB_DATA_DIR, else the hub cache)")
     p.add_argument("--num-procs", type=int, default=1, help="CPU worker processes (default 1)")
     p.add_argument("--num-envs", type=int, default=1,
-                   help="parallel envs on the GPU backend (physx_cuda), one policy instance each (default 1)")
+                   help="parallel envs on the GPU backend (physx_cuda), driven by one batched policy "
+                        "(reset_batch / act_batch; e.g. remote: one request per step) or one policy "
+                        "instance each (default 1)")
     p.add_argument("--max-steps", type=int, default=None,
                    help=f"step cap per episode (default: the task's {TASK_MAX_EPISODE_STEPS})")
     p.add_argument("--videos", type=int, default=0, metavar="K", help="mp4 of the first K episodes of each suite")

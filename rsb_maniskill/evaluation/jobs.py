@@ -6,7 +6,8 @@ caller:
 
 - :func:`run_job` builds env and policy from an :class:`EvalJob` (a picklable description) in
   this process, in worker processes (one env each, records sent back over a queue), or on
-  ``num_envs`` parallel envs of the GPU backend;
+  ``num_envs`` parallel envs of the GPU backend (one policy object if it has the batched form,
+  else one per env);
 - :func:`run_episodes` runs a policy object on an env you built.
 """
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from rsb_maniskill.workers import Executor, InProcess, Interrupted, ProcessPool, deal
 
-from .policy import load_policy, policy_name, policy_spec
+from .policy import is_batched, load_policy, policy_name, policy_spec
 from .protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED
 from .records import RecordWriter, read_records
 from .runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
@@ -195,8 +196,11 @@ def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> None:
     env = make_env(job)
     try:
         if job.num_envs > 1:
-            policies = [load_policy(job.policy, env=env, **job.policy_kwargs) for _ in range(env.unwrapped.num_envs)]
-            batched_loop(env, policies, job, seeds, write)
+            policy = load_policy(job.policy, env=env, **job.policy_kwargs)
+            if not is_batched(policy):  # one instance per env
+                policy = [policy] + [load_policy(job.policy, env=env, **job.policy_kwargs)
+                                     for _ in range(env.unwrapped.num_envs - 1)]
+            batched_loop(env, policy, job, seeds, write)
         else:
             episode_loop(env, load_policy(job.policy, env=env, **job.policy_kwargs), job, seeds, write)
     finally:

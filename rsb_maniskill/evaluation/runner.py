@@ -23,7 +23,7 @@ import numpy as np
 from rsb_maniskill.batch import env_row, first_value, single_env_obs
 from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
 
-from .policy import as_chunk, env_action_space
+from .policy import PerEnvPolicies, as_chunk, as_chunks, env_action_space, is_batched, obs_rows
 from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
 from .records import INSTRUCTION_MODES
 
@@ -302,10 +302,12 @@ def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:
     return {k: env_row(v, i) for k, v in info.items() if hasattr(v, "__len__") or hasattr(v, "detach")}
 
 
-def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, todo: Sequence[int],
+def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequence[int],
                  write: Callable[[dict], None]) -> None:
-    """Episodes in waves of ``num_envs``: env i of a wave runs one seed with ``policies[i]``.
+    """Episodes in waves of ``num_envs``: env i of a wave runs one seed.
 
+    ``policy`` is a :class:`~rsb_maniskill.evaluation.policy.BatchedPolicy` (one ``act_batch`` call
+    per step for every env that needs a chunk), or a list of single-env policies, one per env.
     All envs of a wave are reset together with their seeds (a list); each env's record is taken at
     the step it terminates or truncates, and it then holds its last action until the wave ends. The
     last wave is padded with repeats of its last seed whose outcome is discarded. Records equal
@@ -315,8 +317,10 @@ def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, t
 
     base = env.unwrapped
     b = base.num_envs
-    if len(policies) != b:
-        raise ValueError(f"need one policy per env: {b} envs, {len(policies)} policies")
+    if not is_batched(policy):
+        if len(policy) != b:
+            raise ValueError(f"need one policy per env: {b} envs, {len(policy)} policies")
+        policy = PerEnvPolicies(policy)
     episodes = _Episodes(env, settings, resets_allowed=False)
     observations = Observations(env, settings.render_every_step)
 
@@ -331,7 +335,7 @@ def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, t
             text, extra = episodes.instruction(instructions[i], episodes.donor(seed, instructions[i]))
             given.append(text)
             extras.append(extra)
-            policies[i].reset(text, env_row(obs, i))
+        policy.reset_batch(given, obs_rows(obs, range(n)))
         frames = {i: [] for i, s in enumerate(wave) if s in episodes.filmed}
         _collect_frames(env, frames)
         pending: list[list[np.ndarray]] = [[] for _ in range(b)]
@@ -340,10 +344,11 @@ def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, t
         active = [i < n for i in range(b)]
         while any(active):
             need = [i for i in range(b) if active[i] and not pending[i]]
-            if need:
-                obs = observations.current()
-            for i in need:
-                pending[i] = list(as_chunk(policies[i].act(env_row(obs, i)), episodes.action_dim))
+            if need:  # one call for all envs whose chunk ran out (in step when chunks are of equal length)
+                chunks = as_chunks(policy.act_batch(obs_rows(observations.current(), need), need), len(need),
+                                   episodes.action_dim)
+                for i, chunk in zip(need, chunks):
+                    pending[i] = list(chunk)
             for i in range(b):
                 if active[i]:
                     last[i] = pending[i].pop(0)

@@ -17,7 +17,9 @@ import time
 import traceback
 from typing import Any
 
-from .policy import as_chunk, load_policy
+import numpy as np
+
+from .policy import as_chunk, as_chunks, is_batched, load_policy
 from .remote import INSTALL_HINT, packb, unflatten_obs, unpackb
 
 logger = logging.getLogger(__name__)
@@ -29,6 +31,8 @@ class PolicyAdapter:
     The request's ``prompt`` is the instruction and the ``observation/...`` keys are un-flattened
     into the nested obs. The policy is reset on a connection's first request, when the request
     carries ``episode_start`` (``RemotePolicy(mark_episode_start=True)``), or when the prompt changes.
+    A batched request (the prompt a list, see ``remote.py``) goes to the policy's batched form
+    (``reset_batch`` / ``act_batch``), reset on the same rule.
     """
 
     def __init__(self, policy: Any, prompt_key: str = "prompt", obs_prefix: str = "observation") -> None:
@@ -39,13 +43,28 @@ class PolicyAdapter:
 
     def infer(self, request: dict) -> dict:
         request = dict(request)
-        prompt = str(request.pop(self.prompt_key, ""))
+        prompt = request.pop(self.prompt_key, "")
+        prompt = prompt if isinstance(prompt, list) else str(prompt)
         start = bool(request.pop("episode_start", False))
+        if isinstance(prompt, list):
+            return self._infer_batch(prompt, start, request)
         obs = unflatten_obs(request, self.obs_prefix)
         if start or prompt != self._prompt:
             self.policy.reset(prompt, obs)
             self._prompt = prompt
         return {"actions": as_chunk(self.policy.act(obs))}
+
+    def _infer_batch(self, prompts: list, start: bool, request: dict) -> dict:
+        if not is_batched(self.policy):
+            raise TypeError(f"{type(self.policy).__name__} has no batched form (reset_batch / act_batch) for a "
+                            "batched request; serve a batched policy or use RemotePolicy(batch=False)")
+        envs = [int(e) for e in request.pop("env_ids", range(len(prompts)))]
+        obs = unflatten_obs(request, self.obs_prefix)
+        old = self._prompt if isinstance(self._prompt, list) else []
+        if start or any(e >= len(old) or old[e] != p for e, p in zip(envs, prompts)):
+            self.policy.reset_batch(prompts, obs)  # the first request of a wave holds every env
+            self._prompt = list(prompts)
+        return {"actions": np.stack(as_chunks(self.policy.act_batch(obs, envs), len(envs)))}
 
 
 def _health_check(connection: Any, request: Any) -> Any:
@@ -158,10 +177,11 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO)
     policy = load_policy(args.policy, check=False)
-    if not callable(getattr(policy, "infer", None)) and not all(
+    if not callable(getattr(policy, "infer", None)) and not is_batched(policy) and not all(
         callable(getattr(policy, m, None)) for m in ("reset", "act")
     ):
-        p.error(f"{args.policy} built a {type(policy).__name__}, which has neither infer() nor reset()/act()")
+        p.error(f"{args.policy} built a {type(policy).__name__}, which has neither infer() nor reset()/act() "
+                "(nor reset_batch()/act_batch())")
     serve_policy(policy, args.host, args.port)
     return 0
 

@@ -167,8 +167,9 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
             executor: Executor | None = None) -> list[dict]:
     """Run the seeds of ``job`` not yet in ``out_path``; returns all of the job's records.
 
-    The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``executor``'s
-    tasks); with one, or with parallel GPU envs (``job.num_envs > 1``), they run in this process.
+    The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``num_procs`` tasks
+    of ``executor``, e.g. a :class:`~rsb_maniskill.workers.RayExecutor`); with one, or with
+    parallel GPU envs (``job.num_envs > 1``) and no executor, they run in this process.
     A failed worker's finished episodes are kept (RuntimeError naming it); a signal stops the
     workers and raises :class:`~rsb_maniskill.workers.Interrupted`, a KeyboardInterrupt.
     """
@@ -176,7 +177,8 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
         raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs")
 
     def run(todo: list[int], write: Write) -> None:
-        shards = deal(todo, 1 if job.num_envs > 1 else num_procs)
+        # parallel GPU envs run in this process, or one shard per GPU task of an executor
+        shards = deal(todo, 1 if job.num_envs > 1 and executor is None else num_procs)
         chosen = executor or (ProcessPool() if len(shards) > 1 else InProcess())
         outcome = chosen.run(run_shard, [(job, shard) for shard in shards], write)
         if outcome.interrupted:

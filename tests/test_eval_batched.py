@@ -163,3 +163,71 @@ def test_rsb_eval_on_gpu_parallel_envs_matches_cpu_episodes(tmp_path):
         assert r["steps"] == 20
         assert r["episode"] == cpu.unwrapped.episode_spec(r["seed"]).to_dict()
     cpu.close()
+
+
+CUDA_REASON = "needs CUDA for the physx_cuda backend (none on this machine)"
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason=CUDA_REASON)
+def test_batched_policy_on_gpu_envs_one_call_per_step(tmp_path):
+    """A batched policy on 4 physx_cuda envs: one object, rows routed to their envs, CPU episodes."""
+    import rsb_maniskill  # noqa: F401
+    from policy_fixtures import EnvIdPolicy
+
+    from rsb_maniskill.evaluation import EVAL_ENV_KWARGS, eval_seeds
+    from rsb_maniskill.evaluation.jobs import EvalJob, make_env
+
+    seeds = eval_seeds("RSB-Math-4", 6)
+    job = EvalJob(suite_id="RSB-Math-4", seeds=tuple(seeds), policy="policy_fixtures:EnvIdPolicy", label="b",
+                  obs_mode="state", num_envs=4, sim_backend="physx_cuda", max_steps=12)
+    env, policy, records = make_env(job), EnvIdPolicy(), []
+    try:
+        batched_loop(env, policy, job, seeds, records.append)
+    finally:
+        env.close()
+    assert sorted(r["seed"] for r in records) == seeds and all(r["steps"] == 12 for r in records)
+    assert policy.resets == 2 and policy.calls == 2 * 4  # 2 waves x 12 steps / chunks of 3
+    cpu = gym.make("RSB-Math-4", obs_mode="state", render_backend="none", **EVAL_ENV_KWARGS)
+    for r in records:
+        assert r["episode"] == cpu.unwrapped.episode_spec(r["seed"]).to_dict()
+    cpu.close()
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason=CUDA_REASON)
+def test_render_on_demand_on_gpu_envs_same_records():
+    import rsb_maniskill  # noqa: F401
+    from policy_fixtures import EnvIdPolicy
+
+    from rsb_maniskill.evaluation import eval_seeds
+    from rsb_maniskill.evaluation.jobs import EvalJob, make_env
+
+    seeds = eval_seeds("RSB-Math-4", 4)
+    out = {}
+    for every in (False, True):
+        job = EvalJob(suite_id="RSB-Math-4", seeds=tuple(seeds), policy="policy_fixtures:EnvIdPolicy", label="b",
+                      obs_mode="rgb", num_envs=2, sim_backend="physx_cuda", max_steps=9, render_every_step=every,
+                      env_kwargs={"camera_size": [64, 48]})
+        env, records = make_env(job), []
+        try:
+            batched_loop(env, EnvIdPolicy(), job, seeds, records.append)
+        finally:
+            env.close()
+        out[every] = _strip(sorted(records, key=lambda r: r["seed"]))
+    assert out[False] == out[True]
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason=CUDA_REASON)
+def test_rsb_eval_num_envs_on_ray_gpu_task(tmp_path):
+    """`rsb eval --num-envs 2 --executor ray`: one GPU task running 2 envs; the CPU episodes."""
+    pytest.importorskip("ray")
+    from rsb_maniskill.cli import main
+    from rsb_maniskill.evaluation import eval_seeds
+    from rsb_maniskill.evaluation.records import read_records
+
+    out = tmp_path / "ray-gpu"
+    assert main(["eval", "random", "--suites", "RSB-Math-4", "-n", "4", "--num-envs", "2", "--num-procs", "1",
+                 "--max-steps", "10", "--out", str(out), "-q", "--executor", "ray"]) == 0
+    assert sorted(r["seed"] for r in read_records(out / "episodes.jsonl")) == eval_seeds("RSB-Math-4", 4)

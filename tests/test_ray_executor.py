@@ -117,3 +117,28 @@ def test_address_needs_the_ray_executor(tmp_path, capsys):
 
     assert main(["eval", "blind", "--suites", SUITE, "-n", "1", "--out", str(tmp_path), "--address", "auto"]) == 2
     assert "--executor ray" in capsys.readouterr().err
+
+
+def test_sigterm_stops_a_ray_run_and_keeps_finished_episodes(tmp_path):
+    """SIGTERM to `rsb eval --executor ray`: tasks cancelled, exit 130, whole records, resumable."""
+    import signal
+    import subprocess
+    import time
+
+    out = tmp_path / "res"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    cmd = [sys.executable, "-m", "rsb_maniskill.cli", "eval", "blind", "--suites", SUITE, "-n", "16",
+           "--num-procs", "2", "--out", str(out), "-q", "--executor", "ray"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    records = out / "episodes.jsonl"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None:
+        if records.exists() and records.read_text().count("\n") >= 2:
+            break
+        time.sleep(0.1)
+    assert proc.poll() is None, "the run ended before it could be stopped"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "Rerun the same command to resume" in err
+    kept = read_records(records)  # every line a whole record
+    assert 2 <= len(kept) < 16 and len({r["seed"] for r in kept}) == len(kept)

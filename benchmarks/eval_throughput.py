@@ -1,12 +1,16 @@
-"""Evaluation throughput of `rsb eval`: episodes per minute of a built-in policy with 1 and 2
-worker processes, on the protocol's first seeds.
+"""Evaluation throughput of `rsb eval`: episodes per minute, on the protocol's first seeds.
 
     python benchmarks/eval_throughput.py [--suite RSB-Math-4] [-n 40] [--procs 1 2] [--policy oracle]
+    python benchmarks/eval_throughput.py --rgb [-n 3] [--chunk 10] [--max-steps 100]
 
-State observations (what oracle / blind / random read), no video, into a temporary directory.
-Wall time includes starting the workers and building their envs (what a user waits for); the
-time per episode is measured inside the loop (reset, policy, steps). Also prints the TSR reached,
-so that a fast but broken run cannot pass for a fast one.
+Default: a built-in policy with state observations (what oracle / blind / random read) with 1 and
+2 worker processes. ``--rgb``: render on demand, in one run: the random policy with chunks of
+``--chunk`` actions on the three 320x240 rgb cameras, with the cameras rendered only when it asks
+for a chunk, then at every step (the same episodes; the issue's target: >= 4x episodes/min).
+No video, into a temporary directory. Wall time includes building the env (what a user waits
+for; with --rgb the first build also compiles shaders, so there episodes/min are taken from the
+time inside the loop); the time per episode is measured inside the loop (reset, policy, steps).
+Also prints the TSR reached, so that a fast but broken run cannot pass for a fast one.
 """
 from __future__ import annotations
 
@@ -21,31 +25,55 @@ from rsb_maniskill.evaluation import eval_seeds
 from rsb_maniskill.evaluation.jobs import EvalJob, run_job
 
 
-def run(suite: str, policy: str, num: int, procs: int) -> dict:
-    job = EvalJob(suite_id=suite, seeds=tuple(eval_seeds(suite, num)), policy=policy, label=policy, obs_mode="state")
+def run(job: EvalJob, procs: int = 1, executor=None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        records = run_job(job, Path(tmp) / "episodes.jsonl", num_procs=procs, progress=False)
+        records = run_job(job, Path(tmp) / "episodes.jsonl", num_procs=procs, progress=False, executor=executor)
         wall = time.perf_counter() - t0
     return dict(procs=procs, episodes=len(records), wall=wall, per_min=60 * len(records) / wall,
+                loop_per_min=60 * len(records) / sum(r["wall_s"] for r in records),
                 ep_s=statistics.mean(r["wall_s"] for r in records),
                 steps=statistics.mean(r["steps"] for r in records),
-                tsr=sum(r["success"] for r in records) / len(records))
+                tsr=sum(r["success"] for r in records) / len(records), records=records)
+
+
+def show(rows: list[tuple[str, dict]]) -> None:
+    print(f"{'run':>22} {'episodes':>8} {'wall s':>7} {'episodes/min':>12} {'s/episode':>9} {'steps/ep':>8} {'TSR':>6}")
+    for name, r in rows:
+        print(f"{name:>22} {r['episodes']:>8} {r['wall']:>7.1f} {r['per_min']:>12.1f} {r['ep_s']:>9.3f} "
+              f"{r['steps']:>8.1f} {r['tsr']:>6.1%}")
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--suite", default="RSB-Math-4")
     p.add_argument("--policy", default="oracle", choices=["oracle", "blind", "random"])
-    p.add_argument("-n", "--num", type=int, default=40, help="episodes per run")
+    p.add_argument("-n", "--num", type=int, default=None, help="episodes per run (default 40; 3 with --rgb)")
     p.add_argument("--procs", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--rgb", action="store_true", help="render on demand vs every step, rgb cameras")
+    p.add_argument("--chunk", type=int, default=10, help="--rgb: actions per chunk (default 10)")
+    p.add_argument("--max-steps", type=int, default=100, help="--rgb: steps per episode (default 100)")
     args = p.parse_args()
-    rows = [run(args.suite, args.policy, args.num, k) for k in args.procs]
+    seeds = tuple(eval_seeds(args.suite, args.num or (3 if args.rgb else 40)))
+    if args.rgb:
+        base = dict(suite_id=args.suite, seeds=seeds, policy="random", label="random", obs_mode="rgb",
+                    policy_kwargs={"chunk_size": args.chunk}, max_steps=args.max_steps)
+        lazy = run(EvalJob(**base))
+        eager = run(EvalJob(**base, render_every_step=True))
+        strip = lambda rs: [{k: v for k, v in r.items() if k != "wall_s"} for r in rs]  # noqa: E731
+        print(f"\nrandom policy on {args.suite}, rgb obs (3 cameras, 320x240), chunks of {args.chunk}, "
+              f"{args.max_steps} steps/episode, 1 process, {os.cpu_count()} CPUs visible")
+        show([("render on demand", lazy), ("render every step", eager)])
+        print(f"episodes/min inside the loop: {lazy['loop_per_min']:.1f} on demand, {eager['loop_per_min']:.1f} "
+              f"every step: {lazy['loop_per_min'] / eager['loop_per_min']:.1f}x; "
+              f"same records: {strip(lazy['records']) == strip(eager['records'])}")
+        return
+    rows = []
+    for k in args.procs:
+        job = EvalJob(suite_id=args.suite, seeds=seeds, policy=args.policy, label=args.policy, obs_mode="state")
+        rows.append((f"{k} procs", run(job, k)))
     print(f"\n{args.policy} on {args.suite}, state obs, no video, {os.cpu_count()} CPUs visible")
-    print(f"{'procs':>5} {'episodes':>8} {'wall s':>7} {'episodes/min':>12} {'s/episode':>9} {'steps/ep':>8} {'TSR':>6}")
-    for r in rows:
-        print(f"{r['procs']:>5} {r['episodes']:>8} {r['wall']:>7.1f} {r['per_min']:>12.1f} {r['ep_s']:>9.3f} "
-              f"{r['steps']:>8.1f} {r['tsr']:>6.1%}")
+    show(rows)
 
 
 if __name__ == "__main__":

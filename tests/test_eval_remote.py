@@ -172,3 +172,85 @@ def test_adapter_resets_on_prompt_change_and_flat_state_obs():
     assert policy.resets == ["a", "b", "a"]
     state = np.arange(5, dtype=np.float32)  # obs_mode="state" gives one flat array
     assert np.array_equal(flatten_obs(state)["observation"], state)
+
+
+# ---------------------------------------------------------------- batched requests (--num-envs)
+def _batched_run(client, num_envs=3):
+    from test_eval_batched import SEEDS, FakeBatchedEnv
+    from test_eval_runner import SUITE, FakeRSBEnv, ScriptedPolicy
+
+    from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop, episode_loop
+
+    settings = EpisodeSettings(suite_id=SUITE, seeds=SEEDS, label="p")
+    single, batched = [], []
+    episode_loop(FakeRSBEnv(), ScriptedPolicy(), settings, SEEDS, single.append)
+    env = FakeBatchedEnv(num_envs)
+    batched_loop(env, client, settings, SEEDS, batched.append)
+    strip = lambda rs: [{k: v for k, v in r.items() if k != "wall_s"} for r in rs]  # noqa: E731
+    assert sorted(strip(batched), key=lambda r: r["seed"]) == strip(single)
+    return env
+
+
+def test_batched_requests_one_per_step_for_all_envs():
+    from policy_fixtures import EnvIdPolicy
+
+    policy = EnvIdPolicy()
+    with PolicyServer(policy, host="127.0.0.1", port=0) as server:
+        with RemotePolicy("127.0.0.1", server.port, mark_episode_start=True, connect_timeout=10,
+                          request_timeout=10) as client:
+            env = _batched_run(client)
+    first = env.actions[0][:, 0].numpy()
+    assert np.allclose(first, [0.0, 0.1, 0.2])  # row i of the reply went to env i
+    # 8 seeds in waves of 3, 3, 2: one request per chunk step, not one per env
+    assert policy.resets == 3 and policy.calls < len(env.actions) and policy.calls >= len(env.actions) / 3
+
+
+def test_batch_false_sends_one_request_per_env():
+    from policy_fixtures import EnvIdPolicy
+
+    policy = EnvIdPolicy()
+    with PolicyServer(policy, host="127.0.0.1", port=0) as server:
+        with RemotePolicy("127.0.0.1", server.port, batch=False, connect_timeout=10, request_timeout=10) as client:
+            env = _batched_run(client)
+    assert np.allclose(env.actions[0][:, 0].numpy(), 0.0)  # the single form answered
+    assert policy.calls > len(env.actions) / 3
+
+
+def test_batched_request_to_a_single_env_policy_says_what_to_do():
+    with PolicyServer(EchoPolicy(), host="127.0.0.1", port=0) as server:
+        with RemotePolicy("127.0.0.1", server.port, connect_timeout=10, request_timeout=10) as client:
+            client.reset_batch(["a", "b"], {})
+            with pytest.raises(RuntimeError, match="batch=False"):
+                client.act_batch({"agent": {"qpos": np.zeros((2, 14), np.float32)}}, [0, 1])
+
+
+def test_batched_requests_to_a_server_in_another_process(tmp_path):
+    """`python -m rsb_maniskill.evaluation.serve` in a subprocess (127.0.0.1, stops by itself)."""
+    import os
+    import re
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    from policy_fixtures import EnvIdPolicy  # noqa: F401  (importable here, so in the server too)
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).parent), *sys.path]))
+    log = tmp_path / "server.log"
+    with open(log, "w") as err:
+        proc = subprocess.Popen(["timeout", "60", sys.executable, "-m", "rsb_maniskill.evaluation.serve",
+                                 "policy_fixtures:EnvIdPolicy", "--host", "127.0.0.1", "--port", "0"],
+                                stdout=subprocess.DEVNULL, stderr=err, env=env)
+    try:
+        deadline, port = time.monotonic() + 40, None
+        while port is None and time.monotonic() < deadline and proc.poll() is None:
+            m = re.search(r"ws://127\.0\.0\.1:(\d+)", log.read_text())
+            port = int(m.group(1)) if m else time.sleep(0.1)
+        assert port, f"server did not start: {log.read_text()}"
+        with RemotePolicy("127.0.0.1", port, mark_episode_start=True, connect_timeout=10,
+                          request_timeout=10) as client:
+            env_ = _batched_run(client, num_envs=4)
+        assert np.allclose(env_.actions[0][:, 0].numpy(), [0.0, 0.1, 0.2, 0.3])
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)

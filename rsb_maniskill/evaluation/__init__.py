@@ -18,7 +18,7 @@ from .metrics import (
     summarize,
     wilson_interval,
 )
-from .policy import Policy, RandomPolicy, as_chunk, builtin_policies, load_policy, policy_name, register_policy
+from .policy import BatchedPolicy, PerEnvPolicies, Policy, RandomPolicy, as_chunk, builtin_policies, load_policy, policy_name, register_policy
 from .protocol import (
     EPISODES_PER_SUITE,
     EVAL_ENV_KWARGS,
@@ -35,7 +35,7 @@ from .runner import EpisodeSettings, batched_loop, build_record, episode_loop
 
 __all__ = [
     "Average", "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "EpisodeSettings", "ErrorAnalysis",
-    "EvalJob", "INSTRUCTION_MODES", "PAPER_SUITES", "Policy", "RECORD_FIELDS", "RandomPolicy", "Rate",
+    "EvalJob", "INSTRUCTION_MODES", "BatchedPolicy", "PerEnvPolicies", "PAPER_SUITES", "Policy", "RECORD_FIELDS", "RandomPolicy", "Rate",
     "RecordWriter", "SuiteMetrics", "apply_instruction_mode", "as_chunk", "average", "batched_loop", "build_record",
     "builtin_policies", "completed_seeds", "derangement", "drive", "episode_loop", "eval_seeds", "load_policy",
     "markdown_tables", "nsg", "num_choices", "plot_summary", "policy_name", "read_records", "register_policy",

@@ -12,6 +12,7 @@ was run with; a resumed run must use the same ones), ``summary.{json,csv,md}``, 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -35,6 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
     from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
     from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
+    from rsb_maniskill.workers import add_executor_args
 
     state_only = [name for name, spec in POLICIES.items() if spec.obs_mode == "state"]
 
@@ -63,13 +65,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-e", "--env-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="extra gym.make keyword, e.g. camera_size=[224,224] (VALUE as JSON, else a string)")
     p.add_argument("--data-dir", default=None, help="GSM8K / MMLU directory (else $RSB_DATA_DIR, else the hub cache)")
-    p.add_argument("--num-procs", type=int, default=1, help="CPU worker processes (default 1)")
+    p.add_argument("--num-procs", type=int, default=None,
+                   help="CPU worker processes (default 1), or Ray tasks (default: the cluster's CPUs)")
     p.add_argument("--num-envs", type=int, default=1,
-                   help="parallel envs on the GPU backend (physx_cuda), one policy instance each (default 1)")
+                   help="parallel envs on the GPU backend (physx_cuda), driven by one batched policy "
+                        "(reset_batch / act_batch; e.g. remote: one request per step) or one policy "
+                        "instance each (default 1)")
     p.add_argument("--max-steps", type=int, default=None,
                    help=f"step cap per episode (default: the task's {TASK_MAX_EPISODE_STEPS})")
     p.add_argument("--videos", type=int, default=0, metavar="K", help="mp4 of the first K episodes of each suite")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    add_executor_args(p)
     p.set_defaults(func=run_eval)
 
 
@@ -168,24 +174,47 @@ def run_eval(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _run_eval(args: argparse.Namespace) -> int:
+def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kwargs: dict, obs_mode: str,
+              max_steps: int, env_kwargs: dict, out: Path, records_path: Path, num_procs: int,
+              executor: Any) -> None:
+    """Every suite x instruction mode, one after the other."""
     from rsb_maniskill.evaluation.jobs import EvalJob, run_job
+    from rsb_maniskill.evaluation.protocol import eval_seeds
+
+    for suite in suites:
+        for mode in args.instruction:
+            job = EvalJob(
+                suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
+                label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
+                control_mode=args.control_mode, num_envs=args.num_envs,
+                sim_backend="physx_cuda" if args.num_envs > 1 else "physx_cpu", max_steps=max_steps,
+                env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
+                num_videos=args.videos)
+            run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor)
+
+
+def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.evaluation.policy import policy_spec
     from rsb_maniskill.evaluation.protocol import eval_seeds
     from rsb_maniskill.evaluation.records import read_records
     from rsb_maniskill.evaluation.report import markdown_tables, results_from_records, write_report
     from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
+    from rsb_maniskill.workers import executor_from_args
 
     suites = resolve_suites(args.suites)
-    for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-procs", args.num_procs, 1),
+    for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-procs", args.num_procs or 1, 1),
                              ("--num-envs", args.num_envs, 1), ("--videos", args.videos, 0)):
         if value < low:
             raise EvalError(f"{flag} must be >= {low}, got {value}")
     if args.max_steps is not None and args.max_steps < 1:
         raise EvalError(f"--max-steps must be >= 1, got {args.max_steps}")
-    if args.num_envs > 1 and args.num_procs > 1:
+    if args.num_envs > 1 and (args.num_procs or 1) > 1 and args.executor == "local":
         raise EvalError("use either --num-envs (GPU) or --num-procs (CPU), not both")
-    if args.num_envs > 1:
+    try:
+        executor = executor_from_args(args.executor, args.address, gpus_per_task=1 if args.num_envs > 1 else 0)
+    except (ValueError, ImportError) as err:
+        raise EvalError(str(err)) from err
+    if args.num_envs > 1 and executor is None:
         import torch
 
         from rsb_maniskill.physx_gpu import PhysXGpuLibraryMissing, check_for_sim_backend
@@ -231,19 +260,16 @@ def _run_eval(args: argparse.Namespace) -> int:
 
     records_path = out / EPISODES_FILE
     interrupted = False
-    try:
-        for suite in suites:
-            for mode in args.instruction:
-                job = EvalJob(
-                    suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
-                    label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
-                    control_mode=args.control_mode, num_envs=args.num_envs,
-                    sim_backend="physx_cuda" if args.num_envs > 1 else "physx_cpu", max_steps=max_steps,
-                    env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
-                    num_videos=args.videos)
-                run_job(job, records_path, num_procs=args.num_procs, progress=not args.quiet)
-    except KeyboardInterrupt:
-        interrupted = True
+    with contextlib.ExitStack() as stack:
+        num_procs = args.num_procs or 1
+        if executor is not None:
+            stack.enter_context(executor)  # a local Ray cluster lives for the whole run
+            num_procs = args.num_procs or executor.workers()
+        try:
+            _run_jobs(args, suites, label, policy_kwargs, obs_mode, max_steps, env_kwargs, out, records_path,
+                      num_procs, executor)
+        except KeyboardInterrupt:
+            interrupted = True
 
     wanted = {(s, m) for s in suites for m in args.instruction}
     all_records = read_records(records_path)

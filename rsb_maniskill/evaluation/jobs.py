@@ -6,7 +6,8 @@ caller:
 
 - :func:`run_job` builds env and policy from an :class:`EvalJob` (a picklable description) in
   this process, in worker processes (one env each, records sent back over a queue), or on
-  ``num_envs`` parallel envs of the GPU backend;
+  ``num_envs`` parallel envs of the GPU backend (one policy object if it has the batched form,
+  else one per env);
 - :func:`run_episodes` runs a policy object on an env you built.
 """
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from rsb_maniskill.workers import Executor, InProcess, Interrupted, ProcessPool, deal
 
-from .policy import load_policy, policy_name, policy_spec
+from .policy import is_batched, load_policy, policy_name, policy_spec
 from .protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED
 from .records import RecordWriter, read_records
 from .runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
@@ -166,8 +167,9 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
             executor: Executor | None = None) -> list[dict]:
     """Run the seeds of ``job`` not yet in ``out_path``; returns all of the job's records.
 
-    The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``executor``'s
-    tasks); with one, or with parallel GPU envs (``job.num_envs > 1``), they run in this process.
+    The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``num_procs`` tasks
+    of ``executor``, e.g. a :class:`~rsb_maniskill.workers.RayExecutor`); with one, or with
+    parallel GPU envs (``job.num_envs > 1``) and no executor, they run in this process.
     A failed worker's finished episodes are kept (RuntimeError naming it); a signal stops the
     workers and raises :class:`~rsb_maniskill.workers.Interrupted`, a KeyboardInterrupt.
     """
@@ -175,7 +177,8 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
         raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs")
 
     def run(todo: list[int], write: Write) -> None:
-        shards = deal(todo, 1 if job.num_envs > 1 else num_procs)
+        # parallel GPU envs run in this process, or one shard per GPU task of an executor
+        shards = deal(todo, 1 if job.num_envs > 1 and executor is None else num_procs)
         chosen = executor or (ProcessPool() if len(shards) > 1 else InProcess())
         outcome = chosen.run(run_shard, [(job, shard) for shard in shards], write)
         if outcome.interrupted:
@@ -195,8 +198,11 @@ def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> None:
     env = make_env(job)
     try:
         if job.num_envs > 1:
-            policies = [load_policy(job.policy, env=env, **job.policy_kwargs) for _ in range(env.unwrapped.num_envs)]
-            batched_loop(env, policies, job, seeds, write)
+            policy = load_policy(job.policy, env=env, **job.policy_kwargs)
+            if not is_batched(policy):  # one instance per env
+                policy = [policy] + [load_policy(job.policy, env=env, **job.policy_kwargs)
+                                     for _ in range(env.unwrapped.num_envs - 1)]
+            batched_loop(env, policy, job, seeds, write)
         else:
             episode_loop(env, load_policy(job.policy, env=env, **job.policy_kwargs), job, seeds, write)
     finally:

@@ -6,12 +6,18 @@ The runner calls ``reset`` once per episode with the instruction (after the inst
 ablation) and the first observation, then ``act``; it executes the T actions of the chunk in
 order and calls ``act`` again with the newest observation. Observations are the single-env
 observation as numpy arrays in the env's nested dict layout (leading env dim removed).
+
+The optional batched form (:class:`BatchedPolicy`) drives the B parallel envs of ``--num-envs``
+with one object: ``reset_batch(instructions, obs)`` and ``act_batch(obs, envs) -> (len(envs), T,
+action_dim)``, observations keeping their leading env dim. A policy that has it (the remote
+client: one request per step for all envs) is built once; one without it is built once per env
+and batched by :class:`PerEnvPolicies`. The single-env form is what everything else uses.
 """
 from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -25,6 +31,64 @@ class Policy(Protocol):
 
     def act(self, obs: dict) -> np.ndarray:
         """Action chunk of shape (T, action_dim), T >= 1, executed in order before the next call."""
+
+
+@runtime_checkable
+class BatchedPolicy(Protocol):
+    """The optional batched form: one object for B parallel envs (rows of batched observations)."""
+
+    def reset_batch(self, instructions: Sequence[str], obs: dict) -> None:
+        """Start B episodes: env i gets ``instructions[i]``; ``obs`` rows are the envs' first observations."""
+
+    def act_batch(self, obs: dict, envs: Sequence[int]) -> Any:
+        """Chunks for the envs ``envs`` (indices into the reset's B), ``obs`` holding their rows in that
+        order: a (len(envs), T, action_dim) array, or a list of (T_i, action_dim) chunks."""
+
+
+def is_batched(policy: Any) -> bool:
+    return callable(getattr(policy, "reset_batch", None)) and callable(getattr(policy, "act_batch", None))
+
+
+def obs_rows(obs: Any, rows: Sequence[int]) -> Any:
+    """Rows ``rows`` of a batched (nested) observation, as numpy with the leading dim kept."""
+    if isinstance(obs, dict):
+        return {k: obs_rows(v, rows) for k, v in obs.items()}
+    if hasattr(obs, "detach"):
+        obs = obs.detach().cpu().numpy()
+    return np.asarray(obs)[list(rows)]
+
+
+class PerEnvPolicies:
+    """The batched form over one single-env policy per env (``--num-envs`` for a policy without it)."""
+
+    def __init__(self, policies: Sequence[Any]) -> None:
+        self.policies = list(policies)
+        self.name = policy_name(self.policies[0]) if self.policies else "policy"
+
+    def reset_batch(self, instructions: Sequence[str], obs: dict) -> None:
+        if len(instructions) > len(self.policies):
+            raise ValueError(f"need one policy per env: {len(instructions)} envs, {len(self.policies)} policies")
+        for i, text in enumerate(instructions):
+            self.policies[i].reset(text, _row(obs, i))
+
+    def act_batch(self, obs: dict, envs: Sequence[int]) -> list[np.ndarray]:
+        return [self.policies[e].act(_row(obs, k)) for k, e in enumerate(envs)]
+
+
+def _row(obs: Any, i: int) -> Any:
+    if isinstance(obs, dict):
+        return {k: _row(v, i) for k, v in obs.items()}
+    return np.asarray(obs)[i]
+
+
+def as_chunks(actions: Any, n: int, action_dim: int | None = None) -> list[np.ndarray]:
+    """Check a batched policy's output: ``n`` chunks, each as :func:`as_chunk` wants it."""
+    if isinstance(actions, np.ndarray) and actions.ndim != 3:
+        raise ValueError(f"policy.act_batch must return shape (envs, T, action_dim), got shape {actions.shape}")
+    chunks = list(actions)
+    if len(chunks) != n:
+        raise ValueError(f"policy.act_batch returned {len(chunks)} chunks for {n} envs")
+    return [as_chunk(c, action_dim) for c in chunks]
 
 
 def env_action_space(env: Any) -> Any:

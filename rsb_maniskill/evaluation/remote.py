@@ -7,6 +7,11 @@ packed with msgpack + the msgpack-numpy scheme below:
 2. the client sends an observation dict, the server replies a dict holding ``"actions"`` (an
    action chunk, shape (T, D)); repeat. A text frame instead of a reply is a server traceback.
 
+Batched requests (``--num-envs``: one request per step for all envs that need a chunk) carry
+the same keys with a leading env dim on every array, the prompts as a list of strings and
+``"env_ids"``; the reply's ``"actions"`` is (B, T, D). ``serve.py`` answers them with a policy's
+batched form; a server that takes one observation at a time needs ``RemotePolicy(batch=False)``.
+
 Arrays travel as ``{"__ndarray__": True, "data": raw bytes, "dtype": dtype.str, "shape": shape}``
 and numpy scalars as ``{"__npgeneric__": True, "data": value, "dtype": dtype.str}`` (bytes keys),
 exactly as ``openpi_client.msgpack_numpy``, so either side can be openpi's own code.
@@ -110,6 +115,12 @@ def unflatten_obs(flat: Mapping[str, Any], prefix: str = "observation") -> dict[
     return out
 
 
+def _row(obs: Any, i: int) -> Any:
+    if isinstance(obs, Mapping):
+        return {k: _row(v, i) for k, v in obs.items()}
+    return np.asarray(obs)[i]
+
+
 # ---------------------------------------------------------------- client
 class RemotePolicy:
     """A :class:`~rsb_maniskill.evaluation.policy.Policy` whose actions come from a websocket server.
@@ -130,6 +141,8 @@ class RemotePolicy:
         preset: ``"openpi-aloha"``: send openpi's Aloha keys and layout and read the reply as Aloha-layout
             actions (``openpi_preset.py``); then ``image_size`` (default 224) sets the image size and
             ``action_horizon`` defaults to 10.
+        batch: with parallel envs, one batched request per step (see above); False: one per env
+            (always with a preset: openpi's servers take one observation per request).
     """
 
     def __init__(
@@ -147,6 +160,7 @@ class RemotePolicy:
         name: str = "remote",
         preset: str | None = None,
         image_size: int | list[int] | None = None,
+        batch: bool = True,
     ) -> None:
         self.preset = None
         if preset is not None:
@@ -172,6 +186,9 @@ class RemotePolicy:
         self.name = name
         self.instruction = ""
         self._episode_start = False
+        # openpi's Aloha policies take one observation per request: a preset sends one per env
+        self.batch = batch and self.preset is None
+        self.instructions: list[str] = []  # of the batched form
         self._ws, self.server_metadata = self._connect(connect_timeout)
 
     def _connect(self, timeout: float) -> tuple[Any, dict]:
@@ -233,6 +250,39 @@ class RemotePolicy:
         if self.preset is not None:
             chunk = self.preset.env_actions(chunk)
         return chunk[: self.action_horizon] if self.action_horizon else chunk
+
+    # ------------------------------------------------------------ batched form (parallel envs)
+    def reset_batch(self, instructions: Any, obs: dict) -> None:
+        self.instructions = list(instructions)
+        self._episode_start = True
+
+    def act_batch(self, obs: dict, envs: Any) -> np.ndarray | list[np.ndarray]:
+        """Chunks for ``envs``: one batched request, or (``batch=False``) one request per env."""
+        envs = [int(e) for e in envs]
+        if not self.batch:
+            chunks = []
+            for k, e in enumerate(envs):
+                self.instruction = self.instructions[e]
+                chunks.append(self.act(_row(obs, k)))
+            return chunks
+        prompts = [self.instructions[e] for e in envs]
+        if self.obs_transform is not None:
+            payload = dict(self.obs_transform(obs, prompts))
+        else:
+            payload = flatten_obs(obs, self.obs_prefix)
+            payload[self.prompt_key] = prompts
+        payload["env_ids"] = np.asarray(envs, dtype=np.int64)
+        if self.mark_episode_start and self._episode_start:
+            payload["episode_start"] = True
+        self._episode_start = False
+        reply = self.infer(payload)
+        actions = np.asarray(reply.get("actions")) if "actions" in reply else None
+        if actions is None or actions.ndim != 3 or actions.shape[0] != len(envs):
+            got = "no 'actions'" if actions is None else f"actions of shape {actions.shape}"
+            raise RuntimeError(f"policy server {self.uri} replied {got} to a batched request for {len(envs)} envs; "
+                               "a server that takes one observation at a time needs RemotePolicy(batch=False) "
+                               "(-a batch=false)")
+        return [as_chunk(c)[: self.action_horizon] if self.action_horizon else as_chunk(c) for c in actions]
 
     def close(self) -> None:
         self._ws.close()

@@ -24,7 +24,7 @@ import numpy as np
 from rsb_maniskill.batch import env_row, first_value, single_env_obs
 from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
 
-from .policy import as_chunk, env_action_space
+from .policy import PerEnvPolicies, as_chunk, as_chunks, env_action_space, is_batched, obs_rows
 from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
 from .records import INSTRUCTION_MODES
 
@@ -55,6 +55,9 @@ class EpisodeSettings:
     # seed -> instruction, to find shuffled donors without a reset; in-process runs only (a callable
     # does not travel to worker processes). Default: the task's episode_spec(seed), else a reset.
     instruction_lookup: Callable[[int], str] | None = None
+    # Render the cameras at every step, as a plain env.step does; by default they are rendered only
+    # when the policy asks for a chunk (same records, less time). For benchmarks and checks.
+    render_every_step: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
@@ -193,6 +196,57 @@ class _Episodes:
                             instruction_mode=s.instruction_mode, info=info, steps=steps, policy=s.label, extra=extra)
 
 
+class Observations:
+    """Render on demand: steps the env without rendering its cameras, renders them when asked.
+
+    A chunked policy reads observations only when it asks for a new chunk, so the cameras (most of
+    a visual step's cost on the CPU renderer) are rendered only then: :meth:`step` computes state
+    and ``info`` (the metrics) at every step, :meth:`current` the full observation of the last step,
+    once. ManiSkill has no switch for this; the env computes its observation for ``obs_mode``, so
+    the step runs under ``state_dict`` and :meth:`current` calls ``get_obs(info)`` under the real
+    mode: the same observation the step would have returned (rendering changes no physics).
+    Envs without visual observations, or without ManiSkill's ``get_obs``, are stepped as they are.
+    """
+
+    SKIP_MODE = "state_dict"
+
+    def __init__(self, env: Any, every_step: bool = False) -> None:
+        self.env, self.base = env, env.unwrapped
+        self.mode = getattr(self.base, "_obs_mode", None)
+        self.lazy = (not every_step and isinstance(self.mode, str)
+                     and self.mode not in ("none", "state", "state_dict") and callable(getattr(self.base, "get_obs", None)))
+        self.renders = 0  # camera renders done by current(): one per chunk asked for
+        self.obs: Any = None
+        self.info: Any = None
+        self.stale = False
+
+    def reset(self, **kwargs: Any) -> tuple[Any, Any]:
+        self.obs, self.info = self.env.reset(**kwargs)
+        self.stale = False
+        return self.obs, self.info
+
+    def step(self, action: Any) -> tuple[Any, Any, Any, Any]:
+        """``env.step(action)`` without its observation: (reward, terminated, truncated, info)."""
+        if self.lazy:
+            self.base._obs_mode = self.SKIP_MODE
+            try:
+                out = self.env.step(action)
+            finally:
+                self.base._obs_mode = self.mode
+        else:
+            out = self.env.step(action)
+        self.obs, self.info, self.stale = out[0], out[4], self.lazy
+        return out[1:]
+
+    def current(self) -> Any:
+        """The observation of the last reset or step, rendered now if the step skipped it."""
+        if self.stale:
+            self.obs = self.base.get_obs(self.info)
+            self.stale = False
+            self.renders += 1
+        return self.obs
+
+
 def _render(env: Any) -> np.ndarray:
     """``env.render()`` of every env as a (B, H, W, 3) numpy array."""
     img = env.render()
@@ -216,11 +270,12 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
     base = env.unwrapped
     episodes = _Episodes(env, settings, resets_allowed=True)
     batched_actions = len(env.action_space.shape) == 2
+    observations = Observations(env, settings.render_every_step)
 
     for seed in todo:
         t0 = time.monotonic()
         donor = episodes.donor(seed)
-        obs, info = env.reset(seed=seed, options=settings.reset_options)
+        obs, info = observations.reset(seed=seed, options=settings.reset_options)
         instructions = base.get_language_instruction()
         if len(instructions) != 1:
             raise ValueError(f"episode_loop drives one env, this one has {len(instructions)}; "
@@ -232,10 +287,10 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         policy.reset(given, single_env_obs(obs))
         steps, finished = 0, False
         while not finished and steps < settings.max_steps:
-            chunk = as_chunk(policy.act(single_env_obs(obs)), episodes.action_dim)
+            chunk = as_chunk(policy.act(single_env_obs(observations.current())), episodes.action_dim)
             for action in chunk:
                 a = action[None] if batched_actions else action
-                obs, _, terminated, truncated, info = env.step(a)
+                _, terminated, truncated, info = observations.step(a)
                 steps += 1
                 if frames is not None:
                     frames.append(_render(env)[0])
@@ -250,10 +305,12 @@ def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:
     return {k: env_row(v, i) for k, v in info.items() if hasattr(v, "__len__") or hasattr(v, "detach")}
 
 
-def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, todo: Sequence[int],
+def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequence[int],
                  write: Callable[[dict], None]) -> None:
-    """Episodes in waves of ``num_envs``: env i of a wave runs one seed with ``policies[i]``.
+    """Episodes in waves of ``num_envs``: env i of a wave runs one seed.
 
+    ``policy`` is a :class:`~rsb_maniskill.evaluation.policy.BatchedPolicy` (one ``act_batch`` call
+    per step for every env that needs a chunk), or a list of single-env policies, one per env.
     All envs of a wave are reset together with their seeds (a list); each env's record is taken at
     the step it terminates or truncates, and it then holds its last action until the wave ends. The
     last wave is padded with repeats of its last seed whose outcome is discarded. Records equal
@@ -263,14 +320,17 @@ def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, t
 
     base = env.unwrapped
     b = base.num_envs
-    if len(policies) != b:
-        raise ValueError(f"need one policy per env: {b} envs, {len(policies)} policies")
+    if not is_batched(policy):
+        if len(policy) != b:
+            raise ValueError(f"need one policy per env: {b} envs, {len(policy)} policies")
+        policy = PerEnvPolicies(policy)
     episodes = _Episodes(env, settings, resets_allowed=False)
+    observations = Observations(env, settings.render_every_step)
 
     for start in range(0, len(todo), b):
         wave = list(todo[start:start + b])
         n = len(wave)
-        obs, info = env.reset(seed=wave + [wave[-1]] * (b - n), options=settings.reset_options)
+        obs, info = observations.reset(seed=wave + [wave[-1]] * (b - n), options=settings.reset_options)
         specs = list(base.episode_specs)
         instructions = base.get_language_instruction()
         given, extras = [], []
@@ -278,7 +338,7 @@ def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, t
             text, extra = episodes.instruction(instructions[i], episodes.donor(seed, instructions[i]))
             given.append(text)
             extras.append(extra)
-            policies[i].reset(text, env_row(obs, i))
+        policy.reset_batch(given, obs_rows(obs, range(n)))
         frames = {i: [] for i, s in enumerate(wave) if s in episodes.filmed}
         _collect_frames(env, frames)
         pending: list[list[np.ndarray]] = [[] for _ in range(b)]
@@ -286,13 +346,17 @@ def batched_loop(env: Any, policies: Sequence[Any], settings: EpisodeSettings, t
         steps = [0] * b
         active = [i < n for i in range(b)]
         while any(active):
+            need = [i for i in range(b) if active[i] and not pending[i]]
+            if need:  # one call for all envs whose chunk ran out (in step when chunks are of equal length)
+                chunks = as_chunks(policy.act_batch(obs_rows(observations.current(), need), need), len(need),
+                                   episodes.action_dim)
+                for i, chunk in zip(need, chunks):
+                    pending[i] = list(chunk)
             for i in range(b):
-                if active[i] and not pending[i]:
-                    pending[i] = list(as_chunk(policies[i].act(env_row(obs, i)), episodes.action_dim))
                 if active[i]:
                     last[i] = pending[i].pop(0)
             action = torch.as_tensor(last, device=base.device)
-            obs, _, terminated, truncated, info = env.step(action)
+            _, terminated, truncated, info = observations.step(action)
             _collect_frames(env, frames, active)
             for i in range(n):
                 if not active[i]:

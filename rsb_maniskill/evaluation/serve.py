@@ -17,8 +17,10 @@ import time
 import traceback
 from typing import Any
 
+import numpy as np
+
 from .openpi_preset import PRESETS, make_preset
-from .policy import as_chunk, load_policy
+from .policy import as_chunk, as_chunks, is_batched, load_policy
 from .remote import INSTALL_HINT, packb, unflatten_obs, unpackb
 
 logger = logging.getLogger(__name__)
@@ -31,7 +33,8 @@ class PolicyAdapter:
     into the nested obs. The policy is reset on a connection's first request, when the request
     carries ``episode_start`` (``RemotePolicy(mark_episode_start=True)``), or when the prompt changes.
     With a ``preset`` (``openpi_preset.OpenpiAloha``) the request is in openpi's Aloha layout instead,
-    and so is the reply.
+    and so is the reply. A batched request (the prompt a list, see ``remote.py``) goes to the
+    policy's batched form (``reset_batch`` / ``act_batch``), reset on the same rule.
     """
 
     def __init__(self, policy: Any, prompt_key: str = "prompt", obs_prefix: str = "observation",
@@ -44,14 +47,31 @@ class PolicyAdapter:
 
     def infer(self, request: dict) -> dict:
         request = dict(request)
-        prompt = str(request.pop(self.prompt_key, ""))
+        prompt = request.pop(self.prompt_key, "")
+        prompt = prompt if isinstance(prompt, list) else str(prompt)
         start = bool(request.pop("episode_start", False))
+        if isinstance(prompt, list):
+            if self.preset:
+                raise TypeError("the openpi-aloha preset takes one observation per request, not a batch")
+            return self._infer_batch(prompt, start, request)
         obs = self.preset.obs_from_request(request) if self.preset else unflatten_obs(request, self.obs_prefix)
         if start or prompt != self._prompt:
             self.policy.reset(prompt, obs)
             self._prompt = prompt
         chunk = as_chunk(self.policy.act(obs))
         return {"actions": self.preset.aloha_actions(chunk) if self.preset else chunk}
+
+    def _infer_batch(self, prompts: list, start: bool, request: dict) -> dict:
+        if not is_batched(self.policy):
+            raise TypeError(f"{type(self.policy).__name__} has no batched form (reset_batch / act_batch) for a "
+                            "batched request; serve a batched policy or use RemotePolicy(batch=False)")
+        envs = [int(e) for e in request.pop("env_ids", range(len(prompts)))]
+        obs = unflatten_obs(request, self.obs_prefix)
+        old = self._prompt if isinstance(self._prompt, list) else []
+        if start or any(e >= len(old) or old[e] != p for e, p in zip(envs, prompts)):
+            self.policy.reset_batch(prompts, obs)  # the first request of a wave holds every env
+            self._prompt = list(prompts)
+        return {"actions": np.stack(as_chunks(self.policy.act_batch(obs, envs), len(envs)))}
 
 
 def _health_check(connection: Any, request: Any) -> Any:
@@ -173,8 +193,8 @@ def main(argv: list[str] | None = None) -> int:
     built = f"{args.policy} built a {type(policy).__name__}"
     if args.preset and not has_act:
         p.error(f"{built}, which has no reset()/act(): --preset adapts requests and replies for those")
-    if not has_act and not callable(getattr(policy, "infer", None)):
-        p.error(f"{built}, which has neither infer() nor reset()/act()")
+    if not has_act and not is_batched(policy) and not callable(getattr(policy, "infer", None)):
+        p.error(f"{built}, which has neither infer() nor reset()/act() (nor reset_batch()/act_batch())")
     serve_policy(policy, args.host, args.port, preset=make_preset(args.preset) if args.preset else None)
     return 0
 

@@ -5,9 +5,12 @@ Heavy imports (simulator, planner) happen inside the commands so ``rsb --help`` 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from typing import Any
 
 from rsb_maniskill.motionplan.config import DEFAULT_EXPERT
+from rsb_maniskill.workers import add_executor_args, executor_from_args
 
 # The replay sub-parser must hand every argument, options included, to ManiSkill's own parser:
 # a prefix character no option uses makes argparse treat them all as positionals.
@@ -31,7 +34,8 @@ def register(subparsers) -> None:
     p.add_argument("--traj-name", default=None, help="file name stem (default: the split)")
     p.add_argument("-o", "--obs-mode", default="state", help="observations to record (default: state)")
     p.add_argument("--save-video", action="store_true", help="also write one mp4 per kept demo")
-    p.add_argument("--num-procs", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--num-procs", type=int, default=None,
+                   help="worker processes (default 1), or Ray tasks (default: the cluster's CPUs)")
     p.add_argument("--shard", default="0/1", metavar="I/N",
                    help="make shard I of N (disjoint seeds/questions); merge shards with `rsb merge`")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
@@ -44,6 +48,7 @@ def register(subparsers) -> None:
     p.add_argument("--expert", default=DEFAULT_EXPERT, help=argparse.SUPPRESS)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("-v", "--verbose", action="store_true", help="log each failed seed with its reason")
+    add_executor_args(p)
     p.set_defaults(func=run_generate)
 
     m = subparsers.add_parser("merge", help="merge trajectory files (parts, shards) into one",
@@ -64,20 +69,31 @@ def register(subparsers) -> None:
 
 
 def run_generate(args: argparse.Namespace) -> int:
+    try:
+        executor = executor_from_args(args.executor, args.address)
+    except (ValueError, ImportError) as err:
+        print(f"rsb generate: error: {err}", file=sys.stderr)
+        return 2
+    with executor or contextlib.nullcontext():
+        return _generate(args, executor)
+
+
+def _generate(args: argparse.Namespace, executor: Any) -> int:
     from rsb_maniskill.motionplan.dataset import DatasetError
     from rsb_maniskill.motionplan.generate import GenerateConfig, GenerateError, describe, generate
     from rsb_maniskill.motionplan.shards import parse_shard
 
     extra = {k: v for k, v in (("instructions", args.instructions), ("color_map", args.color_map),
                                ("data_dir", args.data_dir)) if v is not None}
+    num_procs = args.num_procs or (executor.workers() if executor is not None else 1)
     try:
         cfg = GenerateConfig(
             env_id=args.env_id, out=args.out, split=args.split, num=args.num, questions=args.questions,
             seed_start=args.seed_start, obs_mode=args.obs_mode, save_video=args.save_video,
-            num_procs=args.num_procs, shard=parse_shard(args.shard), overwrite=args.overwrite,
+            num_procs=num_procs, shard=parse_shard(args.shard), overwrite=args.overwrite,
             max_attempts=args.max_attempts, traj_name=args.traj_name, expert=args.expert,
             env_kwargs=extra, progress=not args.quiet, verbose=args.verbose)
-        summary = generate(cfg)
+        summary = generate(cfg, executor)
     except (GenerateError, DatasetError) as err:
         print(f"rsb generate: error: {err}", file=sys.stderr)
         return 2

@@ -9,9 +9,9 @@ The run, in the order it happens, and where each part lives:
 
 - the request (:mod:`.config`) is checked before any file is written;
 - the shard's seeds or questions are dealt to workers by arithmetic (:mod:`.shards`);
-- the workers (:mod:`.worker`) run in this process or in spawned ones
-  (:mod:`rsb_maniskill.workers`, the pool evaluation uses too), each into a part file under a
-  hidden temp name, reporting every episode to the progress bar here;
+- the workers (:mod:`.worker`) run in this process, in spawned ones, or as Ray tasks
+  (:mod:`rsb_maniskill.workers`, the executors evaluation uses too), each into a part file under
+  a hidden temp name, reporting every episode to the progress bar here;
 - the parts are merged (sorted by seed, or by question) into the final file, renamed into place,
   with an ``rsb`` block saying how it was made (:mod:`.summary`).
 
@@ -27,7 +27,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from rsb_maniskill.workers import InProcess, ProcessPool
+from rsb_maniskill.workers import Executor, InProcess, ProcessPool
 
 from . import dataset
 from .config import GenerateConfig, GenerateError, output_path
@@ -90,8 +90,11 @@ class _Progress:
         self.bar.close()
 
 
-def generate(cfg: GenerateConfig) -> GenerateSummary:
-    """Runs the whole job: validate, run workers, merge their parts into the final file."""
+def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateSummary:
+    """Runs the whole job: validate, run workers, merge their parts into the final file.
+
+    ``executor`` runs the workers (e.g. a :class:`~rsb_maniskill.workers.RayExecutor`, whose
+    machines must see ``cfg.out``); default: this process for one worker, else a process pool."""
     t0 = time.perf_counter()
     pool_size = _validate(cfg)
     final = output_path(cfg)
@@ -112,7 +115,7 @@ def generate(cfg: GenerateConfig) -> GenerateSummary:
     parts = {p.worker: dataset.temp_h5_path(final, f".part{p.worker}") for p in plans}
     path = None
     try:
-        summaries = _run_workers(cfg, plans, parts, video_dir, requested)
+        summaries = _run_workers(cfg, plans, parts, video_dir, requested, executor)
         header = rsb_header(cfg, pool_size, len(plans), requested, summaries)
         errors = [s["error"] for s in summaries if s["error"]]
         completed = sum(s["kept"] for s in summaries)
@@ -142,7 +145,7 @@ def run_plan(task: tuple[GenerateConfig, WorkPlan, str, str | None], emit: Any) 
 
 
 def _run_workers(cfg: GenerateConfig, plans: list[WorkPlan], parts: dict[int, Path], video_dir: Path | None,
-                 requested: int) -> list[dict]:
+                 requested: int, executor: Executor | None = None) -> list[dict]:
     """Runs the workers (in this process when there is one) behind a progress bar; their summaries."""
     from .worker import worker_summary
 
@@ -150,7 +153,8 @@ def _run_workers(cfg: GenerateConfig, plans: list[WorkPlan], parts: dict[int, Pa
     tasks = [(cfg, p, str(parts[p.worker]), str(video_dir) if video_dir else None) for p in plans]
     try:
         try:
-            outcome = (InProcess() if len(plans) == 1 else ProcessPool()).run(run_plan, tasks, progress)
+            chosen = executor or (InProcess() if len(plans) == 1 else ProcessPool())
+            outcome = chosen.run(run_plan, tasks, progress)
         except Exception as err:  # in this process: a worker that could not start
             k = plans[0].worker
             return [worker_summary(k, parts[k], error=f"{err!r}\n{traceback.format_exc()}")]

@@ -156,3 +156,29 @@ def test_picking_the_wrong_object_is_a_wrong_grasp():
     assert info["grasped_wrong"].item() and info["first_grasped"].item() == wrong
     assert info["placed_wrong"].item() and info["fail"].item()
     env.close()
+
+
+def test_parked_objects_sleep_out_of_sight_and_out_of_contact():
+    """CPU: pool members not in play hang asleep and hidden under the table, whatever the robot
+    does and across resets, so they cost no simulation, contacts or rendering."""
+    import gymnasium as gym
+    import sapien
+
+    env = gym.make("RSB-Math-10-Objects", obs_mode="state", render_backend="none")
+    u = env.unwrapped
+    for seed in (0, 1):
+        env.reset(seed=seed)
+        for _ in range(20):
+            env.step(u.agent.rest_action()[None] + 0.05)
+        parked = [k for k in range(len(u.pool.keys)) if k not in u.pool.index[0].tolist()]
+        assert len(parked) == len(u.pool.keys) - 10
+        assert all(u.pool.actors[k]._bodies[0].is_sleeping for k in parked)
+        assert all(float(u.pool.actors[k].pose.p[0, 2]) < -0.2 for k in parked), "under the table top"
+        parked_bodies = {u.pool.actors[k]._bodies[0].entity for k in parked}
+        touching = [c for c in u.scene.px.get_contacts() if {b.entity for b in c.bodies} & parked_bodies]
+        assert not touching
+        for k in parked:
+            for obj in u.pool.actors[k]._objs:
+                body = obj.find_component_by_type(sapien.render.RenderBodyComponent)
+                assert body is None or body.visibility == 0
+    env.close()

@@ -39,6 +39,7 @@ class CandidatePool:
         self._park: torch.Tensor | None = None
         self._on_table = torch.zeros(num_envs, len(self.keys), dtype=torch.bool, device=device)
         self._cpu = True
+        self._rest_again: list[int] = []
 
     @property
     def parks(self) -> bool:
@@ -106,6 +107,8 @@ class CandidatePool:
             actor.set_linear_velocity(zeros)
             actor.set_angular_velocity(zeros)
             self._set_visible(k, bool(on_table[0, k]))
+        if self._cpu:  # their lost table contacts wake them in the first step: park them again then
+            self._rest_again = torch.nonzero(was[0] & ~on_table[0]).flatten().tolist()
         self._on_table[env_idx] = on_table
         self.sleep_parked()
 
@@ -114,6 +117,20 @@ class CandidatePool:
         if self._cpu:
             for k in torch.nonzero(~self._on_table[0]).flatten().tolist():
                 self.actors[k]._bodies[0].put_to_sleep()
+
+    def after_step(self) -> None:
+        """CPU, once after a reset: members just taken off the table were woken by the contacts
+        they lost; put them back on their park spot, asleep."""
+        if not self._rest_again:
+            return
+        zeros = torch.zeros((1, 3), device=self.device)
+        for k in self._rest_again:
+            actor = self.actors[k]
+            actor.set_pose(Pose.create_from_pq(self._park[k][None], torch.tensor([[1.0, 0.0, 0.0, 0.0]])))
+            actor.set_linear_velocity(zeros)
+            actor.set_angular_velocity(zeros)
+            actor._bodies[0].put_to_sleep()
+        self._rest_again = []
 
     # ------------------------------------------------------------------ per-candidate views
     def rest_z(self) -> torch.Tensor:

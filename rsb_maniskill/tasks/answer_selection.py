@@ -28,14 +28,16 @@ from rsb_maniskill.semantic import EpisodeSampler, EpisodeSpec, parse_suite_id
 from rsb_maniskill.tasks import layout
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.contacts import PairContacts
-from rsb_maniskill.tasks.scene import FLOOR_Z, TableSceneBuilder, human_camera_config
+from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
 from rsb_maniskill.tasks.tabletop import CONTROL_FREQ, SIM_FREQ
 
 # Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0); cells: tasks/layout.py.
-# Parked pool members: under the part of the table top that hides the floor from every camera
-# (the human camera looks under the far and right edges), 13 x 6.5 cm apart.
-PARK_X, PARK_Y = (0.0, 0.39), (-0.45, 0.65)
-PARK_Z = FLOOR_Z / 2  # CPU: asleep in mid-air; GPU: they drop to the floor
+# Parked pool members: one layout cell apart (no two touch, so they stay asleep), in layers
+# under the part of the table top that hides the floor from every camera (the human camera
+# looks under the far and right edges), clear of the robot's base.
+PARK_PITCH = (0.12, 0.105)
+PARK_X, PARK_Y = (0.15, 0.39), (-0.45, 0.65)
+PARK_LAYERS_Z = (-0.25, -0.42, -0.59)  # CPU: asleep and hidden in mid-air; GPU: they drop to the floor
 ZONE_XY = (0.17, 0.0)  # on the midline: both arms reach it
 ZONE_HALF = 0.05
 ZONE_COLOR = (0.50, 0.50, 0.52, 1.0)
@@ -189,6 +191,7 @@ class AnswerSelectionEnv(RSBEnv):
     # ------------------------------------------------------------------ evaluation
     def _after_control_step(self):
         self._grasp_update_pending = True  # grasp state advances once per control step
+        self.pool.after_step()
         self._block_pose_cache = self._tcp_cache = None
 
     def _block_poses(self) -> torch.Tensor:
@@ -324,11 +327,12 @@ class AnswerSelectionEnv(RSBEnv):
 def _park_positions(count: int) -> np.ndarray:
     """(count, 3) spots under the table for pool members not in play: out of the arms' reach,
     and the table top hides them from the cameras."""
-    rows = 4
-    cols = int(np.ceil(count / rows))
-    xs = np.linspace(*PARK_X, rows)
-    ys = np.linspace(*PARK_Y, cols)
-    spots = [(x, y, PARK_Z) for x in xs for y in ys][:count]
+    xs = np.arange(PARK_X[0], PARK_X[1] + 1e-6, PARK_PITCH[0])
+    ys = np.arange(PARK_Y[0], PARK_Y[1] + 1e-6, PARK_PITCH[1])
+    spots = [(x, y, z) for z in PARK_LAYERS_Z for x in xs for y in ys]
+    if count > len(spots):
+        raise ValueError(f"{count} pool members but only {len(spots)} park spots: add a layer")
+    spots = spots[:count]
     return np.asarray(spots, dtype=np.float32)
 
 

@@ -32,6 +32,7 @@ class ModelConfig:
     image_size: int = 64  # rgb: square side the images are resized to
     image_feat: int = 128
     num_train_steps: int = 100  # DDPM steps
+    prediction: str = "epsilon"  # what the U-Net predicts: the noise (ManiSkill) or the clean chunk ("sample")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -157,11 +158,11 @@ class DiffusionPolicyNet(nn.Module):
 
 def make_scheduler(cfg: ModelConfig, kind: str = "ddpm"):
     """DDPM for training (and slow sampling) or DDIM (few-step sampling) from ``diffusers``,
-    with ManiSkill's settings: squared-cosine betas, clipped samples, epsilon prediction."""
+    with ManiSkill's settings: squared-cosine betas, clipped samples (and its epsilon prediction by default)."""
     from diffusers import DDIMScheduler, DDPMScheduler
 
     kwargs = dict(num_train_timesteps=cfg.num_train_steps, beta_schedule="squaredcos_cap_v2", clip_sample=True,
-                  prediction_type="epsilon")
+                  prediction_type=cfg.prediction)
     if kind == "ddpm":
         return DDPMScheduler(**kwargs)
     if kind == "ddim":

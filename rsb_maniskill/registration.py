@@ -35,16 +35,6 @@ ENVS: dict[str, tuple[int, dict[str, Any]]] = {
 }
 
 
-def env_suite(env_id: str) -> tuple[str, str]:
-    """``"RSB-Math-4-Objects"`` -> ``("RSB-Math-4", "objects")``; ValueError names the valid ids."""
-    eid = env_id.split(":", 1)[-1]
-    kwargs = ENVS.get(eid, (0, {}))[1]
-    if "suite_id" not in kwargs:
-        raise ValueError(f"unknown RSB task id {env_id!r}; valid: {', '.join(SUITE_IDS)} "
-                         f"and the same with {OBJECTS_SUFFIX!r} (e.g. {OBJECT_ENV_IDS[0]})")
-    return kwargs["suite_id"], kwargs.get("targets", "blocks")
-
-
 def qualified_id(env_id: str) -> str:
     """``"RSB-Math-4"`` -> ``"rsb_maniskill:RSB-Math-4"`` (unchanged if already qualified)."""
     return env_id if ":" in env_id else f"{MODULE}:{env_id}"

@@ -34,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _suite_ids(names: list[str]) -> list[tuple[str, str]]:
     """(suite id, targets) pairs named by ids and groups."""
     from rsb_maniskill.evaluation.metrics import PAPER_SUITES
-    from rsb_maniskill.registration import OBJECTS_SUFFIX, env_suite
+    from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
     from rsb_maniskill.semantic.suites import SUITE_IDS
 
     groups = {"all": SUITE_IDS, "paper": PAPER_SUITES}
@@ -44,11 +44,10 @@ def _suite_ids(names: list[str]) -> list[tuple[str, str]]:
         if base in groups:
             out += [(sid, "objects" if objects else "blocks") for sid in groups[base]]
             continue
-        try:
-            out.append(env_suite(name))
-        except ValueError:
+        if split_env_id(name)[0] not in SUITE_IDS:
             raise ValueError(f"unknown suite {name!r}; valid: {', '.join(SUITE_IDS)}, the same with "
-                             f"{OBJECTS_SUFFIX!r}, paper, all, paper-objects, all-objects") from None
+                             f"{OBJECTS_SUFFIX!r}, paper, all, paper-objects, all-objects")
+        out.append(split_env_id(name))
     return list(dict.fromkeys(out))
 
 

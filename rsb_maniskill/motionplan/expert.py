@@ -151,7 +151,6 @@ class ScriptedExpert:
         grasp_z = float(options[0][0][2])  # every grasp frame of a candidate shares its height
         above = grasp_z + max(PREGRASP_DZ, self.tallest + PREGRASP_CLEARANCE - grasp_z)
         carry_z = self.tallest + CARRY_CLEARANCE + grasp_z  # the bottom clears every candidate
-        self._lowest_carry = self.tallest + MIN_CARRY_CLEARANCE + grasp_z
 
         # approach: the grasp with the least wrist turn first whose descent and lift are also
         # reachable; screw, IK + joint move, RRT in that order of preference over all grasps
@@ -188,7 +187,7 @@ class ScriptedExpert:
 
         self.stage = "lift"
         path = None
-        for z in np.linspace(carry_z, self._lowest_carry, 4):
+        for z in self._carry_heights(carry_z, grasp_z):
             path = self.planner.move_to(pose7([*bxy, z], quat), allow_rrt=False)
             if path is not None:
                 carry_z = float(z)
@@ -294,6 +293,10 @@ class ScriptedExpert:
         self.action = chunk[-1].copy()
         return chunk
 
+    def _carry_heights(self, carry_z: float, grasp_z: float) -> np.ndarray:
+        """TCP heights to try for the carry, from ``carry_z`` down to the least clearance."""
+        return np.linspace(carry_z, self.tallest + MIN_CARRY_CLEARANCE + grasp_z, 4)
+
     def _lift_height(self, approach: np.ndarray, grasp: np.ndarray, carry_z: float) -> float | None:
         """The highest carry height (``carry_z`` or lower, never below a 1.5 cm clearance) the
         arm can lift to straight up from ``grasp``, planned from the end of ``approach``;
@@ -304,7 +307,7 @@ class ScriptedExpert:
         if down is None:
             return None
         q[self.planner.index] = down[-1]
-        for z in np.linspace(carry_z, self._lowest_carry, 4):
+        for z in self._carry_heights(carry_z, float(grasp[2])):
             if self.planner.screw(np.concatenate([grasp[:2], [z], grasp[3:]]), q) is not None:
                 return float(z)
         return None

@@ -6,8 +6,9 @@ its long side along x. Grasp frames say where the tool centre point (TCP) goes, 
 frame, and along which horizontal direction the fingers close; the expert may also close along
 the opposite direction (the gripper is symmetric).
 
-Sizes are toy-sized on purpose: every object fits a 11 x 9.5 cm cell of the layout, stands
-at most 7.5 cm tall and is at most 6.5 cm wide where it is grasped, and rises at most 3 cm above the TCP (the Aloha gripper opens 9.5 cm).
+Sizes are toy-sized on purpose: every object fits the 11.2 x 9.7 cm inside a layout cell, stands
+at most 7.5 cm tall and is at most 6.5 cm wide where it is grasped, and rises at most 3 cm
+above the TCP (the Aloha gripper opens 9.5 cm).
 """
 from __future__ import annotations
 
@@ -316,10 +317,11 @@ def _die(s, c, k):
 
 def _stapler(s, c, k):
     L, W = 0.084 * s, 0.028 * s
+    back = (0.028 + 0.004 * k) * s  # height of the arm's hinge end
     parts = [_box(L / 2, W / 2, 0.005 * s, rgb=BLACK),
              _hull(np.array([[-L / 2, -W / 2 * 0.9, 0.010 * s], [-L / 2, W / 2 * 0.9, 0.010 * s],
                              [L / 2 * 0.95, -W / 2 * 0.9, 0.014 * s], [L / 2 * 0.95, W / 2 * 0.9, 0.014 * s],
-                             [-L / 2, -W / 2 * 0.9, (0.028 + 0.004 * k) * s], [-L / 2, W / 2 * 0.9, (0.028 + 0.004 * k) * s],
+                             [-L / 2, -W / 2 * 0.9, back], [-L / 2, W / 2 * 0.9, back],
                              [L / 2 * 0.95, -W / 2 * 0.9, 0.030 * s], [L / 2 * 0.95, W / 2 * 0.9, 0.030 * s]]), c),
              _box(0.006 * s, W / 2 * 0.6, 0.0025 * s, x=-L / 2 + 0.006 * s, z=0.0075 * s, rgb=SILVER)]
     return parts, (_grasp_across(W, 0.030 * s),)

@@ -124,9 +124,10 @@ class CandidatePool:
         if not self._rest_again:
             return
         zeros = torch.zeros((1, 3), device=self.device)
+        upright = torch.tensor([[1.0, 0.0, 0.0, 0.0]], device=self.device)
         for k in self._rest_again:
             actor = self.actors[k]
-            actor.set_pose(Pose.create_from_pq(self._park[k][None], torch.tensor([[1.0, 0.0, 0.0, 0.0]])))
+            actor.set_pose(Pose.create_from_pq(self._park[k][None], upright))
             actor.set_linear_velocity(zeros)
             actor.set_angular_velocity(zeros)
             actor._bodies[0].put_to_sleep()

@@ -66,6 +66,11 @@ def test_obs_modes(suite_id, obs_mode):
     if obs_mode == "state_dict":
         assert obs["extra"]["block_pose"].shape == (1, 7 * n)
         assert obs["extra"]["block_id"].tolist() == [list(range(n))]
+        u = env.unwrapped
+        blocks = u._block_positions()[0]
+        left = u.agent.tcp_pose("left").raw_pose[0, :3]
+        torch.testing.assert_close(obs["extra"]["tcp_to_block_pos"].view(2, n, 3)[0], blocks - left)
+        torch.testing.assert_close(obs["extra"]["block_to_zone_pos"].view(n, 3), u.zone.pose.p[0] - blocks)
         assert "qpos" in obs["agent"]
     if obs_mode in ("rgb", "rgbd"):
         cams = obs["sensor_data"]

@@ -263,8 +263,14 @@ class AnswerSelectionEnv(RSBEnv):
         obs = {f"{a}_tcp_pose": pose for a, pose in zip(self.agent.arms, self._tcp_raw_poses())}
         obs["zone_pos"] = self.zone.pose.p
         if "state" in self.obs_mode:
-            obs["block_pose"] = self._block_poses().flatten(1)  # (B, 7N)
+            poses = self._block_poses()
+            obs["block_pose"] = poses.flatten(1)  # (B, 7N)
             obs["block_id"] = self.pool.index.clone()  # which block / object model each candidate is
+            # Relative positions, as ManiSkill's PickCube gives tcp_to_obj_pos: what a reach or a
+            # placement must close, without learning the arms' kinematics from world coordinates.
+            tcp = torch.stack([p[:, :3] for p in self._tcp_raw_poses()], 1)  # (B, arms, 3)
+            obs["tcp_to_block_pos"] = (poses[:, None, :, :3] - tcp[:, :, None]).flatten(1)  # (B, arms * 3N)
+            obs["block_to_zone_pos"] = (self.zone.pose.p[:, None] - poses[..., :3]).flatten(1)  # (B, 3N)
         return obs
 
     def compute_dense_reward(self, obs, action, info: dict):

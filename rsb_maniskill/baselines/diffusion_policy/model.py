@@ -1,6 +1,10 @@
 """The noise-prediction network: a 1-D conditional U-Net over action chunks (Chi et al., the
 shape of ManiSkill's ``examples/baselines/diffusion_policy``), FiLM-conditioned on one global
 vector = diffusion-step embedding + observation features + (optionally) the instruction embedding.
+
+The instruction also FiLM-gates the observation encoder's hidden layer (as RT-1 gates its image
+encoder): choosing the named block means taking *its* pose out of the state, a product of text and
+observation that the U-Net's FiLM layers (linear in the conditioning) can only form indirectly.
 """
 from __future__ import annotations
 
@@ -24,6 +28,7 @@ class ModelConfig:
     language: bool = True
     text_dim: int = 384  # all-MiniLM-L6-v2
     text_feat: int = 64  # the instruction's share of the global conditioning
+    obs_feat: int = 256  # hidden width and output of the observation encoder
     unet_dims: list[int] = field(default_factory=lambda: [64, 128, 256])
     step_embed_dim: int = 64
     n_groups: int = 8
@@ -122,6 +127,28 @@ class ImageEncoder(nn.Module):
         return self.net(images)
 
 
+class ObsEncoder(nn.Module):
+    """Observation history -> features through one hidden layer that the instruction (if any) scales
+    and shifts per unit; the gate starts at identity."""
+
+    def __init__(self, in_dim: int, width: int, text_dim: int | None):
+        super().__init__()
+        self.inp = nn.Sequential(nn.Linear(in_dim, width), nn.Mish())
+        self.out = nn.Sequential(nn.Linear(width, width), nn.Mish(), nn.Linear(width, width))
+        self.gate = None
+        if text_dim:
+            self.gate = nn.Sequential(nn.Linear(text_dim, width), nn.Mish(), nn.Linear(width, 2 * width))
+            nn.init.zeros_(self.gate[-1].weight)
+            nn.init.zeros_(self.gate[-1].bias)
+
+    def forward(self, obs: torch.Tensor, text: torch.Tensor | None) -> torch.Tensor:
+        h = self.inp(obs)
+        if self.gate is not None:
+            scale, bias = self.gate(text).chunk(2, dim=-1)
+            h = h * (1 + scale) + bias
+        return self.out(h)
+
+
 class DiffusionPolicyNet(nn.Module):
     """Observation (+ instruction) encoders and the U-Net; the diffusion schedule lives outside."""
 
@@ -132,7 +159,8 @@ class DiffusionPolicyNet(nn.Module):
         if cfg.obs_mode == "rgb":
             self.image_encoder = ImageEncoder(3 * cfg.num_cameras, cfg.image_feat)
             per_step += cfg.image_feat
-        cond = cfg.obs_horizon * per_step
+        cond = cfg.obs_horizon * per_step + cfg.obs_feat
+        self.obs_encoder = ObsEncoder(cfg.obs_horizon * per_step, cfg.obs_feat, cfg.text_dim if cfg.language else None)
         if cfg.language:
             self.text_proj = nn.Sequential(nn.Linear(cfg.text_dim, 128), nn.Mish(), nn.Linear(128, cfg.text_feat))
             cond += cfg.text_feat
@@ -147,10 +175,11 @@ class DiffusionPolicyNet(nn.Module):
         if self.cfg.obs_mode == "rgb":
             b, h = images.shape[:2]
             feats.append(self.image_encoder(images.flatten(0, 1)).view(b, h, -1))
-        cond = torch.cat(feats, dim=-1).flatten(1)
+        flat = torch.cat(feats, dim=-1).flatten(1)
+        parts = [flat, self.obs_encoder(flat, text if self.cfg.language else None)]
         if self.cfg.language:
-            cond = torch.cat([cond, self.text_proj(text)], dim=-1)
-        return cond
+            parts.append(self.text_proj(text))
+        return torch.cat(parts, dim=-1)
 
     def forward(self, noisy: torch.Tensor, t: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
         return self.unet(noisy, t, cond)

@@ -130,6 +130,8 @@ def test_policy_executes_chunks_with_consecutive_history(demos, tmp_path):
     assert [h[0][0] for h in policy.history] == [ep.obs[7][0], ep.obs[8][0]]
     with pytest.raises(ValueError, match="-o state"):
         policy.act({"sensor_data": {}})
+    with pytest.raises(ValueError, match=f"trained on {ep.obs.shape[1]}-d state observations, the env gives 81"):
+        policy.act(ep.obs[9][:81])  # a state vector of another size (e.g. recorded by an older version)
 
 
 def test_resume_restores_optimizer_step_and_rng(demos, tmp_path):

@@ -60,7 +60,12 @@ class DiffusionPolicy:
         if self.cfg.obs_mode == "state":
             if isinstance(obs, dict):
                 raise ValueError("this checkpoint is a state policy: run `rsb eval ... -o state`")
-            return np.asarray(obs, dtype=np.float32).reshape(-1), None
+            vec = np.asarray(obs, dtype=np.float32).reshape(-1)
+            if vec.shape[0] != self.cfg.obs_dim:
+                raise ValueError(f"this checkpoint was trained on {self.cfg.obs_dim}-d state observations, the env "
+                                 f"gives {vec.shape[0]}: evaluate on the suite it was trained on, or retrain on demos "
+                                 "recorded with this version")
+            return vec, None
         if not isinstance(obs, dict) or "sensor_data" not in obs:
             raise ValueError("this checkpoint is an rgb policy: run `rsb eval ... -o rgb`")
         return proprio_vector(obs), camera_stack(obs, self.cameras, self.cfg.image_size)

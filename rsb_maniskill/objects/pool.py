@@ -95,7 +95,6 @@ class CandidatePool:
         on_table = torch.zeros(b, len(self.keys), dtype=torch.bool, device=self.device)
         on_table.scatter_(1, idx, True)
         was = self._on_table[env_idx]
-        zeros = torch.zeros((b, 3), device=self.device)
         for k, actor in enumerate(self.actors):
             if not (on_table[:, k] | was[:, k]).any():
                 continue
@@ -103,9 +102,7 @@ class CandidatePool:
             q = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device).expand(b, 4).clone()
             rows, cols = torch.nonzero(idx == k, as_tuple=True)
             p[rows], q[rows] = xyz[rows, cols], quat[rows, cols]
-            actor.set_pose(Pose.create_from_pq(p, q))
-            actor.set_linear_velocity(zeros)
-            actor.set_angular_velocity(zeros)
+            _set_still(actor, p, q)
             self._set_visible(k, bool(on_table[0, k]))
         if self._cpu:  # their lost table contacts wake them in the first step: park them again then
             self._rest_again = torch.nonzero(was[0] & ~on_table[0]).flatten().tolist()
@@ -123,14 +120,10 @@ class CandidatePool:
         they lost; put them back on their park spot, asleep."""
         if not self._rest_again:
             return
-        zeros = torch.zeros((1, 3), device=self.device)
         upright = torch.tensor([[1.0, 0.0, 0.0, 0.0]], device=self.device)
         for k in self._rest_again:
-            actor = self.actors[k]
-            actor.set_pose(Pose.create_from_pq(self._park[k][None], upright))
-            actor.set_linear_velocity(zeros)
-            actor.set_angular_velocity(zeros)
-            actor._bodies[0].put_to_sleep()
+            _set_still(self.actors[k], self._park[k][None], upright)
+            self.actors[k]._bodies[0].put_to_sleep()
         self._rest_again = []
 
     # ------------------------------------------------------------------ per-candidate views
@@ -172,3 +165,11 @@ class CandidatePool:
 
     def shape(self, candidate: int, env: int = 0) -> Shape:
         return self.shapes[int(self.index[env, candidate])]
+
+
+def _set_still(actor, p: torch.Tensor, q: torch.Tensor) -> None:
+    """Puts ``actor`` at (b, 3) positions ``p`` / (b, 4) quaternions ``q``, at rest."""
+    actor.set_pose(Pose.create_from_pq(p, q))
+    zeros = torch.zeros((len(p), 3), device=p.device)
+    actor.set_linear_velocity(zeros)
+    actor.set_angular_velocity(zeros)

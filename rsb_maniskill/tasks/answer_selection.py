@@ -215,6 +215,10 @@ class AnswerSelectionEnv(RSBEnv):
     def _block_positions(self) -> torch.Tensor:
         return self._block_poses()[..., :3]
 
+    def _tcp_positions(self) -> torch.Tensor:
+        """(B, arms, 3) TCP positions."""
+        return torch.stack([pose[:, :3] for pose in self._tcp_raw_poses()], 1)
+
     def _update_grasps(self, forces: torch.Tensor, pos: torch.Tensor):
         touch = (forces >= CONTACT_FORCE).view(self.num_envs, len(self.agent.arms), 2, self.n_choices).any(2)
         closed = self.agent.grippers_closed()  # (B, 2)
@@ -268,14 +272,14 @@ class AnswerSelectionEnv(RSBEnv):
             obs["block_id"] = self.pool.index.clone()  # which block / object model each candidate is
             # Relative positions, as ManiSkill's PickCube gives tcp_to_obj_pos: what a reach or a
             # placement must close, without learning the arms' kinematics from world coordinates.
-            tcp = torch.stack([p[:, :3] for p in self._tcp_raw_poses()], 1)  # (B, arms, 3)
+            tcp = self._tcp_positions()
             obs["tcp_to_block_pos"] = (poses[:, None, :, :3] - tcp[:, :, None]).flatten(1)  # (B, arms * 3N)
             obs["block_to_zone_pos"] = (self.zone.pose.p[:, None] - poses[..., :3]).flatten(1)  # (B, 3N)
         return obs
 
     def compute_dense_reward(self, obs, action, info: dict):
         target_pos = self._block_positions()[torch.arange(self.num_envs, device=self.device), self.target_block]
-        tcp = torch.stack([obs_pose[:, :3] for obs_pose in self._tcp_raw_poses()], 1)  # (B, 2, 3)
+        tcp = self._tcp_positions()
         reach = torch.linalg.norm(tcp - target_pos[:, None], dim=-1).min(1)[0]
         to_zone = torch.linalg.norm(target_pos[:, :2] - self.zone_xy, dim=1)
         holding = info["holding_target"].float()

@@ -99,6 +99,38 @@ def test_demo_windows_carry_instruction_and_actions(demos):
         load_demos([demos], obs="depth")
 
 
+def test_training_draws_each_windows_wording_from_its_own_episode(demos, tmp_path):
+    """The demos' instructions come with their paraphrases (20 training templates, recorded first); a
+    batch takes a random one of the window's own episode (the recorded one without a generator); an
+    entry the templates cannot reproduce trains on its recorded wording, with a warning."""
+    from rsb_maniskill.baselines.diffusion_policy.data import Normalizer, WindowSampler
+    from rsb_maniskill.semantic.templates import SEEN_DIRECT
+
+    ds = load_demos([demos])
+    for e in ds.episodes:
+        assert e.paraphrases[0] == e.instruction and len(set(e.paraphrases)) == len(SEEN_DIRECT)
+    # fake embeddings that say whose they are: 100 * episode + wording
+    emb = [np.full((len(e.paraphrases), 384), 100.0 * i) + np.arange(len(e.paraphrases))[:, None]
+           for i, e in enumerate(ds.episodes)]
+    windows = WindowSampler(ds, Normalizer.fit(ds.episodes), emb, 2, 16)
+    idx = torch.arange(len(windows))
+    ep = windows.ep_idx[idx].float()
+    assert torch.equal(windows.batch(idx)["text"][:, 0], 100 * ep)  # recorded wording
+    drawn = windows.batch(idx, torch.Generator().manual_seed(0))["text"][:, 0]
+    assert torch.equal(torch.div(drawn, 100, rounding_mode="floor"), ep)  # always its own episode's
+    assert len(set((drawn % 100).tolist())) > 15  # and many of its wordings
+
+    meta = json.loads(demos.with_suffix(".json").read_text())
+    meta["episodes"][1]["instruction"] += " Quickly."  # no template renders this
+    copy = tmp_path / demos.name
+    copy.write_bytes(demos.read_bytes())
+    copy.with_suffix(".json").write_text(json.dumps(meta))
+    with pytest.warns(UserWarning, match="recorded wording only"):
+        changed = load_demos([copy])
+    assert changed.episodes[1].paraphrases == (meta["episodes"][1]["instruction"],)
+    assert changed.episodes[0].paraphrases == ds.episodes[0].paraphrases
+
+
 def test_tiny_run_checkpoint_runs_in_rsb_eval(demos, tmp_path):
     from rsb_maniskill.cli import main as rsb_main
 
@@ -135,12 +167,13 @@ def test_policy_executes_chunks_with_consecutive_history(demos, tmp_path):
 
 
 def test_resume_restores_optimizer_step_and_rng(demos, tmp_path):
-    """Interrupted after 3 of 6 iterations and rerun: the same weights, optimizer and step as one go."""
-    whole = checkpoint.load(_train(demos, tmp_path / "whole", "--total-iters", "6", "--no-language"))
-    _train(demos, tmp_path / "split", "--total-iters", "6", "--no-language", "--stop-after", "3")
+    """Interrupted after 3 of 6 iterations and rerun: the same weights, optimizer and step as one go
+    (with language, so the wordings drawn after the restart are those of one go, too)."""
+    whole = checkpoint.load(_train(demos, tmp_path / "whole", "--total-iters", "6"))
+    _train(demos, tmp_path / "split", "--total-iters", "6", "--stop-after", "3")
     half = checkpoint.load(tmp_path / "split")
     assert half["step"] == 3
-    resumed = checkpoint.load(_train(demos, tmp_path / "split", "--total-iters", "6", "--no-language"))
+    resumed = checkpoint.load(_train(demos, tmp_path / "split", "--total-iters", "6"))
     assert resumed["step"] == 6
     assert resumed["lr_scheduler"]["last_epoch"] == whole["lr_scheduler"]["last_epoch"] == 6
     for name, w in whole["model"].items():
@@ -152,7 +185,9 @@ def test_resume_restores_optimizer_step_and_rng(demos, tmp_path):
     for k in opt_w:
         assert torch.equal(opt_w[k]["exp_avg"], opt_r[k]["exp_avg"]) and torch.equal(opt_w[k]["step"], opt_r[k]["step"])
     with pytest.raises(SystemExit, match="--lr"):
-        _train(demos, tmp_path / "split", "--total-iters", "8", "--no-language", "--lr", "0.01")
+        _train(demos, tmp_path / "split", "--total-iters", "8", "--lr", "0.01")
+    with pytest.raises(SystemExit, match="--no-paraphrase"):
+        _train(demos, tmp_path / "split", "--total-iters", "8", "--no-paraphrase")
 
 
 def test_overfit_one_demo_reproduces_first_chunk(demos, tmp_path):

@@ -108,3 +108,33 @@ def test_instruction_lists_each_option_with_its_block():
             block = spec.block_names[spec.block_of_option[i]]
             entry = T.get_template(4, spec.template_id).entry.format(L=spec.letters[i], O=opt, B=block)
             assert entry.rstrip(",;.") in spec.instruction
+
+
+@pytest.mark.parametrize("suite_id, targets", [("RSB-Direct-4", "blocks"), ("RSB-Direct-10", "blocks"),
+                                               ("RSB-Math-4", "blocks"), ("RSB-General-10", "blocks"),
+                                               ("RSB-Math-4", "objects"), ("RSB-Direct-4", "objects")])
+@pytest.mark.parametrize("split", ["train", "test"])
+def test_paraphrases_reword_within_the_episodes_template_set(suite_id, targets, split):
+    """Every template of the episode's own set, the recorded wording first, the same question, options,
+    bindings (and target, Direct) in each; never a wording of the other set."""
+    from rsb_maniskill.semantic.paraphrase import paraphrases
+
+    s = EpisodeSampler(suite_id, split, color_map="shuffle", data_dir=FIXTURES, targets=targets)
+    other = EpisodeSampler(suite_id, "test" if split == "train" else "train", data_dir=FIXTURES, targets=targets)
+    other_wordings = {other.sample(seed).instruction for seed in range(300)}
+    for seed in range(12):
+        spec = s.sample(seed)
+        texts = paraphrases(spec)
+        assert texts[0] == spec.instruction
+        assert len(texts) == len(set(texts)) == len(s._templates)
+        for t in texts:
+            if spec.suite == "Direct":
+                assert spec.block_names[spec.target_block] in t
+            else:
+                assert spec.question in t and all(o in t for o in spec.options)
+                assert all(b in t for b in spec.block_names) or spec.n_choices == 10  # lettered: letters only
+        assert not set(texts) & other_wordings
+    # a spec whose template no longer renders its recorded instruction is refused, not reworded
+    bad = spec.__class__(**{**spec.__dict__, "instruction": spec.instruction + " Now."})
+    with pytest.raises(ValueError, match="not the recorded"):
+        paraphrases(bad)

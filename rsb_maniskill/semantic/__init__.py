@@ -21,11 +21,12 @@ from .suites import (
     parse_suite_id,
 )
 from .templates import render_instruction
+from .paraphrase import paraphrases
 from .pools import clear_cache, get_pool
 
 __all__ = [
     "COLOR_MAPS", "DataNotFoundError", "EpisodeSampler", "EpisodeSpec", "INSTRUCTION_SETS",
     "LETTERS_4", "LETTERS_10", "SPLITS", "SUITE_IDS", "SUITE_SOURCES", "SUITES", "SemanticDataError",
-    "SemanticError", "clear_cache", "get_pool", "letters_for", "parse_suite_id",
+    "SemanticError", "clear_cache", "get_pool", "letters_for", "paraphrases", "parse_suite_id",
     "render_instruction",
 ]

@@ -158,6 +158,14 @@ def template_ids(n_choices: int, instructions: str, direct: bool = False, letter
     raise ValueError(f"unknown instruction set {instructions!r}; valid: seen, unseen")
 
 
+def sibling_template_ids(n_choices: int, template_id: int, direct: bool = False,
+                         lettered: bool | None = None) -> range:
+    """Ids of the instruction set (seen or unseen) that ``template_id`` belongs to: rewording an
+    episode with these never crosses from the training wording into the held-out one."""
+    seen, _ = template_family(n_choices, direct, lettered)
+    return template_ids(n_choices, "seen" if template_id < len(seen) else "unseen", direct, lettered)
+
+
 def get_template(n_choices: int, template_id: int, direct: bool = False, lettered: bool | None = None) -> Template:
     seen, unseen = template_family(n_choices, direct, lettered)
     allt = seen + unseen

@@ -3,10 +3,15 @@
 
 Actions are the recorded controller targets (``pd_joint_pos`` by default, or a file converted
 with ManiSkill's replay tool), scaled to [-1, 1] per dimension; state observations are
-standardised. The instruction of each episode comes from its JSON entry.
+standardised. The instruction of each episode comes from its JSON entry, together with its
+paraphrases: the same episode worded by every template of its instruction set (the training set's
+"seen" templates), which a language-conditioned policy trains on so that it reads the block named
+rather than the wording (the evaluation's held-out wording is never among them).
 """
 from __future__ import annotations
 
+import dataclasses
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -16,6 +21,10 @@ import numpy as np
 import torch
 
 from rsb_maniskill.motionplan.dataset import DatasetError, check_pair
+from rsb_maniskill.semantic.paraphrase import paraphrases as semantic_paraphrases
+from rsb_maniskill.semantic.spec import EpisodeSpec
+
+SPEC_FIELDS = tuple(f.name for f in dataclasses.fields(EpisodeSpec))
 
 PROPRIO_GROUPS = ("agent", "extra")  # rgb variant: the vector beside the images
 
@@ -59,6 +68,18 @@ class Episode:
     actions: np.ndarray  # (T, act_dim)
     instruction: str
     images: torch.Tensor | None = None  # (T+1, 3 * cameras, S, S) uint8, rgb variant
+    paraphrases: tuple[str, ...] = ()  # the instruction in every template of its set (it among them)
+
+
+def paraphrases(entry: Mapping[str, Any]) -> tuple[str, ...]:
+    """The episode's wordings from its JSON entry (:func:`rsb_maniskill.semantic.paraphrase.paraphrases`):
+    only the recorded one, with a warning, when the entry cannot be reworded (demos of another version)."""
+    try:
+        return semantic_paraphrases(EpisodeSpec.from_dict({k: entry[k] for k in SPEC_FIELDS if k in entry}))
+    except (ValueError, KeyError, TypeError):
+        warnings.warn("an episode's instruction cannot be reworded from its json entry (demos of another "
+                      "rsb_maniskill version?): training on its recorded wording only", stacklevel=2)
+        return (entry["instruction"],)
 
 
 @dataclass
@@ -100,7 +121,8 @@ def load_demos(paths: Sequence[str | Path], obs: str = "state", image_size: int 
                     o = g["obs"]
                     if not isinstance(o, h5py.Dataset):
                         raise DatasetError(f"{path}: 'obs' is not a flat state vector (recorded as {recorded!r})")
-                    episodes.append(Episode(np.asarray(o, dtype=np.float32), actions, ep["instruction"]))
+                    episodes.append(Episode(np.asarray(o, dtype=np.float32), actions, ep["instruction"],
+                                            paraphrases=paraphrases(ep)))
                 else:
                     tree = _read_group(g["obs"])
                     cams = camera_names(tree)
@@ -109,7 +131,7 @@ def load_demos(paths: Sequence[str | Path], obs: str = "state", image_size: int 
                     elif cams != cameras:
                         raise DatasetError(f"{path}: cameras {cams} differ from {cameras}")
                     episodes.append(Episode(proprio_vector(tree), actions, ep["instruction"],
-                                            camera_stack(tree, cameras, image_size)))
+                                            camera_stack(tree, cameras, image_size), paraphrases(ep)))
     if not episodes:
         raise DatasetError("no episodes in " + ", ".join(map(str, paths)))
     if len(control_modes) != 1:
@@ -160,8 +182,9 @@ class WindowSampler:
     last action (for absolute joint targets that means: stay).
     """
 
-    def __init__(self, demos: DemoSet, norm: Normalizer, text_emb: np.ndarray | None,
+    def __init__(self, demos: DemoSet, norm: Normalizer, text_emb: Sequence[np.ndarray] | None,
                  obs_horizon: int, pred_horizon: int):
+        """``text_emb[e]``: (K_e, text_dim) embeddings of episode ``e``'s wordings; a batch draws one."""
         obs_idx, act_idx, ep_idx = [], [], []
         o_off = a_off = 0
         for i, e in enumerate(demos.episodes):
@@ -182,15 +205,25 @@ class WindowSampler:
         self.obs_idx = torch.as_tensor(np.stack(obs_idx))
         self.act_idx = torch.as_tensor(np.stack(act_idx))
         self.ep_idx = torch.as_tensor(ep_idx)
-        self.text = None if text_emb is None else torch.as_tensor(text_emb, dtype=torch.float32)
+        self.text = self.text_start = self.text_count = None
+        if text_emb is not None:
+            counts = [len(t) for t in text_emb]
+            self.text = torch.as_tensor(np.concatenate(text_emb), dtype=torch.float32)
+            self.text_count = torch.as_tensor(counts)
+            self.text_start = torch.cumsum(self.text_count, 0) - self.text_count
 
     def __len__(self) -> int:
         return len(self.obs_idx)
 
-    def batch(self, idx: torch.Tensor) -> dict[str, torch.Tensor]:
+    def batch(self, idx: torch.Tensor, gen: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+        """Windows ``idx``; each takes one of its episode's wordings at random from ``gen`` (the
+        first, without one)."""
         out = {"obs": self.obs[self.obs_idx[idx]], "actions": self.actions[self.act_idx[idx]]}
         if self.text is not None:
-            out["text"] = self.text[self.ep_idx[idx]]
+            ep = self.ep_idx[idx]
+            pick = torch.zeros_like(ep) if gen is None else (
+                torch.rand(len(ep), generator=gen) * self.text_count[ep]).long()
+            out["text"] = self.text[self.text_start[ep] + pick]
         if self.images is not None:
             out["images"] = self.images[self.obs_idx[idx]].float() / 255.0
         return out

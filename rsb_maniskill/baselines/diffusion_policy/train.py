@@ -3,8 +3,10 @@
     python -m rsb_maniskill.baselines.diffusion_policy.train --demos FILE.h5 [--demos ...] --out DIR \
         [--obs state|rgb] [--no-language] [--total-iters N]
 
-Rerunning the same command resumes from ``DIR/checkpoints/last.pt`` (model, EMA, optimizer, LR
-schedule, step and every RNG), so an interrupted run ends where an uninterrupted one would.
+A language policy trains on every training-template wording of each demo's instruction, one drawn
+per window (``--no-paraphrase``: the recorded wording only). Rerunning the same command resumes
+from ``DIR/checkpoints/last.pt`` (model, EMA, optimizer, LR schedule, step and every RNG), so an
+interrupted run ends where an uninterrupted one would.
 """
 from __future__ import annotations
 
@@ -25,8 +27,8 @@ from rsb_maniskill.baselines.diffusion_policy import checkpoint
 from rsb_maniskill.baselines.diffusion_policy.text import require_extra
 
 # Arguments that define the model and its data: a resumed run must not change them.
-FIXED_ON_RESUME = ("obs", "no_language", "prediction", "obs_horizon", "pred_horizon", "act_horizon", "unet_dims",
-                   "image_size", "batch_size", "lr", "lr_schedule", "seed", "demos", "max_episodes")
+FIXED_ON_RESUME = ("obs", "no_language", "no_paraphrase", "prediction", "obs_horizon", "pred_horizon",
+                   "act_horizon", "unet_dims", "image_size", "batch_size", "lr", "lr_schedule", "seed", "demos", "max_episodes")
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -36,6 +38,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out", required=True, help="run directory (checkpoints/, log.jsonl)")
     p.add_argument("--obs", default="state", choices=["state", "rgb"], help="observation variant (default state)")
     p.add_argument("--no-language", action="store_true", help="ignore the instruction (ManiSkill's baseline)")
+    p.add_argument("--no-paraphrase", action="store_true",
+                   help="train on each demo's recorded wording only, not on all training templates' wordings")
     p.add_argument("--total-iters", type=int, default=30_000)
     p.add_argument("--batch-size", type=int, default=256)
     p.add_argument("--lr", type=float, default=1e-4)
@@ -111,7 +115,10 @@ def train(args: argparse.Namespace) -> Path:
     if not args.no_language:
         from rsb_maniskill.baselines.diffusion_policy.text import TextEncoder
 
-        text_emb = TextEncoder().encode([e.instruction for e in demos.episodes])
+        wordings = [(e.instruction,) if args.no_paraphrase else e.paraphrases or (e.instruction,)
+                    for e in demos.episodes]
+        flat = TextEncoder().encode([t for w in wordings for t in w])
+        text_emb = np.split(flat, np.cumsum([len(w) for w in wordings])[:-1])
     windows = WindowSampler(demos, norm, text_emb, args.obs_horizon, args.pred_horizon)
     cfg = ModelConfig(act_dim=demos.episodes[0].actions.shape[1], obs_dim=demos.episodes[0].obs.shape[1],
                       obs_mode=args.obs, obs_horizon=args.obs_horizon, pred_horizon=args.pred_horizon,
@@ -159,7 +166,7 @@ def train(args: argparse.Namespace) -> Path:
     try:
         while step < stop_step and not interrupted and (deadline is None or time.monotonic() < deadline):
             idx = torch.randint(len(windows), (args.batch_size,), generator=gen)
-            batch = windows.batch(idx)
+            batch = windows.batch(idx, gen)
             actions = batch["actions"]
             noise = torch.randn(actions.shape, generator=gen)
             t = torch.randint(0, cfg.num_train_steps, (actions.shape[0],), generator=gen)

@@ -20,14 +20,15 @@ def paraphrases(spec: EpisodeSpec) -> tuple[str, ...]:
     n, tid = spec.n_choices, spec.template_id
     family = get_family("blocks" if all(k.startswith("block:") for k in spec.candidates) else "objects")
     lettered, direct = family.lettered(n), spec.suite == "Direct"
+    ids = sibling_template_ids(n, tid, direct, lettered)
     texts = []
-    for t in sibling_template_ids(n, tid, direct, lettered):
+    for t in ids:
         if direct:  # a Direct instruction names its target
             texts.append(render_direct(n, t, spec.block_names[spec.target_block]))
         else:
             texts.append(render_instruction(n, t, spec.question, spec.options, spec.letters, spec.block_names,
                                             spec.block_of_option, lettered, family.noun))
-    own = tid - sibling_template_ids(n, tid, direct, lettered).start
+    own = tid - ids.start
     if texts[own] != spec.instruction:
         raise ValueError(f"{spec.suite_id} seed {spec.seed}: template {tid} renders {texts[own]!r}, not the "
                          f"recorded {spec.instruction!r}")

@@ -28,7 +28,8 @@ from rsb_maniskill.baselines.diffusion_policy.text import require_extra
 
 # Arguments that define the model and its data: a resumed run must not change them.
 FIXED_ON_RESUME = ("obs", "no_language", "no_paraphrase", "prediction", "obs_horizon", "pred_horizon",
-                   "act_horizon", "unet_dims", "image_size", "batch_size", "lr", "lr_schedule", "seed", "demos", "max_episodes")
+                   "act_horizon", "unet_dims", "image_size", "batch_size", "lr", "lr_schedule", "seed", "demos",
+                   "max_episodes")
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:

@@ -22,7 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 import rsb_maniskill  # noqa: F401,E402
 from rsb_maniskill.objects.catalog import CATEGORY_KEYS, NUM_VARIANTS, category_name  # noqa: E402
-from rsb_maniskill.registration import OBJECTS_SUFFIX  # noqa: E402
+from rsb_maniskill.objects.family import OBJECTS_SUFFIX  # noqa: E402
 from rsb_maniskill.semantic import SUITE_IDS  # noqa: E402
 
 TILE = 72  # head-camera pixels around each object in objects.png

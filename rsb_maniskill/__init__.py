@@ -2,11 +2,14 @@
 
 ``import rsb_maniskill`` registers the ``RSB-*`` environments with gymnasium; the robot and the
 tasks (torch, SAPIEN, ManiSkill) load at the first ``gym.make``, so this import, the semantic
-engine and the ``rsb`` command line stay light (see registration.py).
+engine and the ``rsb`` command line stay light. The robot ``aloha_agilex`` registers with
+ManiSkill at ``import rsb_maniskill.agents``, or here when ManiSkill is imported already
+(see registration.py).
 """
 from rsb_maniskill import _render  # noqa: F401  (selects a Vulkan device before SAPIEN starts)
-from rsb_maniskill.registration import register_envs
+from rsb_maniskill.registration import register_agent_if_maniskill_loaded, register_envs
 
 register_envs()
+register_agent_if_maniskill_loaded()
 
 __version__ = "0.1.0"

@@ -1,10 +1,14 @@
-"""The RSB env ids in gymnasium, registered at ``import rsb_maniskill`` without the simulator.
+"""The RSB env ids in gymnasium and ManiSkill: the only module that edits their registries.
 
-Each id points at :func:`_make`, which imports the robot and the tasks (torch, SAPIEN, ManiSkill)
-at the first ``gym.make`` and hands over to ManiSkill's own ``make``. So ``import rsb_maniskill``,
-its semantic engine and the ``rsb`` command line stay light, and ``gym.make("RSB-Math-4")`` works
-as before. The lazy entries mirror what ManiSkill's ``register_env`` writes (time limit,
-wrapper, default kwargs); importing :mod:`rsb_maniskill.tasks` replaces them with ManiSkill's own.
+``import rsb_maniskill`` registers each id (:mod:`env_ids`) with gymnasium as a lazy entry that
+points at :func:`_make`: the robot and the tasks (torch, SAPIEN, ManiSkill) load at the first
+``gym.make`` (or ``gym.make_vec``), so ``import rsb_maniskill``, its semantic engine and the ``rsb``
+command line stay light. :func:`load_simulator` then registers the robot and the task classes with
+ManiSkill, whose ``register_env`` replaces the lazy entries with its own.
+
+The robot: ``import rsb_maniskill.agents`` registers ``aloha_agilex`` with ManiSkill; importing
+``rsb_maniskill`` after ManiSkill does it too (ManiSkill is loaded already, so it costs nothing),
+so ``gym.make("Empty-v1", robot_uids="aloha_agilex")`` works in either case.
 
 Recorded trajectories name their env as ``"rsb_maniskill:RSB-Math-4"`` (see :mod:`tasks.base`):
 gymnasium imports the module before looking the id up, so ManiSkill's ``replay_trajectory``
@@ -12,38 +16,39 @@ finds the env in a fresh process with nothing imported by hand.
 """
 from __future__ import annotations
 
+import sys
 from functools import partial
 from typing import Any
 
 import gymnasium as gym
 from gymnasium.envs.registration import WrapperSpec
 
-from rsb_maniskill.objects.family import OBJECTS_SUFFIX
-from rsb_maniskill.semantic.suites import SUITE_IDS
+from rsb_maniskill.env_ids import ENVS, TASK_ENVS
 
-MODULE = "rsb_maniskill"
-TASK_MAX_EPISODE_STEPS = 300  # 12 s at 25 Hz; the expert needs about 7 s (see docs/tasks.md)
-TABLETOP_ID = "RSB-TableTop-v1"
-TABLETOP_MAX_EPISODE_STEPS = 500
-OBJECT_ENV_IDS: tuple[str, ...] = tuple(sid + OBJECTS_SUFFIX for sid in SUITE_IDS)
-# id -> (max_episode_steps, default kwargs), as the tasks register themselves with ManiSkill
-ENVS: dict[str, tuple[int, dict[str, Any]]] = {
-    **{sid: (TASK_MAX_EPISODE_STEPS, {"suite_id": sid}) for sid in SUITE_IDS},
-    **{eid: (TASK_MAX_EPISODE_STEPS, {"suite_id": eid[:-len(OBJECTS_SUFFIX)], "targets": "objects"})
-       for eid in OBJECT_ENV_IDS},
-    TABLETOP_ID: (TABLETOP_MAX_EPISODE_STEPS, {}),
-}
-
-
-def qualified_id(env_id: str) -> str:
-    """``"RSB-Math-4"`` -> ``"rsb_maniskill:RSB-Math-4"`` (unchanged if already qualified)."""
-    return env_id if ":" in env_id else f"{MODULE}:{env_id}"
+_LOADED = False
 
 
 def load_simulator() -> None:
-    """Imports the robot and the tasks: ManiSkill's registration replaces the lazy entries."""
-    import rsb_maniskill.agents  # noqa: F401
-    import rsb_maniskill.tasks  # noqa: F401
+    """Registers the robot and every task class with ManiSkill (once per process)."""
+    global _LOADED
+    if _LOADED:
+        return
+    import rsb_maniskill.agents  # noqa: F401  (registers aloha_agilex)
+    from mani_skill.utils.registration import register_env
+
+    from rsb_maniskill.tasks import AnswerSelectionEnv, TableTopEnv
+
+    drop_lazy_entries()  # ManiSkill's register_env writes the gymnasium entries itself
+    for uid, (steps, kwargs) in ENVS.items():
+        cls = AnswerSelectionEnv if uid in TASK_ENVS else TableTopEnv
+        register_env(uid, max_episode_steps=steps, **kwargs)(cls)
+    _LOADED = True
+
+
+def register_agent_if_maniskill_loaded() -> None:
+    """Registers ``aloha_agilex`` now when ManiSkill is already imported (it costs no import then)."""
+    if "mani_skill.agents.registration" in sys.modules:
+        import rsb_maniskill.agents  # noqa: F401
 
 
 def drop_lazy_entries() -> None:
@@ -61,13 +66,20 @@ def _make(env_id: str, **kwargs: Any):
     return make(env_id, **kwargs)
 
 
+def _make_vec(env_id: str, **kwargs: Any):
+    load_simulator()
+    from mani_skill.utils.registration import make_vec
+
+    return make_vec(env_id, **kwargs)
+
+
 def register_envs() -> None:
     """Registers every RSB id with gymnasium (ids already registered are left alone)."""
     for uid, (steps, defaults) in ENVS.items():
         if uid in gym.registry:
             continue
-        gym.register(uid, entry_point=partial(_make, env_id=uid), max_episode_steps=steps,
-                     disable_env_checker=True, kwargs=dict(defaults),
+        gym.register(uid, entry_point=partial(_make, env_id=uid), vector_entry_point=partial(_make_vec, env_id=uid),
+                     max_episode_steps=steps, disable_env_checker=True, kwargs=dict(defaults),
                      additional_wrappers=[WrapperSpec("MSTimeLimit",
                                                       entry_point="mani_skill.utils.registration:TimeLimitWrapper",
                                                       kwargs=dict(max_episode_steps=steps))])

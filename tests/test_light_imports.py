@@ -22,7 +22,7 @@ def _run(code: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("stmt", ["import rsb_maniskill", "import rsb_maniskill.semantic",
+@pytest.mark.parametrize("stmt", ["import rsb_maniskill", "import rsb_maniskill.semantic", "import rsb_maniskill.env_ids",
                                   "from rsb_maniskill.semantic import EpisodeSampler; EpisodeSampler('RSB-Math-4').episode(0)",
                                   "import rsb_maniskill.motionplan.generate, rsb_maniskill.evaluation.metrics"])
 def test_imports_are_light(stmt):
@@ -76,3 +76,46 @@ def test_qualified_id_needs_no_import():
         print(json.dumps(dict(n=len(env.unwrapped.pool.actors), instr=env.unwrapped.get_language_instruction()[0][:20])))
     """)
     assert got["n"] == 10 and got["instr"]
+
+
+@pytest.mark.parametrize("order", ["maniskill_first", "pack_first"])
+def test_the_robot_is_registered_for_maniskills_own_envs(order):
+    """ManiSkill's envs take ``robot_uids="aloha_agilex"``: importing the pack after ManiSkill
+    registers the robot, and ``import rsb_maniskill.agents`` does it in the other order."""
+    imports = ("import mani_skill.envs, rsb_maniskill" if order == "maniskill_first"
+               else "import rsb_maniskill, mani_skill.envs, rsb_maniskill.agents")
+    got = _run(f"""
+        import json, gymnasium as gym
+        {imports}
+        env = gym.make("Empty-v1", robot_uids="aloha_agilex", obs_mode="state", render_backend="none")
+        env.reset(seed=0)
+        print(json.dumps(dict(uid=env.unwrapped.agent.uid, dof=int(env.unwrapped.agent.robot.dof[0]))))
+    """)
+    assert got == {"uid": "aloha_agilex", "dof": 16}
+
+
+def test_lazy_entries_match_maniskills_and_ids_live_in_one_leaf():
+    """The lazy entries say what ManiSkill's ``register_env`` says once the simulator loads (limit,
+    kwargs, wrappers, a vector entry point); the tasks take their ids, limits and frequencies from
+    ``env_ids`` and never import the registry module (no import circle)."""
+    import ast
+
+    got = _run("""
+        import json, gymnasium as gym
+        import rsb_maniskill
+        from rsb_maniskill.env_ids import ENVS
+        def view(uid):
+            s = gym.spec(uid)
+            return [s.max_episode_steps, s.kwargs, [w.name for w in s.additional_wrappers],
+                    s.vector_entry_point is not None]
+        lazy = {uid: view(uid) for uid in ENVS}
+        gym.make("RSB-Math-4", obs_mode="state", render_backend="none").close()
+        print(json.dumps(dict(lazy=lazy, loaded={uid: view(uid) for uid in ENVS})))
+    """)
+    from rsb_maniskill.semantic.suites import SUITE_IDS
+
+    assert got["lazy"] == got["loaded"] and len(got["lazy"]) == 2 * len(SUITE_IDS) + 1  # blocks, objects, table
+    assert all(v[3] for v in got["lazy"].values())
+    for path in (REPO / "rsb_maniskill" / "tasks").glob("*.py"):
+        names = {n.module for n in ast.walk(ast.parse(path.read_text())) if isinstance(n, ast.ImportFrom)}
+        assert "rsb_maniskill.registration" not in names, f"{path.name} imports the registry module"

@@ -1,6 +1,6 @@
 """Generates the Aloha-AgileX URDF and SRDFs from a kinematic table.
 
-The chain is the RoboTwin 2.0 aloha-agilex arm (two ARX5-style 6-DoF arms, DESIGN.md section 2);
+The chain is the RoboTwin 2.0 aloha-agilex arm (two ARX5-style 6-DoF arms, the joint table below);
 geometry is primitive boxes and cylinders so that SAPIEN and mplib load the robot without meshes.
 The committed files under ``rsb_maniskill/assets/aloha_agilex/`` are the output of
 ``python -m rsb_maniskill.agents.aloha_urdf`` and a test checks that they match this generator.

@@ -35,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     from rsb_maniskill.evaluation.policy import POLICIES
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
     from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
-    from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
+    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.workers import add_executor_args
 
     state_only = [name for name, spec in POLICIES.items() if spec.obs_mode == "state"]
@@ -198,7 +198,7 @@ def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.evaluation.protocol import eval_seeds
     from rsb_maniskill.evaluation.records import read_records
     from rsb_maniskill.evaluation.report import markdown_tables, results_from_records, write_report
-    from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
+    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.workers import executor_from_args
 
     suites = resolve_suites(args.suites)

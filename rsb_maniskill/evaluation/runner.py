@@ -22,7 +22,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from rsb_maniskill.batch import env_row, first_value, single_env_obs
-from rsb_maniskill.registration import TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
 
 from .policy import PerEnvPolicies, as_chunk, as_chunks, env_action_space, is_batched, obs_rows
 from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
@@ -258,7 +258,7 @@ def write_video(frames: Sequence[np.ndarray], video_dir: str | os.PathLike, name
     """mp4 at the control rate (real time), with ManiSkill's writer."""
     from mani_skill.utils.visualization.misc import images_to_video
 
-    from rsb_maniskill.tasks.tabletop import CONTROL_FREQ
+    from rsb_maniskill.env_ids import CONTROL_FREQ
 
     images_to_video(list(frames), str(video_dir), name, fps=CONTROL_FREQ, verbose=False)
     return Path(video_dir) / f"{name}.mp4"

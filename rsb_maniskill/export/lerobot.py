@@ -287,7 +287,7 @@ def _write_meta(root: Path, episodes: list[dict], tasks: dict[str, int], stats: 
 def _check_inputs(demos: Sequence[str | os.PathLike], out: Path, fps: int | None, cameras: Sequence[str],
                   overwrite: bool) -> tuple[list[Path], int, int]:
     """Validated demo paths, fps and frame stride; raises before anything is written."""
-    from rsb_maniskill.tasks.tabletop import CONTROL_FREQ  # what every RSB demo runs at
+    from rsb_maniskill.env_ids import CONTROL_FREQ  # what every RSB demo runs at
 
     bad = [c for c in cameras if c not in CAMERAS]
     if bad or not cameras:

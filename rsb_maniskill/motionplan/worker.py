@@ -67,7 +67,7 @@ def run_worker(cfg: GenerateConfig, plan: WorkPlan, part_h5: str | Path, video_d
     import gymnasium as gym
 
     import rsb_maniskill  # noqa: F401  (registers the RSB envs)
-    from rsb_maniskill.tasks.tabletop import CONTROL_FREQ
+    from rsb_maniskill.env_ids import CONTROL_FREQ
 
     part_h5 = Path(part_h5)
     expert_cls = load_expert(cfg.expert)
@@ -161,7 +161,7 @@ def _episode_meta(cfg: GenerateConfig, spec: Any, msg: dict, env: DemoRecorder,
     if cfg.save_video:
         from mani_skill.utils.visualization.misc import images_to_video
 
-        from rsb_maniskill.tasks.tabletop import CONTROL_FREQ
+        from rsb_maniskill.env_ids import CONTROL_FREQ
 
         name = f"seed{msg['seed']:06d}"
         images_to_video(env.render_images, str(video_dir), video_name=name, fps=CONTROL_FREQ, verbose=False)

@@ -1,9 +1,6 @@
-"""ManiSkill tasks of the pack (registered with ManiSkill on import)."""
-from rsb_maniskill.registration import drop_lazy_entries
-
-drop_lazy_entries()  # ManiSkill's register_env below writes the gymnasium entries itself
-
-from rsb_maniskill.tasks.answer_selection import AnswerSelectionEnv  # noqa: E402
-from rsb_maniskill.tasks.tabletop import TableTopEnv  # noqa: E402
+"""ManiSkill tasks of the pack. ``rsb_maniskill.registration.load_simulator`` registers them with
+ManiSkill under every RSB id (at the first ``gym.make``); the classes themselves touch no registry."""
+from rsb_maniskill.tasks.answer_selection import AnswerSelectionEnv
+from rsb_maniskill.tasks.tabletop import TableTopEnv
 
 __all__ = ["AnswerSelectionEnv", "TableTopEnv"]

@@ -17,19 +17,17 @@ import numpy as np
 import sapien
 import torch
 
-from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from rsb_maniskill.agents.aloha import AlohaAgilex
 from rsb_maniskill.objects.family import get_family
 from rsb_maniskill.objects.pool import CandidatePool
-from rsb_maniskill.registration import ENVS, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ, TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.semantic import EpisodeSampler, EpisodeSpec, parse_suite_id
 from rsb_maniskill.tasks import layout
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.contacts import PairContacts
 from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
-from rsb_maniskill.tasks.tabletop import CONTROL_FREQ, SIM_FREQ
 
 # Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0); cells: tasks/layout.py.
 # Parked pool members: one layout cell apart (no two touch, so they stay asleep), in layers
@@ -344,8 +342,3 @@ def _park_positions(count: int) -> np.ndarray:
         raise ValueError(f"{count} pool members but only {len(spots)} park spots: add a layer")
     spots = spots[:count]
     return np.asarray(spots, dtype=np.float32)
-
-
-for _env_id, (_steps, _kwargs) in ENVS.items():
-    if "suite_id" in _kwargs:
-        register_env(_env_id, max_episode_steps=_steps, **_kwargs)(AnswerSelectionEnv)

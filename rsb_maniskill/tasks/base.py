@@ -1,6 +1,6 @@
 """What every RSB env does besides ManiSkill's BaseEnv: check the GPU physics library and hold
 the process's render engine before building (both because of how SAPIEN behaves on GPU machines,
-docs/gpu.md), and name itself by a module-qualified id in its spec (registration.py)."""
+docs/gpu.md), and name itself by a module-qualified id in its spec (env_ids.py)."""
 from __future__ import annotations
 
 import dataclasses
@@ -10,7 +10,7 @@ from mani_skill.envs.sapien_env import BaseEnv
 
 from rsb_maniskill import _render
 from rsb_maniskill.physx_gpu import check_for_sim_backend
-from rsb_maniskill.registration import qualified_id
+from rsb_maniskill.env_ids import qualified_id
 
 
 class RSBEnv(BaseEnv):

@@ -6,18 +6,14 @@ from __future__ import annotations
 import sapien
 import torch
 
-from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs.types import SimConfig
 
 from rsb_maniskill.agents.aloha import AlohaAgilex
-from rsb_maniskill.registration import TABLETOP_ID, TABLETOP_MAX_EPISODE_STEPS
+from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
 
-SIM_FREQ, CONTROL_FREQ = 125, 25  # 5 physics steps per action, as ManiSkill's tabletop tasks
 
-
-@register_env(TABLETOP_ID, max_episode_steps=TABLETOP_MAX_EPISODE_STEPS)
 class TableTopEnv(RSBEnv):
     """The Aloha-AgileX robot at the RSB table (no task: reward and success are empty)."""
 

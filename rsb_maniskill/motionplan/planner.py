@@ -3,8 +3,9 @@
 One ``mplib.Planner`` per arm over the project's URDF and the full mplib SRDF (SAPIEN takes at most
 31 collision-disable groups, so it reads a shorter one), ``move_group`` = that arm's TCP link. A
 plan covers only the move-group joints; we map them back by joint name into the 14-d action and
-hold every other entry (the other arm's target, both grippers) at the value the caller gives. Planners are cached per process: building one costs
-little, but the expert builds one per episode otherwise.
+hold every other entry (the other arm's target, both grippers) at the value the caller gives.
+Planners are cached per process: building one costs little, but the expert builds one per
+episode otherwise.
 """
 from __future__ import annotations
 

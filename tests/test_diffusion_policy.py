@@ -13,16 +13,12 @@ import numpy as np
 import pytest
 import torch
 
-from rsb_maniskill.baselines.diffusion_policy.text import MissingExtraError, require_extra
+from rsb_maniskill.baselines.diffusion_policy import checkpoint
+from rsb_maniskill.baselines.diffusion_policy.data import load_demos
+from rsb_maniskill.baselines.diffusion_policy.policy import DiffusionPolicy
+from rsb_maniskill.baselines.diffusion_policy.text import require_extra
 
-try:
-    require_extra()
-except MissingExtraError as err:  # CI installs the extra (scripts/setup.sh): this only skips by hand
-    pytest.skip(f"optional extra 'baselines' not installed: {err}", allow_module_level=True)
-
-from rsb_maniskill.baselines.diffusion_policy import checkpoint  # noqa: E402
-from rsb_maniskill.baselines.diffusion_policy.data import load_demos  # noqa: E402
-from rsb_maniskill.baselines.diffusion_policy.policy import DiffusionPolicy  # noqa: E402
+require_extra()  # set-up installs the 'baselines' extra: a missing one is a failure, not a skip
 from rsb_maniskill.baselines.diffusion_policy.train import main as train_main  # noqa: E402
 from rsb_maniskill.motionplan.config import GenerateConfig  # noqa: E402
 from rsb_maniskill.motionplan.generate import generate  # noqa: E402

@@ -222,7 +222,6 @@ def test_render_on_demand_on_gpu_envs_same_records():
 @pytest.mark.skipif(not torch.cuda.is_available(), reason=CUDA_REASON)
 def test_rsb_eval_num_envs_on_ray_gpu_task(tmp_path):
     """`rsb eval --num-envs 2 --executor ray`: one GPU task running 2 envs; the CPU episodes."""
-    pytest.importorskip("ray")
     from rsb_maniskill.cli import main
     from rsb_maniskill.evaluation import eval_seeds
     from rsb_maniskill.evaluation.records import read_records

@@ -159,7 +159,6 @@ def test_errors_leave_results_untouched(tmp_path, capsys):
 
 def test_oracle_served_over_websocket_loopback(tmp_path):
     """RemotePolicy -> PolicyServer -> oracle: the wire protocol carries a real policy to success."""
-    pytest.importorskip("websockets")
     from rsb_maniskill.evaluation.remote import RemotePolicy
     from rsb_maniskill.evaluation.serve import PolicyServer
 

@@ -127,7 +127,8 @@ def test_naming_a_policy_imports_nothing():
 
 
 def test_random_policy_from_box():
-    gym = pytest.importorskip("gymnasium")
+    import gymnasium as gym
+
     space = gym.spaces.Box(low=np.full(14, -0.5, np.float32), high=np.ones(14, np.float32), dtype=np.float32)
     p = load_policy("random", env=_fake_env(space), chunk_size=4, seed=1)
     p.reset("anything", {})

@@ -4,8 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-msgpack = pytest.importorskip("msgpack")
-pytest.importorskip("websockets")
+import msgpack
 
 from rsb_maniskill.evaluation.remote import RemotePolicy, flatten_obs, packb, unflatten_obs, unpackb  # noqa: E402
 from rsb_maniskill.evaluation.serve import PolicyServer  # noqa: E402

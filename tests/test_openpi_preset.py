@@ -15,9 +15,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-pytest.importorskip("websockets")
-pytest.importorskip("msgpack")
-
 import rsb_maniskill  # noqa: E402,F401  (registers the envs)
 from rsb_maniskill.agents.aloha import to_aloha14  # noqa: E402
 from rsb_maniskill.evaluation.openpi_preset import (  # noqa: E402

@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 import pytest
 
-ray = pytest.importorskip("ray", reason="the Ray executor is an optional extra: pip install 'rsb_maniskill[ray]'")
+import ray
 
 from rsb_maniskill.evaluation import eval_seeds  # noqa: E402
 from rsb_maniskill.evaluation.jobs import EvalJob, run_job  # noqa: E402

@@ -13,7 +13,7 @@ from rsb_maniskill.agents.aloha_urdf import ASSET_DIR, build_files, sapien_disab
 
 from robot_helpers import CUBE_HALF, ArmDriver  # noqa: F401  (registers the cube env)
 
-CONTROL_FREQ = 25
+from rsb_maniskill.env_ids import CONTROL_FREQ  # noqa: E402
 
 
 def make(env_id="RSB-TableTop-v1", **kw):
@@ -30,6 +30,34 @@ def test_committed_assets_match_generator():
 
 def test_sapien_srdf_fits_collision_groups():
     assert len(sapien_disabled_pairs()) <= 31
+
+
+def test_the_agent_implements_the_robot_contract():
+    """Every module outside the agent reads the robot from rsb_maniskill.robot: the agent must say
+    the same (joint order, action layout, cameras, grippers)."""
+    from rsb_maniskill import robot
+
+    env = make()
+    env.reset(seed=0)
+    agent = env.unwrapped.agent
+    assert agent.uid == robot.ROBOT_UID
+    assert tuple(agent.active_joint_names) == robot.QPOS_JOINT_NAMES
+    arm, grip = agent.controller.controllers["arm"], agent.controller.controllers["gripper"]
+    assert [j.name for j in arm.joints] == list(robot.ARM_JOINT_NAMES)
+    assert arm.action_space.shape == (robot.ARM_ACTION_SLICE["right"].stop,)
+    assert grip.action_space.shape == (robot.ACTION_DIM - robot.ARM_ACTION_SLICE["right"].stop,)
+    assert [c.uid for c in agent._sensor_configs] == [robot.sensor_uid(c) for c in robot.CAMERAS]
+    assert float(GRIPPER_OPEN) == robot.FINGER_TRAVEL
+    # a pd_joint_pos action sent in the contract's slots lands on the contract's joints
+    action = agent.rest_action().numpy().copy()
+    action[robot.ARM_ACTION_SLICE["right"]][0] += 0.3
+    action[robot.GRIPPER_ACTION_INDEX["left"]] = -1.0
+    for _ in range(25):
+        env.step(action)
+    q = dict(zip(agent.active_joint_names, agent.robot.get_qpos()[0].tolist()))
+    assert abs(q[robot.ARM_JOINTS["right"][0]] - action[6]) < 0.05
+    assert q[robot.FINGER_JOINT_NAMES["left"][0]] < 0.1 * robot.FINGER_TRAVEL < q[robot.FINGER_JOINT_NAMES["right"][0]]
+    env.close()
 
 
 def test_action_space_and_aloha14_round_trip():

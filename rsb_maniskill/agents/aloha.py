@@ -1,18 +1,14 @@
 """Aloha-AgileX dual-arm agent (``aloha_agilex``) for ManiSkill3.
 
-Action layout (every control mode), 14 numbers, ManiSkill's sub-controller order:
-
-    [ 0: 6] left arm joints 1-6   (fl_joint1..6)
-    [ 6:12] right arm joints 1-6  (fr_joint1..6)
-    [12]    left gripper           -1 closed ... +1 open
-    [13]    right gripper          -1 closed ... +1 open
+Action layout, joint names, cameras and the Aloha-14 layout of VLA datasets: the robot contract
+in ``rsb_maniskill/robot.py``, which this agent implements and every other module reads.
 
 Both arms sit under one sub-controller ``"arm"`` and both grippers under ``"gripper"`` so that
 ManiSkill's replay tool can convert between joint control modes. The gripper command is the same
 normalised absolute opening in every mode (the replay tool copies it unchanged), so delta modes
 are entirely in [-1, 1] as ManiSkill's diffusion-policy baseline expects.
-VLA datasets use the Aloha order [left arm 6, left gripper, right arm 6, right gripper] with the
-gripper in [0, 1] (0 closed); :func:`to_aloha14` and :func:`from_aloha14` convert.
+VLA datasets use the Aloha order; :func:`to_aloha14` and :func:`from_aloha14` (re-exported from the
+contract) convert.
 """
 from __future__ import annotations
 
@@ -34,12 +30,24 @@ from mani_skill.utils import common
 from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 
-from rsb_maniskill.agents.aloha_urdf import ASSET_DIR, FINGER_TRAVEL, URDF_NAME
+from rsb_maniskill.agents.aloha_urdf import ASSET_DIR, URDF_NAME
+from rsb_maniskill.robot import (  # noqa: F401  (ALOHA14_NAMES, to/from_aloha14: re-exported)
+    ALOHA14_NAMES,
+    ARM_JOINT_NAMES,
+    ARM_JOINTS,
+    ARMS,
+    CAMERAS,
+    FINGER_JOINT_NAMES,
+    FINGER_TRAVEL,
+    GRIPPER_JOINT_NAMES,
+    PREFIX,
+    ROBOT_UID,
+    TCP_LINKS,
+    from_aloha14,
+    sensor_uid,
+    to_aloha14,
+)
 
-ARMS = ("left", "right")
-PREFIX = {"left": "fl", "right": "fr"}
-ARM_JOINT_NAMES = [f"{p}_joint{i}" for p in ("fl", "fr") for i in range(1, 7)]
-GRIPPER_JOINT_NAMES = ["fl_joint7", "fl_joint8", "fr_joint7", "fr_joint8"]
 GRIPPER_CLOSED = -0.005  # a target slightly past closed keeps squeezing a held block
 GRIPPER_OPEN = FINGER_TRAVEL
 ARM_STIFFNESS, ARM_DAMPING, ARM_FORCE_LIMIT = 2e3, 2e2, 100.0
@@ -58,10 +66,9 @@ WRIST_CAMERA_FOVY = np.deg2rad(60.0)  # wide enough to see both fingertips and t
 def _rest_qpos() -> np.ndarray:
     """Rest pose in ManiSkill's active-joint order, computed from joint names at load time."""
     q = {}
-    for arm, p in PREFIX.items():
-        for i, v in enumerate(REST_ARM_QPOS[arm], start=1):
-            q[f"{p}_joint{i}"] = v
-        q[f"{p}_joint7"] = q[f"{p}_joint8"] = GRIPPER_OPEN
+    for arm in ARMS:
+        q.update(zip(ARM_JOINTS[arm], REST_ARM_QPOS[arm]))
+        q.update({n: GRIPPER_OPEN for n in FINGER_JOINT_NAMES[arm]})
     return q
 
 
@@ -69,7 +76,7 @@ def _rest_qpos() -> np.ndarray:
 class AlohaAgilex(BaseAgent):
     """Two ARX5-style 6-DoF arms with parallel grippers on a fixed base, plus a head camera."""
 
-    uid = "aloha_agilex"
+    uid = ROBOT_UID
     arms: tuple[str, ...] = ARMS  # the robot contract the task and expert use: arms, fingers[arm],
     # tcp_pose(arm), grippers_closed(), is_grasping(actor, arm), rest_arm_qpos(arm), the joint names
     urdf_path = str(ASSET_DIR / URDF_NAME)
@@ -84,21 +91,19 @@ class AlohaAgilex(BaseAgent):
     # qpos is filled in active-joint order in _after_init (SAPIEN orders joints by tree walk).
     keyframes = dict(rest=Keyframe(pose=sapien.Pose(), qpos=np.zeros(16)))
 
-    arm_joint_names = ARM_JOINT_NAMES
-    gripper_joint_names = GRIPPER_JOINT_NAMES
+    arm_joint_names = list(ARM_JOINT_NAMES)
+    gripper_joint_names = list(GRIPPER_JOINT_NAMES)
     camera_size = CAMERA_SIZE
 
     @property
     def _sensor_configs(self):
         w, h = self.camera_size
-        return [
-            CameraConfig("head_camera", sapien.Pose(), w, h, CAMERA_FOVY, 0.01, 10.0,
-                         mount=self.robot.links_map["head_camera_link"]),
-            CameraConfig("left_wrist_camera", sapien.Pose(), w, h, WRIST_CAMERA_FOVY, 0.01, 10.0,
-                         mount=self.robot.links_map["fl_camera_link"]),
-            CameraConfig("right_wrist_camera", sapien.Pose(), w, h, WRIST_CAMERA_FOVY, 0.01, 10.0,
-                         mount=self.robot.links_map["fr_camera_link"]),
-        ]
+        links = self.robot.links_map
+        mounts = {"head": links["head_camera_link"],
+                  **{f"{a}_wrist": links[f"{PREFIX[a]}_camera_link"] for a in ARMS}}
+        fovy = {"head": CAMERA_FOVY, "left_wrist": WRIST_CAMERA_FOVY, "right_wrist": WRIST_CAMERA_FOVY}
+        return [CameraConfig(sensor_uid(c), sapien.Pose(), w, h, fovy[c], 0.01, 10.0, mount=mounts[c])
+                for c in CAMERAS]
 
     @property
     def _controller_configs(self):
@@ -116,7 +121,7 @@ class AlohaAgilex(BaseAgent):
             self.gripper_joint_names, lower=GRIPPER_CLOSED, upper=GRIPPER_OPEN,
             stiffness=GRIPPER_STIFFNESS, damping=GRIPPER_DAMPING, force_limit=GRIPPER_FORCE_LIMIT,
             normalize_action=True,
-            mimic={"fl_joint8": {"joint": "fl_joint7"}, "fr_joint8": {"joint": "fr_joint7"}},
+            mimic={FINGER_JOINT_NAMES[a][1]: {"joint": FINGER_JOINT_NAMES[a][0]} for a in ARMS},
         )
         return deepcopy_dict(dict(
             pd_joint_pos=dict(arm=arm_pd_joint_pos, gripper=gripper),
@@ -126,14 +131,14 @@ class AlohaAgilex(BaseAgent):
 
     def _after_init(self):
         links = self.robot.links_map
-        self.tcp = {a: links[f"{PREFIX[a]}_tcp_link"] for a in ARMS}
+        self.tcp = {a: links[TCP_LINKS[a]] for a in ARMS}
         self.fingers = {a: (links[f"{PREFIX[a]}_link7"], links[f"{PREFIX[a]}_link8"]) for a in ARMS}
         names = [j.name for j in self.robot.get_active_joints()]
         rest = _rest_qpos()
         self.keyframes = dict(rest=Keyframe(pose=sapien.Pose(), qpos=np.array([rest[n] for n in names])))
         self.active_joint_names = names
-        self.arm_qpos_index = {a: [names.index(f"{PREFIX[a]}_joint{i}") for i in range(1, 7)] for a in ARMS}
-        self.finger_qpos_index = {a: names.index(f"{PREFIX[a]}_joint7") for a in ARMS}
+        self.arm_qpos_index = {a: [names.index(n) for n in ARM_JOINTS[a]] for a in ARMS}
+        self.finger_qpos_index = {a: names.index(FINGER_JOINT_NAMES[a][0]) for a in ARMS}
 
     # ------------------------------------------------------------------ state helpers
     def tcp_pose(self, arm: str) -> Pose:
@@ -187,11 +192,11 @@ class AlohaAgilex(BaseAgent):
         return torch.cat(parts, dim=1)
 
     def tcp_link_name(self, arm: str) -> str:
-        return f"{PREFIX[arm]}_tcp_link"
+        return TCP_LINKS[arm]
 
     def finger_joint_name(self, arm: str) -> str:
         """The driven finger joint of ``arm`` (the other finger mimics it)."""
-        return f"{PREFIX[arm]}_joint7"
+        return FINGER_JOINT_NAMES[arm][0]
 
     def rest_arm_qpos(self, arm: str) -> np.ndarray:
         """Joints 1-6 of ``arm`` in the rest pose."""
@@ -201,22 +206,3 @@ class AlohaAgilex(BaseAgent):
         """pd_joint_pos action that holds the rest pose with both grippers open."""
         q = [torch.as_tensor(REST_ARM_QPOS[a], dtype=torch.float32) for a in ARMS]
         return torch.cat([*q, torch.ones(2)])
-
-
-# ---------------------------------------------------------------------- Aloha-14 layout
-ALOHA14_NAMES = tuple(f"{a}_{j}" for a in ARMS for j in ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle",
-                                                      "wrist_rotate", "gripper"))
-
-
-def to_aloha14(action: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-    """ManiSkill action [..., 14] -> Aloha [left arm 6, left grip, right arm 6, right grip], grip in [0, 1]."""
-    a = action
-    parts = [a[..., 0:6], (a[..., 12:13] + 1) / 2, a[..., 6:12], (a[..., 13:14] + 1) / 2]
-    return torch.cat(parts, -1) if isinstance(a, torch.Tensor) else np.concatenate(parts, -1)
-
-
-def from_aloha14(action: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-    """Aloha [left arm 6, left grip, right arm 6, right grip] (grip in [0, 1]) -> ManiSkill action [..., 14]."""
-    a = action
-    parts = [a[..., 0:6], a[..., 7:13], 2 * a[..., 6:7] - 1, 2 * a[..., 13:14] - 1]
-    return torch.cat(parts, -1) if isinstance(a, torch.Tensor) else np.concatenate(parts, -1)

@@ -17,19 +17,20 @@ from pathlib import Path
 
 import numpy as np
 
+from rsb_maniskill.robot import ARMS, FINGER_TRAVEL, PREFIX
+
 ASSET_DIR = Path(__file__).resolve().parent.parent / "assets" / "aloha_agilex"
 URDF_NAME = "aloha_agilex.urdf"
 SRDF_NAME = "aloha_agilex.srdf"  # read by SAPIEN beside the URDF (at most 31 pairs)
 MPLIB_SRDF_NAME = "aloha_agilex_mplib.srdf"  # full never-collide list for mplib
 
-ARM_PREFIXES = ("fl", "fr")  # front-left = left arm (+y), front-right = right arm (-y)
+ARM_PREFIXES = tuple(PREFIX[a] for a in ARMS)  # the contract's joint-name prefixes
 ARM_BASE_XYZ = {"fl": (0.0, 0.30, 0.04), "fr": (0.0, -0.30, 0.04)}
 HEAD_CAMERA_XYZ = (-0.05, 0.0, 0.62)
 HEAD_CAMERA_LOOK = (0.5, 0.0, -0.866)  # 60 degrees down: blocks and zone fill the view
 WRIST_CAMERA_XYZ = (0.07, 0.032, 0.065)
 WRIST_CAMERA_PITCH = 0.4
 TCP_OFFSET = 0.12  # along link6 x
-FINGER_TRAVEL = 0.0476
 
 LINK_DENSITY = 900.0  # kg/m^3: hollow aluminium links average out light
 FINGER_DENSITY = 1200.0

@@ -24,15 +24,20 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-# Env camera -> openpi Aloha camera, the names `rsb export lerobot` gives them too.
-CAMERAS = {"head_camera": "cam_high", "left_wrist_camera": "cam_left_wrist", "right_wrist_camera": "cam_right_wrist"}
-# Order of obs["agent"]["qpos"]: SAPIEN's active joints, breadth-first over the URDF tree (both arms
-# interleaved; fingers 7 and 8 of each gripper, 8 mimics 7). tests/test_openpi_preset.py checks it
-# against the agent's `active_joint_names` and `aloha14_state()`.
-QPOS_JOINT_NAMES = (
-    *(f"{p}_joint{i}" for i in range(1, 7) for p in ("fl", "fr")),
-    "fl_joint7", "fl_joint8", "fr_joint7", "fr_joint8",
+from rsb_maniskill.export.naming import camera_key
+from rsb_maniskill.robot import (
+    ALOHA14_GRIPPER_INDEX,
+    ALOHA14_JOINT_NAMES,
+    ARMS,
+    FINGER_JOINT_NAMES,
+    FINGER_TRAVEL,
+    QPOS_JOINT_NAMES,
+    sensor_uid,
 )
+from rsb_maniskill.robot import CAMERAS as ROBOT_CAMERAS
+
+# Env camera -> openpi Aloha camera, the names `rsb export lerobot` gives them too.
+CAMERAS = {sensor_uid(c): camera_key(c, "rsb") for c in ROBOT_CAMERAS}
 DEFAULT_IMAGE_SIZE = 224  # what openpi's clients send (pi0 / pi0.5 resize to 224 x 224 anyway)
 DEFAULT_ACTION_HORIZON = 10  # actions executed per chunk, as openpi's ALOHA sim example
 
@@ -41,15 +46,13 @@ def _index(name: str) -> int:
     return QPOS_JOINT_NAMES.index(name)
 
 
-# Aloha-14 slot -> qpos index; the grippers read the first finger (the second mimics it).
-_ALOHA_FROM_QPOS = [_index(f"{p}_joint{i}") for p in ("fl", "fr") for i in range(1, 8)]
-_GRIPPER_SLOTS = (6, 13)
+# Aloha-14 slot -> qpos index; the grippers read the driven finger (the other one mimics it).
+_ALOHA_FROM_QPOS = [_index(n) for n in ALOHA14_JOINT_NAMES]
+_GRIPPER_SLOTS = tuple(ALOHA14_GRIPPER_INDEX[a] for a in ARMS)
 
 
 def _gripper_travel() -> float:
-    from rsb_maniskill.agents.aloha import GRIPPER_OPEN
-
-    return float(GRIPPER_OPEN)
+    return float(FINGER_TRAVEL)
 
 
 def aloha14_from_qpos(qpos: Any) -> np.ndarray:
@@ -71,7 +74,8 @@ def qpos_from_aloha14(state: Any) -> np.ndarray:
         raise ValueError(f"openpi-aloha: 'state' must hold 14 numbers (Aloha layout), got shape {s.shape}")
     q = np.zeros((*s.shape[:-1], len(QPOS_JOINT_NAMES)), dtype=np.float32)
     q[..., _ALOHA_FROM_QPOS] = s
-    fingers, mimics = [_index("fl_joint7"), _index("fr_joint7")], [_index("fl_joint8"), _index("fr_joint8")]
+    fingers = [_index(FINGER_JOINT_NAMES[a][0]) for a in ARMS]
+    mimics = [_index(FINGER_JOINT_NAMES[a][1]) for a in ARMS]
     q[..., fingers] *= _gripper_travel()
     q[..., mimics] = q[..., fingers]
     return q

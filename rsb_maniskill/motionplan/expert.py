@@ -31,13 +31,12 @@ import numpy as np
 
 from rsb_maniskill.batch import first_value as _first
 from rsb_maniskill.motionplan.planner import (
-    ARM_ACTION_SLICE,
-    GRIPPER_ACTION_INDEX,
     ArmPlanner,
     gripper_action,
     hold_actions,
     pose7,
 )
+from rsb_maniskill.robot import ARM_ACTION_SLICE, GRIPPER_ACTION_INDEX
 
 # TCP frame pointing straight down (its x axis along -z) with the fingers closing along world y.
 DOWN_Q = np.array([0.70710678, 0.0, 0.70710678, 0.0])

@@ -14,8 +14,9 @@ import time
 import mplib
 import numpy as np
 
-from rsb_maniskill.agents.aloha import ARM_JOINT_NAMES, GRIPPER_CLOSED, GRIPPER_OPEN, PREFIX
+from rsb_maniskill.agents.aloha import GRIPPER_CLOSED, GRIPPER_OPEN
 from rsb_maniskill.agents.aloha_urdf import ASSET_DIR, MPLIB_SRDF_NAME, URDF_NAME
+from rsb_maniskill.robot import ARM_ACTION_SLICE, ARM_JOINT_NAMES, GRIPPER_ACTION_INDEX, TCP_LINKS
 
 # Trajectory limits for the move group (rad/s, rad/s^2). mplib's default is 1 and 1; the PD
 # drives (stiffness 2e3, damping 2e2) track 1.6 rad/s without a visible lag at 25 Hz.
@@ -25,9 +26,6 @@ RRT_PLANNING_TIME = 1.0  # s; only used when a screw motion fails
 # Joint-space moves (e.g. back to rest) use a smooth-step profile at this mean speed.
 JOINT_MOVE_SPEED = 1.2  # rad/s
 MIN_SEGMENT_STEPS = 2
-
-ARM_ACTION_SLICE = {"left": slice(0, 6), "right": slice(6, 12)}
-GRIPPER_ACTION_INDEX = {"left": 12, "right": 13}
 
 _PLANNERS: dict[tuple, mplib.Planner] = {}
 
@@ -52,7 +50,7 @@ def get_planner(arm: str, link_names: list[str], joint_names: list[str],
         dof = 6
         _PLANNERS[key] = mplib.Planner(
             urdf=urdf, srdf=srdf, user_link_names=list(link_names), user_joint_names=list(joint_names),
-            move_group=f"{PREFIX[arm]}_tcp_link",
+            move_group=TCP_LINKS[arm],
             joint_vel_limits=np.full(dof, JOINT_VEL_LIMIT), joint_acc_limits=np.full(dof, JOINT_ACC_LIMIT))
     return _PLANNERS[key]
 
@@ -77,7 +75,7 @@ class ArmPlanner:
         self.action_index = np.array([ARM_JOINT_NAMES.index(n) for n in names])
         slot = ARM_ACTION_SLICE[arm]
         assert set(self.action_index) == set(range(slot.start, slot.stop)), names
-        self.tcp_link = self.planner.link_name_2_idx[f"{PREFIX[arm]}_tcp_link"]
+        self.tcp_link = self.planner.link_name_2_idx[TCP_LINKS[arm]]
         self.plan_time = 0.0  # accumulated wall time spent planning
         self.rrt_calls = 0  # screw or joint moves that needed the RRTConnect fallback
 

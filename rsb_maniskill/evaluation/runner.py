@@ -21,6 +21,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from rsb_maniskill import compat
 from rsb_maniskill.batch import env_row, first_value, single_env_obs
 from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
 
@@ -228,11 +229,8 @@ class Observations:
     def step(self, action: Any) -> tuple[Any, Any, Any, Any]:
         """``env.step(action)`` without its observation: (reward, terminated, truncated, info)."""
         if self.lazy:
-            self.base._obs_mode = self.SKIP_MODE
-            try:
+            with compat.obs_mode(self.base, self.SKIP_MODE):
                 out = self.env.step(action)
-            finally:
-                self.base._obs_mode = self.mode
         else:
             out = self.env.step(action)
         self.obs, self.info, self.stale = out[0], out[4], self.lazy

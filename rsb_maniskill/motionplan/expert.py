@@ -30,6 +30,7 @@ from typing import Iterator
 import numpy as np
 
 from rsb_maniskill.batch import first_value as _first
+from rsb_maniskill.compat import controller_target_qpos
 from rsb_maniskill.motionplan.planner import (
     ArmPlanner,
     gripper_action,
@@ -329,7 +330,7 @@ class ScriptedExpert:
         until the first step, while the controllers already target the reset qpos."""
         targets = {}
         for ctrl in self.agent.controller.controllers.values():
-            q = ctrl._target_qpos[0].cpu().numpy()
+            q = controller_target_qpos(ctrl)[0].cpu().numpy()
             targets.update({j.name: float(v) for j, v in zip(ctrl.joints, q)})
         action = np.zeros(14, dtype=np.float32)
         for k, name in enumerate(self.agent.arm_joint_names):

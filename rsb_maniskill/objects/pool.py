@@ -17,6 +17,7 @@ from mani_skill.envs.scene import ManiSkillScene
 from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 
+from rsb_maniskill.compat import entities, physx_bodies
 from rsb_maniskill.objects.family import BlockFamily, ObjectFamily, Shape
 
 
@@ -64,7 +65,7 @@ class CandidatePool:
 
     def _set_visible(self, k: int, visible: bool) -> None:
         if self._cpu and self.parks:
-            for obj in self.actors[k]._objs:
+            for obj in entities(self.actors[k]):
                 body = obj.find_component_by_type(sapien.render.RenderBodyComponent)
                 if body is not None:
                     body.visibility = float(visible)
@@ -113,7 +114,7 @@ class CandidatePool:
         """CPU: puts every parked member to sleep where it is (it stays there until touched)."""
         if self._cpu:
             for k in torch.nonzero(~self._on_table[0]).flatten().tolist():
-                self.actors[k]._bodies[0].put_to_sleep()
+                physx_bodies(self.actors[k])[0].put_to_sleep()
 
     def after_step(self) -> None:
         """CPU, once after a reset: members just taken off the table were woken by the contacts
@@ -123,7 +124,7 @@ class CandidatePool:
         upright = torch.tensor([[1.0, 0.0, 0.0, 0.0]], device=self.device)
         for k in self._rest_again:
             _set_still(self.actors[k], self._park[k][None], upright)
-            self.actors[k]._bodies[0].put_to_sleep()
+            physx_bodies(self.actors[k])[0].put_to_sleep()
         self._rest_again = []
 
     # ------------------------------------------------------------------ per-candidate views

@@ -11,6 +11,8 @@ from mani_skill.envs.scene import ManiSkillScene
 from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.link import Link
 
+from rsb_maniskill.compat import physx_bodies
+
 
 class PairContacts:
     """Force magnitudes (N) between each of F links and each of M actors: ``forces() -> (B, F, M)``."""
@@ -20,8 +22,8 @@ class PairContacts:
         self.shape = (len(links), len(actors))
         self._query = None
         if not scene.gpu_sim_enabled:
-            self._link_index = {l._bodies[0].entity: f for f, l in enumerate(links)}
-            self._actor_index = {a._bodies[0].entity: m for m, a in enumerate(actors)}
+            self._link_index = {physx_bodies(link)[0].entity: f for f, link in enumerate(links)}
+            self._actor_index = {physx_bodies(a)[0].entity: m for m, a in enumerate(actors)}
 
     def forces(self) -> torch.Tensor:
         if self.scene.gpu_sim_enabled:
@@ -43,7 +45,7 @@ class PairContacts:
 
     def _gpu_forces(self) -> torch.Tensor:
         if self._query is None:
-            pairs = [(l._bodies[e], a._bodies[e]) for l in self.links for a in self.actors
+            pairs = [(physx_bodies(link)[e], physx_bodies(a)[e]) for link in self.links for a in self.actors
                      for e in range(self.scene.num_envs)]
             self._query = self.scene.px.gpu_create_contact_pair_impulse_query(pairs)
         self.scene.px.gpu_query_contact_pair_impulses(self._query)

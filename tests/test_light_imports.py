@@ -119,3 +119,15 @@ def test_lazy_entries_match_maniskills_and_ids_live_in_one_leaf():
     for path in (REPO / "rsb_maniskill" / "tasks").glob("*.py"):
         names = {n.module for n in ast.walk(ast.parse(path.read_text())) if isinstance(n, ast.ImportFrom)}
         assert "rsb_maniskill.registration" not in names, f"{path.name} imports the registry module"
+
+
+def test_one_suite_resolver():
+    from rsb_maniskill.env_ids import PAPER_SUITES, SUITE_GROUPS, resolve_env_ids
+
+    assert resolve_env_ids(["paper"]) == list(PAPER_SUITES)
+    assert resolve_env_ids("RSB-Direct-4, paper,RSB-Math-4") == ["RSB-Direct-4", *PAPER_SUITES]
+    assert resolve_env_ids(["paper-objects"]) == [s + "-Objects" for s in PAPER_SUITES]
+    assert resolve_env_ids(["rsb_maniskill:RSB-Math-10-Objects"]) == ["RSB-Math-10-Objects"]
+    assert len(resolve_env_ids(["all", "all-objects"])) == 16
+    with pytest.raises(ValueError, match=r"unknown suite 'RSB-Math-5'.*" + ", ".join(SUITE_GROUPS)):
+        resolve_env_ids(["RSB-Math-5"])

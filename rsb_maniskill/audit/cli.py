@@ -33,22 +33,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _suite_ids(names: list[str]) -> list[tuple[str, str]]:
     """(suite id, targets) pairs named by ids and groups."""
-    from rsb_maniskill.evaluation.metrics import PAPER_SUITES
-    from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
-    from rsb_maniskill.semantic.suites import SUITE_IDS
+    from rsb_maniskill.env_ids import resolve_env_ids
+    from rsb_maniskill.objects.family import split_env_id
 
-    groups = {"all": SUITE_IDS, "paper": PAPER_SUITES}
-    out: list[tuple[str, str]] = []
-    for name in names:
-        base, objects = (name[:-len("-objects")], True) if name.endswith("-objects") else (name, False)
-        if base in groups:
-            out += [(sid, "objects" if objects else "blocks") for sid in groups[base]]
-            continue
-        if split_env_id(name)[0] not in SUITE_IDS:
-            raise ValueError(f"unknown suite {name!r}; valid: {', '.join(SUITE_IDS)}, the same with "
-                             f"{OBJECTS_SUFFIX!r}, paper, all, paper-objects, all-objects")
-        out.append(split_env_id(name))
-    return list(dict.fromkeys(out))
+    return [split_env_id(eid) for eid in resolve_env_ids(names)]
 
 
 def _read_specs(paths: list[str]) -> dict[str, dict[str, list]]:

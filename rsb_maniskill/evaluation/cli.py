@@ -93,21 +93,12 @@ def parse_kv(items: list[str], what: str) -> dict[str, Any]:
 
 
 def resolve_suites(names: list[str]) -> list[str]:
-    from rsb_maniskill.evaluation.metrics import PAPER_OBJECT_SUITES, PAPER_SUITES
-    from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
-    from rsb_maniskill.semantic.suites import SUITE_IDS
+    from rsb_maniskill.env_ids import resolve_env_ids
 
-    groups = {"paper": PAPER_SUITES, "all": SUITE_IDS, "paper-objects": PAPER_OBJECT_SUITES,
-              "all-objects": tuple(s + OBJECTS_SUFFIX for s in SUITE_IDS)}
-    out: list[str] = []
-    for name in names:
-        for s in groups.get(name, (name,)):
-            if split_env_id(s)[0] not in SUITE_IDS:
-                raise EvalError(f"unknown suite {s!r}; valid: {', '.join(SUITE_IDS)}, each with {OBJECTS_SUFFIX!r}, "
-                                f"{', '.join(repr(g) for g in groups)}")
-            if s not in out:
-                out.append(s)
-    return out
+    try:
+        return resolve_env_ids(names)
+    except ValueError as err:
+        raise EvalError(str(err)) from None
 
 
 def check_policy_spec(spec: str, num_envs: int = 1) -> None:

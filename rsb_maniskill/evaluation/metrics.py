@@ -14,18 +14,12 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable, Mapping, Sequence
 
-from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
+from rsb_maniskill.env_ids import PAPER_OBJECT_SUITES, PAPER_SUITES
+from rsb_maniskill.objects.family import split_env_id
 from rsb_maniskill.semantic.suites import parse_suite_id
 
 # Two-sided 95%: the 0.975 quantile of the standard normal.
 Z95 = 1.959963984540054
-
-# The six suites of the paper's tables; "Avg" is over these (Direct suites are controls).
-PAPER_SUITES: tuple[str, ...] = (
-    "RSB-Math-4", "RSB-Math-10", "RSB-HardMath-4", "RSB-HardMath-10", "RSB-General-4", "RSB-General-10",
-)
-# The same six with everyday objects (the paper's Beyond Blocks tables, appendix).
-PAPER_OBJECT_SUITES: tuple[str, ...] = tuple(s + OBJECTS_SUFFIX for s in PAPER_SUITES)
 
 
 def num_choices(suite_id: str) -> int:

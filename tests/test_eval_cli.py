@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import signal
-import os
 import subprocess
 import sys
 import time
@@ -198,11 +197,9 @@ def test_shuffled_and_blank_modes_on_the_real_task(tmp_path):
     assert summary_dict(results_from_records(records))["rows"].keys() == rows.keys()
 
 
-def test_paper_objects_prints_the_beyond_blocks_table(tmp_path, capsys):
+def test_paper_objects_prints_the_beyond_blocks_table(tmp_path, capsys, question_data):
     """`--suites paper-objects`: the six paper suites with everyday objects, and the appendix's
     Scene | GSR | TSR table with its Avg row."""
-    if not os.environ.get("RSB_DATA_DIR"):
-        pytest.skip("HardMath / General need GSM8K / MMLU: set RSB_DATA_DIR (CI uses ../shared/data)")
     out = tmp_path / "res"
     assert main(["eval", "oracle", "--suites", "paper-objects", "-n", "2", "--out", str(out)]) == 0
     text = capsys.readouterr().out

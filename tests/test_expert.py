@@ -1,8 +1,6 @@
 """The scripted motion-planning expert: planner plumbing, and physics episodes judged by the env."""
 from __future__ import annotations
 
-import os
-
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -162,9 +160,7 @@ def test_expert_success_rate_20_seeds(suite):
 @pytest.mark.slow
 @pytest.mark.parametrize("suite", ["RSB-Direct-4", "RSB-Direct-10", "RSB-HardMath-4", "RSB-HardMath-10",
                                    "RSB-General-4", "RSB-General-10"])
-def test_expert_on_other_suites(suite):
-    if ("HardMath" in suite or "General" in suite) and not os.environ.get("RSB_DATA_DIR"):
-        pytest.skip("needs RSB_DATA_DIR (GSM8K / MMLU files)")
+def test_expert_on_other_suites(suite, question_data):
     env = make(suite)
     for seed in range(3):
         env.reset(seed=seed)

@@ -16,17 +16,7 @@ from rsb_maniskill.tasks.answer_selection import HOLD_STEPS, MAX_EPISODE_STEPS, 
 
 from robot_helpers import ArmDriver
 
-DATA_SUITES = ("HardMath", "General")
 OBS_MODES = ("state", "state_dict", "rgb", "rgbd", "none")
-
-
-def needs_data(suite_id: str) -> bool:
-    return any(s in suite_id for s in DATA_SUITES)
-
-
-def skip_without_data(suite_id: str):
-    if needs_data(suite_id) and not os.environ.get("RSB_DATA_DIR"):
-        pytest.skip(f"{suite_id} needs GSM8K/MMLU: set RSB_DATA_DIR (CI uses ../shared/data)")
 
 
 def make(suite_id="RSB-Math-4", **kw):
@@ -37,8 +27,7 @@ def make(suite_id="RSB-Math-4", **kw):
 
 
 @pytest.mark.parametrize("suite_id", SUITE_IDS)
-def test_every_suite_resets_and_steps(suite_id):
-    skip_without_data(suite_id)
+def test_every_suite_resets_and_steps(suite_id, question_data):
     env = make(suite_id)
     obs, info = env.reset(seed=1)
     n = int(suite_id.rsplit("-", 1)[1])

@@ -2,6 +2,7 @@
 LeRobot's own loader on the result (in a separate virtual environment: its pins clash with ours)."""
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -38,6 +39,25 @@ def exported(demos, tmp_path_factory) -> Path:
     return out
 
 
+def read_data(root: Path) -> dict:
+    """Every frame of a dataset, from all its data files (a merged export has one per shard)."""
+    import pyarrow as pa
+
+    files = sorted((root / "data").glob("chunk-*/file-*.parquet"))
+    return pa.concat_tables([pq.read_table(f) for f in files]).to_pydict()
+
+
+def fingerprint(root: Path) -> dict[str, str]:
+    """Every file of a dataset by content (parquet by table, so writer metadata cannot hide a difference)."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        if p.is_file():
+            rel = str(p.relative_to(root))
+            data = str(pq.read_table(p).to_pydict()) if p.suffix == ".parquet" else p.read_bytes()
+            out[rel] = hashlib.sha256(data if isinstance(data, bytes) else data.encode()).hexdigest()
+    return out
+
+
 def _head_frame(demos: Path, episode: int, t: int) -> np.ndarray:
     """The head camera at step t of a demo, rendered here from its recorded state."""
     from rsb_maniskill.export.lerobot import render_episodes
@@ -57,7 +77,7 @@ def test_v3_layout_and_contents(demos, exported):
     keys = ["observation.images.cam_high", "observation.images.cam_left_wrist", "observation.images.cam_right_wrist"]
     assert all(info["features"][k]["dtype"] == "video" for k in keys)
     assert info["features"]["observation.state"]["shape"] == [14]
-    data = pq.read_table(exported / "data/chunk-000/file-000.parquet").to_pydict()
+    data = read_data(exported)
     assert len(data["index"]) == n_frames and data["index"] == list(range(n_frames))
     tasks = pq.read_table(exported / "meta/tasks.parquet").to_pydict()
     instructions = [e["instruction"] for e in src["episodes"]]
@@ -169,3 +189,10 @@ def test_lerobot_loads_the_export(demos, exported, tmp_path):
     assert got["letter"] == src["episodes"][0]["correct_letter"]
     assert got["err"] < 6, got["err"]
     assert {"observation.state", "action", "observation.images.cam_left_wrist", "task_index"} <= set(got["keys"])
+
+
+def test_parallel_export_is_the_same_dataset(demos, exported, tmp_path):
+    """Two worker processes, one shard each, merged: the same files as the default export."""
+    export_lerobot([demos], tmp_path / "par", progress=False, num_procs=2, shard_size=1)
+    assert fingerprint(tmp_path / "par") == fingerprint(exported)
+    assert not (tmp_path / ".par.work").exists()  # the shards go once merged

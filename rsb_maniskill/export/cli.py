@@ -1,8 +1,23 @@
-"""`rsb export lerobot`: demonstrations as a LeRobot dataset (no simulator import until it runs)."""
+"""`rsb export lerobot` and `rsb dataset build` (no simulator import until they run)."""
 from __future__ import annotations
 
 import argparse
 import sys
+
+from rsb_maniskill.workers import add_executor_args
+
+CAMERAS_HELP = ("comma-separated: head, left_wrist, right_wrist (keys cam_high, cam_left_wrist, cam_right_wrist; "
+                "with --naming robotwin head_camera, left_camera, right_camera)")
+
+
+def _add_format_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fps", type=int, default=None, help="frame rate; must divide the 25 Hz control rate (default 25)")
+    p.add_argument("--cameras", default="head,left_wrist,right_wrist", help=CAMERAS_HELP)
+    p.add_argument("--naming", choices=("rsb", "robotwin"), default="rsb",
+                   help="feature keys: rsb (LeRobot's Aloha names, openpi's) or robotwin (LeRobot's RoboTwin env)")
+    p.add_argument("--num-procs", type=int, default=None,
+                   help="worker processes (default 1; with --executor ray the cluster's CPUs)")
+    add_executor_args(p)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -12,28 +27,90 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         description="Write demos (rsb generate output, merged or converted) as one LeRobot v3.0 "
                                     "dataset: Aloha 14-number state and action, one video per camera, each "
                                     "episode's instruction as its task, RSB metadata in the episodes table. State "
-                                    "demos are re-rendered from their recorded env states.")
+                                    "demos are re-rendered from their recorded env states, in parallel with "
+                                    "--num-procs; a rerun after an interruption keeps the finished shards.")
     lr.add_argument("demos", nargs="+", metavar="DEMOS.h5", help="trajectory files (X.h5 with X.json beside it)")
     lr.add_argument("--out", required=True, metavar="DIR", help="dataset directory (created; must not hold files)")
-    lr.add_argument("--fps", type=int, default=None, help="frame rate; must divide the 25 Hz control rate (default 25)")
-    lr.add_argument("--cameras", default="head,left_wrist,right_wrist",
-                    help="comma-separated: head, left_wrist, right_wrist (LeRobot keys cam_high, cam_left_wrist, "
-                         "cam_right_wrist)")
+    _add_format_args(lr)
     lr.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --out")
     lr.set_defaults(func=cmd_lerobot)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+    d = subparsers.add_parser("dataset", help="build the training sets as LeRobot datasets (expert + rendering)")
+    dsub = d.add_subparsers(dest="dataset_command", metavar="COMMAND")
+    b = dsub.add_parser("build", help="expert demos of every training question, rendered, as one LeRobot dataset "
+                                      "per suite",
+                        description="From nothing to LeRobot v3.0 datasets of the training sets: the scripted "
+                                    "expert on every question of the split, camera frames rendered from its "
+                                    "states, in shards written whole by parallel workers; rerun the same command "
+                                    "to resume. One dataset per suite at OUT/<suite> with its dataset card.")
+    b.add_argument("--suites", default="paper",
+                   help="comma-separated suite ids or groups: paper (the six of the paper), all, paper-objects, "
+                        "all-objects, RSB-Math-4, ... (default paper)")
+    b.add_argument("--targets", choices=("blocks", "objects"), default="blocks",
+                   help="blocks, or the Beyond Blocks everyday objects (the -Objects ids)")
+    b.add_argument("--split", default="train", help="question split (default train)")
+    b.add_argument("--questions", default="all", help="'all' or START:STOP of the split's questions (default all)")
+    b.add_argument("--out", required=True, metavar="DIR", help="OUT/<suite> per suite; OUT/.work holds the shards")
+    b.add_argument("--shard-size", type=int, default=25,
+                   help="questions a shard (a stopped run loses at most the shards in flight; default 25)")
+    b.add_argument("--data-dir", default=None, help="question data directory (default $RSB_DATA_DIR or the hub cache)")
+    _add_format_args(b)
+    b.set_defaults(func=cmd_build)
+    d.set_defaults(func=lambda args: (d.print_help(), 2)[1])
+
+
+def _executor(args: argparse.Namespace):
+    from rsb_maniskill.workers import executor_from_args
+
+    executor = executor_from_args(args.executor, args.address)
+    return executor, args.num_procs or (executor.workers() if executor is not None else 1)
+
+
+def _cameras(text: str) -> list[str]:
+    return [c.strip() for c in text.split(",") if c.strip()]
 
 
 def cmd_lerobot(args: argparse.Namespace) -> int:
     from .lerobot import ExportError, export_lerobot
 
-    cameras = [c.strip() for c in args.cameras.split(",") if c.strip()]
     try:
-        summary = export_lerobot(args.demos, args.out, fps=args.fps, cameras=cameras, overwrite=args.overwrite,
-                                 progress=sys.stderr.isatty())
-    except ExportError as err:
+        executor, num_procs = _executor(args)
+        summary = export_lerobot(args.demos, args.out, fps=args.fps, cameras=_cameras(args.cameras),
+                                 naming=args.naming, overwrite=args.overwrite, progress=sys.stderr.isatty(),
+                                 num_procs=num_procs, executor=executor)
+    except (ExportError, ValueError, ImportError) as err:
         print(f"rsb export: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as err:
+        print(f"rsb export: {err or 'interrupted'}", file=sys.stderr)
+        return 130
     print(f"rsb export: {summary['episodes']} episodes, {summary['frames']} frames, {summary['tasks']} tasks at "
           f"{summary['fps']} fps -> {summary['out']}")
+    return 0
+
+
+def cmd_build(args: argparse.Namespace) -> int:
+    from .build import BuildConfig, build_datasets
+    from .lerobot import ExportError
+
+    try:
+        executor, num_procs = _executor(args)
+        cfg = BuildConfig(suites=[s for s in args.suites.split(",") if s.strip()], out=args.out, targets=args.targets,
+                          split=args.split, questions=args.questions, cameras=_cameras(args.cameras), fps=args.fps,
+                          naming=args.naming, num_procs=num_procs, shard_size=args.shard_size,
+                          data_dir=args.data_dir, progress=sys.stderr.isatty())
+        summaries = build_datasets(cfg, executor)
+    except (ExportError, ValueError, ImportError) as err:
+        print(f"rsb dataset: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as err:
+        print(f"rsb dataset: {err or 'interrupted; rerun the same command to continue'}", file=sys.stderr)
+        return 130
+    *suites, totals = summaries
+    for s in suites:
+        state = "already built" if s["already_built"] else "built"
+        print(f"rsb dataset: {s['env_id']}: {s['episodes']} episodes, {s['frames']} frames ({state}) -> {s['out']}")
+    print(f"rsb dataset: rendered {totals['rendered_frames']} frames of {totals['rendered_episodes']} episodes in "
+          f"{totals['wall_s']:.0f} s")
     return 0

@@ -9,8 +9,15 @@ files and timestamps, per-episode statistics, and the RSB metadata as ``rsb/*`` 
 
 Frames are rendered from the recorded env states (``rsb generate`` records states, so state-only
 demos get their camera streams here), ``observation.state`` and ``action`` use the Aloha 14-number
-layout (``to_aloha14``) and each episode's instruction is its task. LeRobot's own package is not
-imported: its pins (torch, numpy 2) clash with the project's.
+layout (``to_aloha14``) and each episode's instruction is its task. Feature keys follow a naming
+(``export/naming.py``). LeRobot's own package is not imported: its pins (torch, numpy 2) clash with
+the project's.
+
+:func:`write_dataset` writes one dataset from an iterable of episodes in this process (videos are
+encoded on a thread while the next episode renders). :func:`export_lerobot` splits the demos into
+shards, writes each with :func:`write_dataset` in worker processes (``rsb_maniskill.workers``) and
+merges them (``export/merge.py``); ``rsb dataset build`` (``export/build.py``) does the same with
+the expert's demos made in the same workers.
 """
 from __future__ import annotations
 
@@ -23,10 +30,12 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from rsb_maniskill.export.naming import DEFAULT_NAMING, NAMINGS, video_key
+from rsb_maniskill.robot import CAMERAS, sensor_uid
+
 CODEBASE_VERSION = "v3.0"
 ROBOT_TYPE = "aloha"
-CAMERAS = {"head": "cam_high", "left_wrist": "cam_left_wrist", "right_wrist": "cam_right_wrist"}
-DEFAULT_CAMERAS = tuple(CAMERAS)
+DEFAULT_CAMERAS = CAMERAS
 CHUNKS_SIZE = 1000  # files per chunk directory, LeRobot's default
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 IMAGE_STATS_FRAMES = 20  # frames per episode sampled for image statistics ...
@@ -39,10 +48,6 @@ VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.m
 
 class ExportError(RuntimeError):
     """A demo file cannot be exported, or the output directory is not usable."""
-
-
-def video_key(camera: str) -> str:
-    return f"observation.images.{CAMERAS[camera]}"
 
 
 @dataclass
@@ -101,7 +106,12 @@ def _jsonable(stats: dict[str, dict[str, np.ndarray]]) -> dict:
 # ------------------------------------------------------------------ rendering from demo files
 
 
+_RENDER_ENV: list = []  # (key, env): the last render env of this process, reused by the next shard
+
+
 def _env_for(env_info: dict):
+    """An rgb env for the demos' env (the same one for the next file of the same env: building one
+    costs seconds, a shard of demos little more)."""
     import gymnasium as gym
 
     import rsb_maniskill  # noqa: F401  (registers the ids)
@@ -110,7 +120,18 @@ def _env_for(env_info: dict):
     for k in ("render_mode", "num_envs", "sim_backend", "render_backend"):
         kwargs.pop(k, None)
     kwargs.update(obs_mode="rgb", sim_backend="physx_cpu")
-    return gym.make(env_info["env_id"], **kwargs)
+    key = json.dumps([env_info["env_id"], kwargs], sort_keys=True, default=str)
+    if _RENDER_ENV and _RENDER_ENV[0][0] == key:
+        return _RENDER_ENV[0][1]
+    close_render_env()
+    env = gym.make(env_info["env_id"], **kwargs)
+    _RENDER_ENV.append((key, env))
+    return env
+
+
+def close_render_env() -> None:
+    while _RENDER_ENV:
+        _RENDER_ENV.pop()[1].close()
 
 
 def _read_group(group) -> dict | np.ndarray:
@@ -120,8 +141,10 @@ def _read_group(group) -> dict | np.ndarray:
     return {k: _read_group(v) if isinstance(v, h5py.Group) else v[()] for k, v in group.items()}
 
 
-def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int) -> Iterable[Episode]:
-    """Episodes of one demo file, camera frames rendered from the recorded env states."""
+def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int,
+                    episode_ids: Sequence[int] | None = None) -> Iterable[Episode]:
+    """Episodes of one demo file (those of ``episode_ids``, default all), camera frames rendered
+    from the recorded env states."""
     import h5py
     from mani_skill.trajectory.utils import dict_to_list_of_dicts
 
@@ -133,7 +156,10 @@ def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int) -> Itera
     base = env.unwrapped
     try:
         with h5py.File(h5_path, "r") as f:
+            wanted = None if episode_ids is None else set(episode_ids)
             for ep in data["episodes"]:
+                if wanted is not None and ep["episode_id"] not in wanted:
+                    continue
                 group = f[f"traj_{ep['episode_id']}"]
                 if "env_states" not in group:
                     raise ExportError(f"{h5_path}: episode {ep['episode_id']} has no env states; record demos with "
@@ -149,7 +175,7 @@ def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int) -> Itera
                     obs = base.get_obs()
                     state.append(base.agent.aloha14_state()[0].cpu().numpy())
                     for c in cameras:
-                        frames[c].append(obs["sensor_data"][f"{c}_camera"]["rgb"][0].cpu().numpy())
+                        frames[c].append(obs["sensor_data"][sensor_uid(c)]["rgb"][0].cpu().numpy())
                 meta = {
                     "suite_id": spec.suite_id, "split": spec.split, "seed": int(ep["episode_seed"]),
                     "question_id": spec.question_id, "question": spec.question, "options": list(spec.options),
@@ -159,8 +185,9 @@ def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int) -> Itera
                 }
                 yield Episode(np.asarray(state, np.float32), to_aloha14(actions[::stride]).astype(np.float32),
                               {c: np.stack(v) for c, v in frames.items()}, ep.get("instruction", spec.instruction), meta)
-    finally:
-        env.close()
+    except BaseException:
+        close_render_env()  # an env left mid-episode by an error is not reused
+        raise
 
 
 # ------------------------------------------------------------------ writing
@@ -190,8 +217,8 @@ def _hf_metadata(features: dict) -> bytes:
     return json.dumps({"info": {"features": hf}}).encode()
 
 
-def _features(cameras: Sequence[str], shapes: dict[str, tuple[int, int]], fps: int) -> dict:
-    from rsb_maniskill.agents.aloha import ALOHA14_NAMES
+def _features(cameras: Sequence[str], shapes: dict[str, tuple[int, int]], fps: int, naming: str) -> dict:
+    from rsb_maniskill.robot import ALOHA14_NAMES
 
     feats: dict[str, Any] = {
         "observation.state": {"dtype": "float32", "shape": [14], "names": list(ALOHA14_NAMES)},
@@ -199,7 +226,7 @@ def _features(cameras: Sequence[str], shapes: dict[str, tuple[int, int]], fps: i
     }
     for c in cameras:
         h, w = shapes[c]
-        feats[video_key(c)] = {"dtype": "video", "shape": [h, w, 3], "names": ["height", "width", "channels"],
+        feats[video_key(c, naming)] = {"dtype": "video", "shape": [h, w, 3], "names": ["height", "width", "channels"],
                                "info": {"video.height": h, "video.width": w, "video.codec": VIDEO_CODEC,
                                         "video.pix_fmt": "yuv420p", "video.fps": fps, "video.channels": 3,
                                         "has_audio": False, "is_depth_map": False}}
@@ -252,13 +279,14 @@ def _frame_table(ep: Episode, episode_index: int, first_index: int, task_index: 
     return table, cols
 
 
-def _write_videos(root: Path, ep: Episode, episode_index: int, cameras: Sequence[str], fps: int) -> dict[str, Any]:
+def _write_videos(root: Path, ep: Episode, episode_index: int, cameras: Sequence[str], fps: int,
+                  naming: str) -> dict[str, Any]:
     """One mp4 per camera; returns the episode row's video columns."""
     n = len(ep.action)
     chunk, file = divmod(episode_index, CHUNKS_SIZE)
     row: dict[str, Any] = {}
     for c in cameras:
-        key = video_key(c)
+        key = video_key(c, naming)
         _write_video(root / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=file), ep.frames[c], fps)
         row.update({f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": file,
                     f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": n / fps})
@@ -284,93 +312,158 @@ def _write_meta(root: Path, episodes: list[dict], tasks: dict[str, int], stats: 
     (root / "meta/info.json").write_text(json.dumps(info, indent=4))
 
 
-def _check_inputs(demos: Sequence[str | os.PathLike], out: Path, fps: int | None, cameras: Sequence[str],
-                  overwrite: bool) -> tuple[list[Path], int, int]:
-    """Validated demo paths, fps and frame stride; raises before anything is written."""
+def check_fps(fps: int | None) -> tuple[int, int]:
+    """``(fps, stride)`` for a requested frame rate (default: every control step)."""
     from rsb_maniskill.env_ids import CONTROL_FREQ  # what every RSB demo runs at
 
-    bad = [c for c in cameras if c not in CAMERAS]
-    if bad or not cameras:
-        raise ExportError(f"unknown camera(s) {', '.join(bad) or '(none given)'}; valid: {', '.join(CAMERAS)}")
-    paths = [Path(p) for p in demos]
-    for p in paths:
-        if p.suffix != ".h5" or not p.is_file() or not p.with_suffix(".json").is_file():
-            raise ExportError(f"{p}: not a trajectory file pair (X.h5 with X.json beside it)")
-    _check_out(out, overwrite)
     fps = CONTROL_FREQ if fps is None else int(fps)
     if fps < 1 or CONTROL_FREQ % fps:
         raise ExportError(f"--fps must divide the demos' control frequency ({CONTROL_FREQ} Hz), got {fps}")
-    return paths, fps, CONTROL_FREQ // fps
+    return fps, CONTROL_FREQ // fps
 
 
-def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *, fps: int | None = None,
-                   cameras: Sequence[str] = DEFAULT_CAMERAS, overwrite: bool = False,
-                   progress: bool = True) -> dict[str, Any]:
-    """Writes the episodes of ``demos`` (``rsb generate`` files, merged or converted ones too) as
-    one LeRobot v3.0 dataset under ``out``; returns a summary. The dataset is built under a
-    temporary name beside ``out`` and renamed at the end, so a failed export leaves nothing."""
-    try:
-        import pyarrow.parquet as pq
-    except ImportError:
-        raise ExportError("writing parquet needs pyarrow: pip install 'rsb_maniskill[export]'") from None
-    from tqdm import tqdm
+def check_cameras(cameras: Sequence[str], naming: str) -> tuple[str, ...]:
+    bad = [c for c in cameras if c not in CAMERAS]
+    if bad or not cameras:
+        raise ExportError(f"unknown camera(s) {', '.join(bad) or '(none given)'}; valid: {', '.join(CAMERAS)}")
+    if naming not in NAMINGS:
+        raise ExportError(f"unknown naming {naming!r}; valid: {', '.join(NAMINGS)}")
+    return tuple(cameras)
+
+
+class _VideoWriter:
+    """Encodes an episode's videos on one thread while the caller renders the next episode; at most
+    one episode waits, so memory stays at two episodes' frames."""
+
+    def __init__(self) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rsb-video")
+        self._pending = None
+
+    def submit(self, fn: Any, *args: Any) -> None:
+        self.wait()
+        self._pending = self._pool.submit(fn, *args)
+
+    def wait(self) -> None:
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            pending.result()  # re-raises an encoding error here
+
+    def close(self) -> None:
+        try:
+            self.wait()
+        finally:
+            self._pool.shutdown(wait=True)
+
+
+def write_dataset(episodes: Iterable[Episode], out: str | os.PathLike, *, fps: int, cameras: Sequence[str],
+                  naming: str = DEFAULT_NAMING, on_episode: Any = None) -> dict[str, Any]:
+    """Writes ``episodes`` (frames already at ``fps``) as one LeRobot v3.0 dataset at ``out``, in this
+    process; ``on_episode(frames)`` after each. Built under a temporary name beside ``out`` and
+    renamed at the end, so an interrupted or failed write leaves nothing at ``out``."""
+    import pyarrow.parquet as pq
 
     out = Path(out)
-    paths, fps, stride = _check_inputs(demos, out, fps, cameras, overwrite)
-    total = sum(len(json.loads(p.with_suffix(".json").read_text())["episodes"]) for p in paths)
     tmp = out.parent / f".{out.name}.tmp{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tasks: dict[str, int] = {}
-    episodes: list[dict[str, Any]] = []
+    rows: list[dict[str, Any]] = []
     stats: list[dict[str, dict[str, np.ndarray]]] = []
     shapes: dict[str, tuple[int, int]] = {}
     features: dict = {}
     writer = None
+    videos = _VideoWriter()
     index = 0
-    bar = tqdm(total=total, desc="export", unit="ep", disable=not progress)
     try:
         (tmp / DATA_FILE).parent.mkdir(parents=True)
-        for path in paths:
-            for ep in render_episodes(path, cameras, stride):
-                e, n = len(episodes), len(ep.action)
-                if not shapes:
-                    shapes = {c: ep.frames[c].shape[1:3] for c in cameras}
-                    features = _features(cameras, shapes, fps)
-                bad = [c for c in cameras if ep.frames[c].shape[1:3] != shapes[c]]
-                if bad:
-                    raise ExportError(f"{path}: camera {bad[0]} is {ep.frames[bad[0]].shape[1:3]} here, "
-                                      f"{shapes[bad[0]]} before; export demos of one camera size together")
-                table, cols = _frame_table(ep, e, index, tasks.setdefault(ep.task, len(tasks)), fps)
-                if writer is None:
-                    writer = pq.ParquetWriter(tmp / DATA_FILE, table.schema.with_metadata(
-                        {"huggingface": _hf_metadata(features)}))
-                writer.write_table(table.replace_schema_metadata(writer.schema.metadata))
-                ep_stats = {k: vector_stats(v) for k, v in cols.items()}
-                ep_stats.update({video_key(c): image_stats(ep.frames[c]) for c in cameras})
-                row: dict[str, Any] = {"episode_index": e, "tasks": [ep.task], "length": n, "data/chunk_index": 0,
-                                       "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n}
-                row.update(_write_videos(tmp, ep, e, cameras, fps))
-                row.update({"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0})
-                row.update({f"stats/{f}/{k}": np.asarray(v).tolist() for f, st in ep_stats.items() for k, v in st.items()})
-                row.update({f"rsb/{k}": v for k, v in ep.meta.items()})
-                episodes.append(row)
-                stats.append(ep_stats)
-                index += n
-                bar.update(1)
+        for ep in episodes:
+            e, n = len(rows), len(ep.action)
+            if not shapes:
+                shapes = {c: ep.frames[c].shape[1:3] for c in cameras}
+                features = _features(cameras, shapes, fps, naming)
+            bad = [c for c in cameras if ep.frames[c].shape[1:3] != shapes[c]]
+            if bad:
+                raise ExportError(f"{ep.meta.get('source_file', 'a demo')}: camera {bad[0]} is "
+                                  f"{ep.frames[bad[0]].shape[1:3]} here, {shapes[bad[0]]} before; export demos "
+                                  "of one camera size together")
+            table, cols = _frame_table(ep, e, index, tasks.setdefault(ep.task, len(tasks)), fps)
+            if writer is None:
+                writer = pq.ParquetWriter(tmp / DATA_FILE, table.schema.with_metadata(
+                    {"huggingface": _hf_metadata(features)}))
+            writer.write_table(table.replace_schema_metadata(writer.schema.metadata))
+            ep_stats = {k: vector_stats(v) for k, v in cols.items()}
+            ep_stats.update({video_key(c, naming): image_stats(ep.frames[c]) for c in cameras})
+            row: dict[str, Any] = {"episode_index": e, "tasks": [ep.task], "length": n, "data/chunk_index": 0,
+                                   "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n}
+            chunk, file = divmod(e, CHUNKS_SIZE)
+            for c in cameras:
+                key = video_key(c, naming)
+                row.update({f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": file,
+                            f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": n / fps})
+            videos.submit(_write_videos, tmp, ep, e, cameras, fps, naming)
+            row.update({"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0})
+            row.update({f"stats/{f}/{k}": np.asarray(v).tolist() for f, st in ep_stats.items() for k, v in st.items()})
+            row.update({f"rsb/{k}": v for k, v in ep.meta.items()})
+            rows.append(row)
+            stats.append(ep_stats)
+            index += n
+            if on_episode is not None:
+                on_episode(n)
+        videos.close()
         if writer is None:
             raise ExportError("the demo files hold no episodes")
         writer.close()
         writer = None
-        _write_meta(tmp, episodes, tasks, stats, features, fps, index)
+        _write_meta(tmp, rows, tasks, stats, features, fps, index)
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)
     except BaseException:
         if writer is not None:
             writer.close()
+        videos.close()
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    finally:
-        bar.close()
-    return {"out": str(out), "episodes": len(episodes), "frames": index, "tasks": len(tasks), "fps": fps,
-            "cameras": [video_key(c) for c in cameras]}
+    return {"out": str(out), "episodes": len(rows), "frames": index, "tasks": len(tasks), "fps": fps,
+            "cameras": [video_key(c, naming) for c in cameras]}
+
+
+def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *, fps: int | None = None,
+                   cameras: Sequence[str] = DEFAULT_CAMERAS, naming: str = DEFAULT_NAMING, overwrite: bool = False,
+                   progress: bool = True, num_procs: int = 1, executor: Any = None,
+                   shard_size: int | None = None) -> dict[str, Any]:
+    """Writes the episodes of ``demos`` (``rsb generate`` files, merged or converted ones too) as
+    one LeRobot v3.0 dataset under ``out``; returns a summary.
+
+    The episodes are cut into shards of ``shard_size`` (default: a few per worker), rendered by
+    ``num_procs`` worker processes (or ``executor``, e.g. Ray), each shard written whole under
+    ``.<out>.work/`` beside ``out``, then merged into ``out``. A rerun after an interruption keeps
+    the finished shards; nothing is written at ``out`` until the merge is complete."""
+    try:
+        import pyarrow.parquet  # noqa: F401
+    except ImportError:
+        raise ExportError("writing parquet needs pyarrow: pip install 'rsb_maniskill[export]'") from None
+    from rsb_maniskill.export.build import ExportShard, run_export_shards
+
+    out = Path(out)
+    cameras = check_cameras(cameras, naming)
+    fps, _ = check_fps(fps)
+    paths = [Path(p) for p in demos]
+    for p in paths:
+        if p.suffix != ".h5" or not p.is_file() or not p.with_suffix(".json").is_file():
+            raise ExportError(f"{p}: not a trajectory file pair (X.h5 with X.json beside it)")
+    _check_out(out, overwrite)
+    ids = [(p, [int(e["episode_id"]) for e in json.loads(p.with_suffix(".json").read_text())["episodes"]])
+           for p in paths]
+    total = sum(len(i) for _, i in ids)
+    if total == 0:
+        raise ExportError("the demo files hold no episodes")
+    if num_procs < 1:
+        raise ExportError(f"--num-procs must be >= 1, got {num_procs}")
+    size = shard_size or max(1, min(50, -(-total // (4 * num_procs))))
+    shards = [ExportShard(str(p), tuple(i[k:k + size])) for p, i in ids for k in range(0, len(i), size)]
+    settings = {"demos": [str(p.resolve()) for p in paths], "fps": fps, "cameras": list(cameras), "naming": naming,
+                "shard_size": size}
+    return run_export_shards(shards, out, settings, num_procs=num_procs, executor=executor, progress=progress,
+                             overwrite=overwrite)

@@ -1,0 +1,120 @@
+"""The dataset card (``README.md``) of a built dataset, so ``huggingface-cli upload`` publishes it as is.
+
+The YAML header is what the hub reads (licence, task categories, tags, the parquet files for its
+viewer); the text says what the data is, how it was made, and how to train on it.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+# Where each suite's questions come from, with their licences (our code and the generated
+# questions: MIT, as the package).
+QUESTION_SOURCES = {
+    "Math": ("procedural two-operand arithmetic written by rsb_maniskill", "MIT"),
+    "HardMath": ("GSM8K word problems (openai/gsm8k, MIT)", "MIT"),
+    "General": ("a commonsense knowledge table written by rsb_maniskill, and MMLU (cais/mmlu, MIT)", "MIT"),
+    "Direct": ("none: the instruction names the target", "MIT"),
+}
+
+
+def _size_category(n: int) -> str:
+    for limit, name in ((1_000, "n<1K"), (10_000, "1K<n<10K"), (100_000, "10K<n<100K"), (1_000_000, "100K<n<1M")):
+        if n < limit:
+            return name
+    return "1M<n<10M"
+
+
+def dataset_card(dataset: str | Path, settings: dict[str, Any]) -> str:
+    """The card of the dataset at ``dataset`` (its meta/ is read), built with ``settings``."""
+    from rsb_maniskill.objects.family import split_env_id
+    from rsb_maniskill.semantic.suites import parse_suite_id
+
+    dataset = Path(dataset)
+    info = json.loads((dataset / "meta/info.json").read_text())
+    env_id = settings["env_id"]
+    suite_id, targets = split_env_id(env_id)
+    family, n_choices = parse_suite_id(suite_id)
+    source, licence = QUESTION_SOURCES[family]
+    repo = f"<your-hf-user>/{env_id.lower()}"
+    cameras = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
+    skipped = settings.get("skipped_questions") or []
+    header = "\n".join([
+        "---",
+        f"license: {licence.lower()}",
+        "task_categories:",
+        "- robotics",
+        "tags:",
+        "- LeRobot",
+        "- robosemanticbench",
+        "- maniskill",
+        "- aloha",
+        "- vision-language-action",
+        f"- {env_id.lower()}",
+        f"pretty_name: RoboSemanticBench {env_id} ({settings['split']})",
+        "size_categories:",
+        f"- {_size_category(info['total_frames'])}",
+        "configs:",
+        "- config_name: default",
+        "  data_files: data/*/*.parquet",
+        "---",
+    ])
+    body = f"""
+# RoboSemanticBench: {env_id}, {settings['split']} split
+
+Expert demonstrations of the RoboSemanticBench (RSB) task **{env_id}** as a LeRobot dataset (format
+{info['codebase_version']}), made with `rsb_maniskill` {settings['rsb_version']} on ManiSkill 3.
+A dual-arm Aloha-AgileX robot sees {n_choices} candidate {"everyday objects" if targets == "objects" else "blocks"}
+and a gray answer zone; the instruction holds a multiple-choice question whose options are bound to
+the candidates, and the robot places the candidate of the correct answer in the zone. Each
+episode's instruction is its task string.
+
+| | |
+|---|---|
+| suite | {env_id} ({n_choices} choices, {targets}) |
+| split | {settings['split']} (disjoint from the evaluation split's questions) |
+| question source | {source} |
+| questions | {settings['questions']} of a pool of {settings['pool_size']}; one demonstration each |
+| episodes / frames | {info['total_episodes']} / {info['total_frames']} at {info['fps']} fps |
+| questions without a demo | {len(skipped)} (the expert failed on {settings['max_attempts']} seeds) |
+| cameras | {', '.join(f"`{c}`" for c in cameras)} |
+| state / action | `observation.state`, `action`: Aloha 14 numbers [left arm 6, left gripper, right arm 6, right gripper], grippers in [0, 1] (absolute joint targets) |
+| seeds | question q is episode seed q (+ k x pool size after k failed attempts); `rsb/seed` per episode |
+
+Per-episode RSB metadata is in `meta/episodes` (`rsb/question`, `rsb/options`, `rsb/correct_letter`,
+`rsb/target_block`, `rsb/seed`, ...); `meta/rsb_build.json` holds the build settings.
+
+## How it was made
+
+```bash
+pip install rsb_maniskill
+rsb dataset build --suites {env_id} --split {settings['split']} --questions {settings['questions']} \\
+    --fps {settings['fps']} --cameras {','.join(settings['cameras'])} --naming {settings['naming']} --out DIR
+```
+
+A scripted motion-planning expert (mplib) grasps the correct candidate and places it in the zone;
+only successful episodes are kept; camera frames are rendered from the recorded simulator states.
+
+## Train on it
+
+LeRobot (`lerobot-train`), e.g. a policy from its hub or a small ACT:
+
+```bash
+lerobot-train --dataset.repo_id={repo} --policy.type=act --output_dir=outputs/act-{env_id.lower()}
+# or from a local copy: --dataset.repo_id=local/{env_id.lower()} --dataset.root=/path/to/this/folder
+```
+
+openpi: a LeRobot data config (`LeRobotAlohaDataConfig`) with `repo_id="{repo}"`; the camera keys are
+openpi's Aloha names when built with `--naming rsb` (`cam_high`, `cam_left_wrist`, `cam_right_wrist`).
+
+Evaluate with the benchmark's protocol (500 held-out episodes per suite): `rsb eval` or, from
+LeRobot, `lerobot-eval --env.type=rsb --env.task={env_id}`.
+
+## Features
+
+```json
+{json.dumps(info['features'], indent=1)}
+```
+"""
+    return header + "\n" + body

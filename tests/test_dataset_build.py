@@ -1,0 +1,168 @@
+"""`rsb dataset build`: expert + rendering in shards, identical whatever the number of workers,
+resumable after kill -9, one dataset per suite with its card, bad input refused before any write."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+import yaml
+
+from rsb_maniskill.cli import main
+from rsb_maniskill.export.build import WORK_DIR, BuildConfig, build_datasets
+
+from test_export_lerobot import _lerobot_python, fingerprint, read_data
+
+SUITE = "RSB-Math-4"
+SMALL = {"camera_size": (64, 48)}  # the pipeline is the same at 320x240, only slower
+
+
+def build(out: Path, num_procs: int, **kw) -> list[dict]:
+    cfg = BuildConfig(suites=[SUITE], out=str(out), questions="0:4", shard_size=2, num_procs=num_procs,
+                      progress=False, env_kwargs=dict(SMALL), **kw)
+    return build_datasets(cfg)
+
+
+@pytest.fixture(scope="module")
+def one_proc(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("one")
+    summaries = build(out, 1)
+    assert summaries[0]["episodes"] == 4 and not summaries[0]["already_built"]
+    return out / SUITE
+
+
+def test_two_workers_build_the_same_dataset(one_proc, tmp_path):
+    build(tmp_path, 2)
+    assert fingerprint(tmp_path / SUITE) == fingerprint(one_proc)
+    # a rerun finds the dataset built with the same settings and does nothing
+    again = build(tmp_path, 2)
+    assert again[0]["already_built"] and again[1]["rendered_frames"] == 0
+
+
+def test_dataset_contents_and_card(one_proc):
+    info = json.loads((one_proc / "meta/info.json").read_text())
+    data = read_data(one_proc)
+    eps = pq.read_table(one_proc / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert info["total_episodes"] == 4 == len(eps) and info["total_frames"] == len(data["index"])
+    assert data["index"] == list(range(len(data["index"])))  # renumbered across the two shards
+    assert sorted(set(data["episode_index"])) == [0, 1, 2, 3]
+    assert [e["rsb/seed"] for e in eps] == [0, 1, 2, 3]  # question q is seed q (Math-4's pool is larger)
+    assert len(sorted((one_proc / "data").glob("chunk-000/file-*.parquet"))) == 2
+    for e in eps:  # each episode's frames point at its own task and its own video
+        rows = range(e["dataset_from_index"], e["dataset_to_index"])
+        assert {data["episode_index"][r] for r in rows} == {e["episode_index"]}
+        assert (one_proc / f"videos/observation.images.cam_high/chunk-000/file-{e['episode_index']:03d}.mp4").is_file()
+    card = (one_proc / "README.md").read_text()
+    header = yaml.safe_load(card.split("---")[1])
+    assert header["license"] == "mit" and header["task_categories"] == ["robotics"] and "LeRobot" in header["tags"]
+    assert header["configs"][0]["data_files"] == "data/*/*.parquet"
+    for needle in ("RSB-Math-4, train split", "0:4 of a pool of 500", "rsb dataset build --suites RSB-Math-4",
+                   "lerobot-train --dataset.repo_id=", "openpi", '"observation.images.cam_high"'):
+        assert needle in card, needle
+    built = json.loads((one_proc / "meta/rsb_build.json").read_text())
+    assert built["questions"] == "0:4" and built["cameras"] == ["head", "left_wrist", "right_wrist"]
+
+
+RUN = """
+import sys
+from rsb_maniskill.export.build import BuildConfig, build_datasets
+if __name__ == "__main__":
+    build_datasets(BuildConfig(suites=["{suite}"], out=sys.argv[1], questions="0:4", shard_size=2, num_procs=1,
+                               progress=False, env_kwargs={{"camera_size": (64, 48)}}))
+"""
+
+
+def test_kill_9_then_rerun_resumes_without_duplicates(one_proc, tmp_path):
+    script = tmp_path / "run.py"
+    script.write_text(RUN.format(suite=SUITE))
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, str(script), str(out)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    first = out / WORK_DIR / SUITE / "shards" / "shard-00000" / "meta" / "rsb_shard.json"
+    deadline = time.monotonic() + 300
+    while not first.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)  # mid-way through the second shard
+    proc.wait()
+    assert first.exists() and not (out / SUITE).exists()
+    assert not (out / WORK_DIR / SUITE / "shards" / "shard-00001").exists()
+    res = subprocess.run([sys.executable, str(script), str(out)], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert fingerprint(out / SUITE) == fingerprint(one_proc)
+    assert not list((out / WORK_DIR / SUITE / "tmp").glob("*"))  # the killed run's partial shard is gone
+
+
+def test_sigint_stops_keeping_finished_shards(tmp_path):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-c", textwrap.dedent(RUN.format(suite=SUITE)), str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = out / WORK_DIR / SUITE / "shards" / "shard-00000" / "meta" / "rsb_shard.json"
+    deadline = time.monotonic() + 300
+    while not first.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode != 0 and "rerun the same command to continue" in err
+    assert first.exists() and not (out / SUITE).exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--suites", "RSB-Nope-4"], "unknown suite 'RSB-Nope-4'"),
+    (["--suites", "RSB-Math-4", "--questions", "490:600"], "the pool has questions 0..499"),
+    (["--suites", "RSB-Math-4", "--fps", "7"], "--fps must divide"),
+    (["--suites", "RSB-Math-4", "--cameras", "head,top"], "unknown camera(s) top"),
+])
+def test_bad_input_is_one_line_and_writes_nothing(argv, message, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["dataset", "build", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_other_settings_are_refused_and_nothing_is_lost(one_proc, tmp_path, capsys):
+    before = fingerprint(one_proc)
+    out = str(one_proc.parent)
+    assert main(["dataset", "build", "--suites", SUITE, "--questions", "0:4", "--fps", "5", "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert "holds a build of other settings" in err and "fps=25 there, 5 now" in err
+    assert fingerprint(one_proc) == before
+
+
+def test_missing_question_data_offline(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("RSB_DATA_DIR", str(tmp_path / "empty"))
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    (tmp_path / "empty").mkdir()
+    assert main(["dataset", "build", "--suites", "RSB-HardMath-4", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "rsb data download" in err and not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_lerobot_loads_the_merged_dataset(one_proc):
+    py = _lerobot_python()
+    code = textwrap.dedent(f"""
+        import json
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+        ds = LeRobotDataset("local/rsb-math-4", root={str(one_proc)!r})
+        last = ds[len(ds) - 1]
+        print(json.dumps(dict(frames=len(ds), episodes=ds.num_episodes, last_ep=int(last["episode_index"]),
+                              last_index=int(last["index"]), shape=list(last["observation.images.cam_high"].shape),
+                              task=last["task"])))
+    """)
+    res = subprocess.run([str(py), "-c", code], capture_output=True, text=True, timeout=600,
+                         env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
+    assert res.returncode == 0, res.stderr[-3000:]
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    data = read_data(one_proc)
+    assert got["frames"] == len(data["index"]) and got["episodes"] == 4 and got["last_ep"] == 3
+    assert got["last_index"] == len(data["index"]) - 1 and got["shape"] == [3, 48, 64]
+    eps = pq.read_table(one_proc / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert got["task"] == eps[3]["tasks"][0]

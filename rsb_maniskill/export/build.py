@@ -159,6 +159,7 @@ def _write_shard(task: dict, k: int, shard: ExportShard | SuiteShard, emit: Any)
         return
     tmp = work / "tmp" / f"shard-{k:05d}.{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)  # (exist_ok on the shared parents: workers create them at once)
     fps, stride = check_fps(settings["fps"])
     meta: dict[str, Any] = {"shard": k, **asdict(shard)}
     try:

@@ -11,8 +11,13 @@ from __future__ import annotations
 
 import time
 
-import mplib
 import numpy as np
+
+if int(np.__version__.split(".")[0]) >= 2:  # mplib 0.1.1 segfaults in Planner() under numpy 2
+    raise ImportError(f"the scripted expert needs numpy < 2 (mplib 0.1.1), found numpy {np.__version__}: "
+                      "pip install 'rsb_maniskill[expert]'")
+
+import mplib  # noqa: E402
 
 from rsb_maniskill.agents.aloha import GRIPPER_CLOSED, GRIPPER_OPEN
 from rsb_maniskill.agents.aloha_urdf import ASSET_DIR, MPLIB_SRDF_NAME, URDF_NAME

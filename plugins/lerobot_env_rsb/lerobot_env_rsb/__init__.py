@@ -1,0 +1,71 @@
+"""``--env.type=rsb`` for LeRobot's scripts (``lerobot-eval``, ``lerobot-train``'s eval).
+
+LeRobot imports every installed distribution named ``lerobot_env_*``; importing this one
+registers :class:`RSBEnvConfig`. The envs themselves are ``rsb_maniskill.integrations.lerobot_env``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
+
+from rsb_maniskill.env_ids import CONTROL_FREQ, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.export.naming import camera_key
+from rsb_maniskill.robot import ACTION_DIM, CAMERAS
+
+__all__ = ["RSBEnvConfig"]
+
+
+@EnvConfig.register_subclass("rsb")
+@dataclass
+class RSBEnvConfig(EnvConfig):
+    """RSB suites with the paper's evaluation protocol (episode i = protocol episode i).
+
+    ``task``: suite ids, comma-separated, or a group (``paper``, ``paper-objects``, ``all``).
+    ``naming``: camera keys, ``rsb`` (``cam_high``, ...: what ``rsb export lerobot`` writes) or
+    ``robotwin`` (``head_camera``, ...: LeRobot's RoboTwin env). ``instruction_mode``: ``normal``,
+    ``blank`` or ``shuffled``. ``seed_base`` must equal ``--seed`` (LeRobot's default 1000).
+    ``records_dir``: where ``episodes.jsonl`` goes, for ``rsb report``.
+    """
+
+    task: str = "RSB-Math-4"
+    fps: int = CONTROL_FREQ
+    episode_length: int = TASK_MAX_EPISODE_STEPS
+    obs_type: str = "pixels_agent_pos"
+    naming: str = "rsb"
+    instruction_mode: str = "normal"
+    camera_width: int = 320
+    camera_height: int = 240
+    seed_base: int = 1000
+    episodes: int = 500
+    records_dir: str | None = "outputs/rsb_eval"
+    policy_name: str = "lerobot"
+    data_dir: str | None = None
+    features: dict[str, PolicyFeature] = field(
+        default_factory=lambda: {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))})
+    features_map: dict[str, str] = field(default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE})
+
+    def __post_init__(self) -> None:
+        for cam in CAMERAS:
+            key = camera_key(cam, self.naming)
+            self.features[f"pixels/{key}"] = PolicyFeature(
+                type=FeatureType.VISUAL, shape=(self.camera_height, self.camera_width, 3))
+            self.features_map.setdefault(f"pixels/{key}", f"{OBS_IMAGES}.{key}")
+        if self.obs_type == "pixels_agent_pos":
+            self.features["agent_pos"] = PolicyFeature(type=FeatureType.STATE, shape=(ACTION_DIM,))
+        elif self.obs_type != "pixels":
+            raise ValueError(f"unsupported obs_type {self.obs_type!r}; RSB supports pixels_agent_pos and pixels")
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {"instruction_mode": self.instruction_mode, "naming": self.naming, "obs_type": self.obs_type,
+                "camera_size": (self.camera_width, self.camera_height), "episode_length": self.episode_length,
+                "seed_base": self.seed_base, "episodes": self.episodes, "records_dir": self.records_dir,
+                "policy_name": self.policy_name, "data_dir": self.data_dir}
+
+    def create_envs(self, n_envs: int, use_async_envs: bool = False):
+        from rsb_maniskill.integrations.lerobot_env import create_rsb_envs
+
+        return create_rsb_envs(self.task, n_envs, use_async_envs, **self.gym_kwargs)

@@ -1,0 +1,265 @@
+"""RSB suites as LeRobot evaluation envs: one RSB env per sub-env of LeRobot's vector envs.
+
+LeRobot's rollout (``lerobot-eval``) wants a plain ``gym.Env`` per sub-env with numpy observations
+(``pixels/<camera>`` HWC uint8 and ``agent_pos``), the attributes ``task_description``, ``task``
+and ``_max_episode_steps`` (read through ``VectorEnv.call``), and ``info["is_success"]``.
+ManiSkill's ``ManiSkillVectorEnv`` returns torch tensors and reports ``success``, so each RSB
+env is wrapped here, as LeRobot wraps RoboTwin 2.0 (the same robot). Nothing here imports LeRobot:
+``lerobot_env_rsb`` (the ``--env.type=rsb`` plugin) and the EnvHub file build on this module.
+
+- Observations and actions are those of ``rsb export lerobot``: the three cameras under the keys of
+  a naming (``export/naming.py``: ``cam_high``, ... or RoboTwin's ``head_camera``, ...), the Aloha
+  14-number state (``agent_pos``) and Aloha 14-number absolute joint targets as actions, so a
+  policy trained on an export evaluates with no feature mapping.
+- Episodes are the evaluation protocol's: LeRobot seeds episode i of a run with ``--seed`` + i;
+  ``seed_base`` (LeRobot's default ``--seed`` 1000) maps it back to i and episode i is protocol
+  episode i (seed 10,000,000 + i, test split, unseen templates), the one ``rsb eval`` runs.
+- ``instruction_mode`` ``blank`` / ``shuffled`` are ``rsb eval``'s ablations (the same donors).
+- Each finished episode appends an ``rsb eval`` record to ``records_dir/episodes.jsonl`` (under a
+  file lock: sub-envs may live in several processes), so ``rsb report records_dir`` gives the
+  paper's GSR / TSR / nSG tables and report.html of a ``lerobot-eval`` run.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from rsb_maniskill.env_ids import CONTROL_FREQ, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.export.naming import DEFAULT_NAMING, camera_key, check_naming
+from rsb_maniskill.robot import ACTION_DIM, CAMERAS, from_aloha14, sensor_uid
+
+DEFAULT_SEED_BASE = 1000  # lerobot-eval's --seed default
+OBS_TYPES = ("pixels_agent_pos", "pixels")
+RECORDS_FILE = "episodes.jsonl"  # what `rsb report DIR` reads
+
+
+def append_record(path: Path, record: dict[str, Any]) -> None:
+    """Appends one record line under an exclusive lock, durable (flush + fsync)."""
+    import fcntl
+
+    from rsb_maniskill.evaluation.records import validate_record
+
+    validate_record(record)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a", encoding="utf-8") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            f.write(json.dumps(record, ensure_ascii=False) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+class RSBLeRobotEnv(gym.Env):
+    """One RSB suite's evaluation episodes for LeRobot (see the module doc).
+
+    Args:
+        env_id: an RSB id (``RSB-Math-4``, ``RSB-Math-4-Objects``, ...).
+        instruction_mode: ``normal``, ``blank`` or ``shuffled``.
+        naming: camera keys, ``rsb`` or ``robotwin``.
+        obs_type: ``pixels_agent_pos`` (cameras and state) or ``pixels``.
+        camera_size: (width, height) of every camera.
+        episode_length: step cap (LeRobot reads it as ``_max_episode_steps``).
+        seed_base: lerobot-eval's ``--seed``; seed ``seed_base + i`` is protocol episode i.
+        episodes: how many protocol episodes the shuffled ablation pairs over (``rsb eval -n``).
+        records_dir: where ``episodes.jsonl`` goes (None: no records).
+        policy_name: the ``policy`` field of the records (a row of the report's tables).
+        data_dir: question data (default ``$RSB_DATA_DIR`` or the hub cache).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FREQ}
+
+    def __init__(self, env_id: str, *, instruction_mode: str = "normal", naming: str = DEFAULT_NAMING,
+                 obs_type: str = "pixels_agent_pos", camera_size: tuple[int, int] = (320, 240),
+                 episode_length: int = TASK_MAX_EPISODE_STEPS, seed_base: int = DEFAULT_SEED_BASE,
+                 episodes: int = 500, records_dir: str | None = None, policy_name: str = "lerobot",
+                 data_dir: str | None = None) -> None:
+        from rsb_maniskill.env_ids import resolve_env_ids
+        from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
+
+        (self.env_id,) = resolve_env_ids([env_id])
+        if instruction_mode not in INSTRUCTION_MODES:
+            raise ValueError(f"instruction_mode must be one of {', '.join(INSTRUCTION_MODES)}, got {instruction_mode!r}")
+        if obs_type not in OBS_TYPES:
+            raise ValueError(f"obs_type must be one of {', '.join(OBS_TYPES)}, got {obs_type!r}")
+        self.naming = check_naming(naming)
+        self.instruction_mode, self.obs_type = instruction_mode, obs_type
+        self.camera_size = (int(camera_size[0]), int(camera_size[1]))
+        self.seed_base, self.episodes = int(seed_base), int(episodes)
+        self.records = Path(records_dir) / RECORDS_FILE if records_dir else None
+        self.policy_name, self.data_dir = policy_name, data_dir
+        # what LeRobot reads through VectorEnv.call
+        self.task = self.env_id
+        self.task_description = ""
+        self._max_episode_steps = int(episode_length)
+        w, h = self.camera_size
+        pixels = spaces.Dict({camera_key(c, naming): spaces.Box(0, 255, (h, w, 3), np.uint8) for c in CAMERAS})
+        obs = {"pixels": pixels}
+        if obs_type == "pixels_agent_pos":
+            obs["agent_pos"] = spaces.Box(-np.inf, np.inf, (ACTION_DIM,), np.float32)
+        self.observation_space = spaces.Dict(obs)
+        self.action_space = spaces.Box(-np.inf, np.inf, (ACTION_DIM,), np.float32)
+        self._env: Any = None  # built at the first reset, in the process that steps it
+        self._donors: Any = None
+        self._episode = -1
+        self._seed = 0
+        self._steps = 0
+        self._instruction = ""
+        self._last: tuple | None = None  # the finished episode's last transition, replayed until a seeded reset
+
+    # ------------------------------------------------------------------ the RSB env
+    def _ensure_env(self) -> None:
+        if self._env is not None:
+            return
+        import rsb_maniskill  # noqa: F401  (registers the ids)
+        from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
+
+        kwargs = dict(EVAL_ENV_KWARGS, obs_mode="rgb", control_mode="pd_joint_pos", camera_size=self.camera_size,
+                      sim_backend="physx_cpu")
+        if self.data_dir:
+            kwargs["data_dir"] = self.data_dir
+        self._env = gym.make(self.env_id, **kwargs)
+
+    def _obs(self, raw: dict) -> dict[str, Any]:
+        base = self._env.unwrapped
+        out: dict[str, Any] = {"pixels": {camera_key(c, self.naming): raw["sensor_data"][sensor_uid(c)]["rgb"][0]
+                                          .cpu().numpy().astype(np.uint8) for c in CAMERAS}}
+        if self.obs_type == "pixels_agent_pos":
+            out["agent_pos"] = base.agent.aloha14_state()[0].cpu().numpy().astype(np.float32)
+        return out
+
+    def _shown_instruction(self, seed: int, own: str) -> str:
+        if self.instruction_mode == "normal":
+            return own
+        if self.instruction_mode == "blank":
+            return ""
+        if self._donors is None:
+            from rsb_maniskill.evaluation.protocol import SHUFFLE_SEED, eval_seeds
+            from rsb_maniskill.evaluation.runner import _Donors
+
+            base = self._env.unwrapped
+            self._donors = _Donors(eval_seeds(self.env_id, self.episodes),
+                                   lambda s: base.episode_spec(s).instruction, SHUFFLE_SEED)
+        return self._donors(seed, own)[1]
+
+    # ------------------------------------------------------------------ gym.Env
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+
+        super().reset(seed=seed)
+        self._ensure_env()
+        if seed is None and self._last is not None:
+            # the vector env's autoreset of a finished sub-env: LeRobot's rollout ignores it until the
+            # next batch resets with seeds, so no episode is run (nor recorded) in between
+            return self._last[0], self._last[4]
+        if seed is not None:
+            episode = int(seed) - self.seed_base
+            if not 0 <= episode < self.episodes:
+                raise ValueError(f"seed {seed} is not episode 0..{self.episodes - 1} of the protocol: lerobot-eval "
+                                 f"--seed must equal --env.seed_base ({self.seed_base}) and --eval.n_episodes "
+                                 f"<= --env.episodes ({self.episodes})")
+            self._episode = episode
+        else:
+            self._episode += 1
+        self._last = None
+        self._seed = EVAL_SEED_BASE + self._episode
+        raw, _ = self._env.reset(seed=self._seed)
+        base = self._env.unwrapped
+        self._instruction = base.get_language_instruction()[0]
+        self.task_description = self._shown_instruction(self._seed, self._instruction)
+        self._steps = 0
+        return self._obs(raw), {"is_success": False, "task": self.env_id}
+
+    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+        if self._last is not None:
+            return self._last
+        action = np.asarray(action, dtype=np.float32)
+        if action.shape != (ACTION_DIM,):
+            raise ValueError(f"{self.env_id}: expected an Aloha 14-number action of shape ({ACTION_DIM},), "
+                             f"got {action.shape}")
+        raw, _, terminated, truncated, info = self._env.step(from_aloha14(action))
+        self._steps += 1
+        success = bool(info["success"][0])
+        terminated = bool(terminated[0]) if hasattr(terminated, "__len__") else bool(terminated)
+        truncated = bool(truncated[0]) if hasattr(truncated, "__len__") else bool(truncated)
+        truncated = truncated or self._steps >= self._max_episode_steps
+        out = {"is_success": success, "task": self.env_id}
+        transition = (self._obs(raw), float(success), terminated, truncated, out)
+        if terminated or truncated:
+            out["final_info"] = {"is_success": success, "task": self.env_id}
+            self._write_record(info)
+            self._last = (transition[0], 0.0, terminated, truncated, dict(out))
+        return transition
+
+    def _write_record(self, info: dict) -> None:
+        if self.records is None:
+            return
+        from rsb_maniskill.evaluation.runner import build_record
+
+        record = build_record(suite_id=self.env_id, seed=self._seed, spec=self._env.unwrapped.episode_specs[0],
+                              instruction=self.task_description, instruction_mode=self.instruction_mode, info=info,
+                              steps=self._steps, policy=self.policy_name,
+                              extra={"original_instruction": self._instruction, "runner": "lerobot-eval"})
+        append_record(self.records, json.loads(json.dumps(record, default=_plain)))
+
+    def render(self) -> np.ndarray:
+        """The head camera (LeRobot's eval videos)."""
+        self._ensure_env()
+        raw = self._env.unwrapped.get_obs()
+        return self._obs(raw)["pixels"][camera_key("head", self.naming)]
+
+    def close(self) -> None:
+        if self._env is not None:
+            self._env.close()
+            self._env = None
+
+
+def _plain(obj: Any) -> Any:
+    if hasattr(obj, "item"):
+        return obj.item()
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    raise TypeError(type(obj).__name__)
+
+
+def make_env_fns(env_id: str, n_envs: int, **kwargs: Any) -> list:
+    """``n_envs`` factories of :class:`RSBLeRobotEnv` for LeRobot's Sync / Async vector envs."""
+    from functools import partial
+
+    return [partial(RSBLeRobotEnv, env_id, **kwargs) for _ in range(n_envs)]
+
+
+def create_rsb_envs(task: str, n_envs: int, use_async_envs: bool = False, **kwargs: Any) -> dict[str, dict[int, Any]]:
+    """``{suite: {0: VectorEnv}}`` for the suites ``task`` names (ids, comma list, ``paper``, ...),
+    as LeRobot's ``EnvConfig.create_envs`` returns them."""
+    from rsb_maniskill.env_ids import resolve_env_ids
+
+    env_cls = gym.vector.AsyncVectorEnv if (use_async_envs and n_envs > 1) else gym.vector.SyncVectorEnv
+    extra = {"context": "forkserver"} if env_cls is gym.vector.AsyncVectorEnv else {}
+    out: dict[str, dict[int, Any]] = {}
+    for env_id in resolve_env_ids(task):
+        fns = make_env_fns(env_id, n_envs, **kwargs)
+        try:
+            from gymnasium.vector import AutoresetMode
+
+            out[env_id] = {0: env_cls(fns, autoreset_mode=AutoresetMode.SAME_STEP, **extra)}
+        except ImportError:  # gymnasium < 1.1
+            out[env_id] = {0: env_cls(fns, **extra)}
+    return out
+
+
+def expected_features(naming: str = DEFAULT_NAMING, obs_type: str = "pixels_agent_pos",
+                      camera_size: tuple[int, int] = (320, 240)) -> dict[str, tuple[int, ...]]:
+    """The policy input features a policy must take (LeRobot keys -> shapes), for error messages."""
+    w, h = camera_size
+    out: dict[str, tuple[int, ...]] = {f"observation.images.{camera_key(c, naming)}": (3, h, w) for c in CAMERAS}
+    if obs_type == "pixels_agent_pos":
+        out["observation.state"] = (ACTION_DIM,)
+    return out

@@ -1,0 +1,207 @@
+"""RSB as a LeRobot env: the per-sub-env contract LeRobot's rollout reads, the protocol's episodes,
+records `rsb report` reads, Sync/Async vector envs; and, in LeRobot's own venv, `--env.type=rsb`,
+EnvHub, and the loop export -> lerobot-train -> lerobot-eval."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from rsb_maniskill.cli import main
+from rsb_maniskill.evaluation.baselines import ExpertPolicy
+from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+from rsb_maniskill.evaluation.records import read_records
+from rsb_maniskill.integrations.lerobot_env import RSBLeRobotEnv, create_rsb_envs, expected_features
+from rsb_maniskill.robot import to_aloha14
+
+from test_export_lerobot import _lerobot_python
+
+REPO = Path(__file__).resolve().parents[1]
+SUITE = "RSB-Direct-4"
+SMALL = (64, 48)
+
+
+def run_expert(env: RSBLeRobotEnv, max_steps: int = 300) -> tuple[dict, int]:
+    """Drives the wrapper with the scripted expert (reading the simulator), through Aloha-14 actions."""
+    expert = ExpertPolicy(env._env)
+    expert.reset("", {})
+    for t in range(max_steps):
+        for row in expert.act({}):
+            obs, reward, terminated, truncated, info = env.step(to_aloha14(row.astype(np.float32)))
+            if terminated or truncated:
+                return info, t
+    raise AssertionError("the episode did not end")
+
+
+def test_wrapper_contract_protocol_episodes_and_records(tmp_path):
+    env = RSBLeRobotEnv(SUITE, camera_size=SMALL, records_dir=str(tmp_path), episodes=4, policy_name="oracle")
+    obs, info = env.reset(seed=1001)  # lerobot-eval's --seed 1000 + episode 1
+    base = env._env.unwrapped
+    assert env._seed == EVAL_SEED_BASE + 1 and info == {"is_success": False, "task": SUITE}
+    assert env.task_description == base.episode_spec(EVAL_SEED_BASE + 1).instruction  # what `rsb eval` shows
+    assert env.observation_space.contains(obs)
+    assert sorted(obs["pixels"]) == ["cam_high", "cam_left_wrist", "cam_right_wrist"]
+    assert obs["pixels"]["cam_high"].shape == (48, 64, 3) and obs["pixels"]["cam_high"].dtype == np.uint8
+    assert obs["pixels"]["cam_high"].std() > 5  # a rendered scene, not a blank frame
+    np.testing.assert_allclose(obs["agent_pos"], base.agent.aloha14_state()[0].numpy())
+    assert env._max_episode_steps == 300 and env.task == SUITE
+    info, _ = run_expert(env)
+    assert info["is_success"] and info["final_info"]["is_success"]
+    frozen = env.step(np.zeros(14, np.float32))  # a finished sub-env replays its last transition
+    assert frozen[2] and frozen[1] == 0.0
+    assert env.reset()[1]["is_success"]  # autoreset without a seed runs (and records) nothing
+    records = read_records(tmp_path / "episodes.jsonl")
+    assert len(records) == 1
+    r = records[0]
+    assert (r["suite_id"], r["seed"], r["policy"], r["instruction_mode"]) == (SUITE, EVAL_SEED_BASE + 1, "oracle",
+                                                                              "normal")
+    assert r["success"] and r["grasped_any"] and r["first_grasped"] == r["target_block"]
+    # blank: the policy is told nothing; the record says so
+    blank = RSBLeRobotEnv(SUITE, camera_size=SMALL, records_dir=str(tmp_path), episodes=4, instruction_mode="blank",
+                          policy_name="oracle", episode_length=3)
+    blank.reset(seed=1000)
+    assert blank.task_description == ""
+    for _ in range(3):
+        *_, terminated, truncated, _ = blank.step(to_aloha14(blank._env.unwrapped.agent.rest_action().numpy()))
+    assert truncated and not terminated
+    modes = {(r["seed"], r["instruction_mode"], r["success"]) for r in read_records(tmp_path / "episodes.jsonl")}
+    assert modes == {(EVAL_SEED_BASE + 1, "normal", True), (EVAL_SEED_BASE, "blank", False)}
+    assert main(["report", str(tmp_path)]) == 0 and (tmp_path / "report.html").is_file()
+    with pytest.raises(ValueError, match=r"expected an Aloha 14-number action of shape \(14,\)"):
+        blank.reset(seed=1001)
+        blank.step(np.zeros(7, np.float32))
+    with pytest.raises(ValueError, match="--env.seed_base"):
+        blank.reset(seed=7)
+    env.close()
+    blank.close()
+
+
+@pytest.mark.parametrize("use_async", [False, True])
+def test_sync_and_async_vector_envs(use_async, tmp_path):
+    envs = create_rsb_envs(SUITE, n_envs=2, use_async_envs=use_async, camera_size=SMALL, naming="robotwin",
+                           episodes=4, records_dir=str(tmp_path), episode_length=5)
+    vec = envs[SUITE][0]
+    assert isinstance(vec, gym.vector.AsyncVectorEnv if use_async else gym.vector.SyncVectorEnv)
+    obs, _ = vec.reset(seed=[1002, 1003])
+    told = list(vec.call("task_description"))
+    assert len(set(told)) == 2 and list(vec.call("_max_episode_steps")) == [5, 5]
+    assert obs["pixels"]["head_camera"].shape == (2, 48, 64, 3) and obs["agent_pos"].shape == (2, 14)
+    rest = np.repeat(obs["agent_pos"][:1], 2, axis=0)  # hold the current joint targets
+    for _ in range(5):
+        obs, reward, terminated, truncated, info = vec.step(rest)
+    assert truncated.all() and not info["is_success"].any()
+    vec.close()
+    seeds = sorted(r["seed"] for r in read_records(tmp_path / "episodes.jsonl"))
+    assert seeds == [EVAL_SEED_BASE + 2, EVAL_SEED_BASE + 3]  # one record per sub-env, from two processes if async
+
+
+def test_expected_features_name_keys_and_shapes():
+    assert expected_features("rsb", camera_size=SMALL) == {
+        "observation.images.cam_high": (3, 48, 64), "observation.images.cam_left_wrist": (3, 48, 64),
+        "observation.images.cam_right_wrist": (3, 48, 64), "observation.state": (14,)}
+    assert "observation.images.head_camera" in expected_features("robotwin", "pixels")
+
+
+# ------------------------------------------------------------------ LeRobot's own venv
+
+
+def lerobot_with_rsb() -> Path:
+    """LeRobot's venv with rsb_maniskill and the plugin installed in it (editable, LeRobot's torch)."""
+    py = _lerobot_python()
+    ok = subprocess.run([str(py), "-c", "import lerobot_env_rsb, mani_skill, accelerate"], capture_output=True)
+    if ok.returncode != 0:
+        res = subprocess.run([str(py), "-m", "pip", "install", "-q", "lerobot[training]==0.6.1", "-e", str(REPO), "-e",
+                              str(REPO / "plugins" / "lerobot_env_rsb")], capture_output=True, text=True, timeout=1500)
+        assert res.returncode == 0, res.stderr[-3000:]
+    return py
+
+
+def lerobot_run(py: Path, code: str, tmp_path: Path, timeout: int = 900) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    res = subprocess.run([str(py), "-c", textwrap.dedent(code)], capture_output=True, text=True, timeout=timeout,
+                         env=env, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-4000:]
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+def test_env_type_rsb_and_envhub_in_lerobot(tmp_path):
+    """The plugin registers --env.type=rsb when LeRobot looks for plugins; LeRobot's EnvHub loader
+    takes the env.py file; torch stays LeRobot's."""
+    py = lerobot_with_rsb()
+    hub_file = REPO / "plugins" / "lerobot_env_rsb" / "envhub" / "env.py"
+    got = lerobot_run(py, f"""
+        import json, torch
+        from lerobot.envs.configs import EnvConfig
+        from lerobot.envs.factory import make_env, make_env_config
+        from lerobot.envs.utils import _load_module_from_path, _call_make_env, _normalize_hub_result
+        from lerobot.utils.import_utils import register_third_party_plugins
+        register_third_party_plugins()
+        cfg = make_env_config("rsb", task="RSB-Direct-4", camera_width=64, camera_height=48, records_dir=None)
+        envs = make_env(cfg, n_envs=1)
+        vec = envs["RSB-Direct-4"][0]
+        obs, _ = vec.reset(seed=[1000])
+        keys = sorted(obs["pixels"])
+        told = list(vec.call("task_description"))[0]
+        vec.close()
+        module = _load_module_from_path({str(hub_file)!r}, module_name="hub_env_local")
+        hub = _normalize_hub_result(_call_make_env(module, n_envs=1, use_async_envs=False, cfg=cfg))
+        hobs, _ = hub["RSB-Direct-4"][0].reset(seed=[1000])
+        print(json.dumps(dict(choices="rsb" in EnvConfig.get_known_choices(), keys=keys, told=told,
+                              features=sorted(cfg.features), hub_keys=sorted(hobs["pixels"]),
+                              hub_told=list(hub["RSB-Direct-4"][0].call("task_description"))[0],
+                              torch=torch.__version__)))
+    """, tmp_path)
+    assert got["choices"] and got["keys"] == ["cam_high", "cam_left_wrist", "cam_right_wrist"]
+    assert got["told"] and got["hub_told"] == got["told"] and got["hub_keys"] == got["keys"]
+    assert "pixels/cam_high" in got["features"] and "agent_pos" in got["features"]
+    assert got["torch"].startswith("2.1") and not got["torch"].startswith("2.13")  # LeRobot's torch, not ours
+
+
+@pytest.mark.slow
+def test_lerobot_loop_export_train_eval_report(tmp_path):
+    """A few Direct-4 demos -> rsb export lerobot -> lerobot-train (tiny ACT, CPU) -> lerobot-eval
+    --env.type=rsb: LeRobot's success rate is the records' TSR, and `rsb report` reads the run."""
+    from rsb_maniskill.export.lerobot import export_lerobot
+    from rsb_maniskill.motionplan.generate import GenerateConfig, generate
+
+    py = lerobot_with_rsb()
+    demos = generate(GenerateConfig(env_id=SUITE, out=str(tmp_path / "demos"), num=4, progress=False,
+                                    env_kwargs={"camera_size": SMALL})).path
+    data = tmp_path / "rsb-direct-4"
+    export_lerobot([demos], data, progress=False)
+    bin_dir = Path(py).parent
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env.update(HF_HUB_OFFLINE="1", WANDB_MODE="disabled")
+    train = [str(bin_dir / "lerobot-train"), "--dataset.repo_id=local/rsb-direct-4", f"--dataset.root={data}",
+             "--dataset.video_backend=pyav", "--policy.type=act", "--policy.device=cpu",
+             "--policy.push_to_hub=false",
+             "--policy.pretrained_backbone_weights=null", "--policy.dim_model=64", "--policy.n_heads=2",
+             "--policy.dim_feedforward=128", "--policy.n_encoder_layers=1", "--policy.n_decoder_layers=1",
+             "--policy.use_vae=false", "--policy.chunk_size=10", "--policy.n_action_steps=10", "--batch_size=4",
+             "--steps=100", "--save_freq=100", "--log_freq=50", "--num_workers=0", "--wandb.enable=false",
+             f"--output_dir={tmp_path / 'train'}"]
+    res = subprocess.run(train, capture_output=True, text=True, timeout=1200, env=env, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-4000:]
+    policy = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
+    records = tmp_path / "records"
+    evaluate = [str(bin_dir / "lerobot-eval"), f"--policy.path={policy}", "--policy.device=cpu", "--env.type=rsb",
+                f"--env.task={SUITE}", f"--env.camera_width={SMALL[0]}", f"--env.camera_height={SMALL[1]}",
+                f"--env.records_dir={records}", "--env.policy_name=act-tiny", "--env.episode_length=60", "--eval.n_episodes=4",
+                "--eval.batch_size=2", f"--output_dir={tmp_path / 'eval'}"]
+    res = subprocess.run(evaluate, capture_output=True, text=True, timeout=1200, env=env, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-4000:]
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    rows = read_records(records / "episodes.jsonl")
+    assert sorted(r["seed"] for r in rows) == [EVAL_SEED_BASE + i for i in range(4)]
+    assert {r["policy"] for r in rows} == {"act-tiny"}
+    tsr = 100 * sum(r["success"] for r in rows) / len(rows)
+    assert info["overall"]["pc_success"] == pytest.approx(tsr)
+    assert main(["report", str(records)]) == 0 and (records / "report.html").is_file()

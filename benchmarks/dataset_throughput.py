@@ -34,14 +34,24 @@ def _pools(data_dir: str | None) -> tuple[dict[str, int], str]:
         return PAPER_POOLS_FALLBACK, f"fallback figures ({type(err).__name__}: no question data here)"
 
 
-def _build(out: Path, procs: int, n: int, size: tuple[int, int]) -> tuple[float, dict]:
+def _cpu_s() -> float:
+    """CPU seconds used so far by this process and its finished children."""
+    import resource
+
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def _build(out: Path, procs: int, n: int, size: tuple[int, int]) -> tuple[float, dict, float]:
+    """Wall seconds, the suite's summary, and the CPU cores the build kept busy on average."""
     from rsb_maniskill.export.build import BuildConfig, build_datasets
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_s()
     s = build_datasets(BuildConfig(suites=["RSB-Math-4"], out=str(out), questions=f"0:{n}",
                                    shard_size=max(1, n // 4), num_procs=procs, progress=False,
                                    env_kwargs={"camera_size": size}))
-    return time.perf_counter() - t0, s[0]
+    wall = time.perf_counter() - t0
+    return wall, s[0], (_cpu_s() - c0) / wall
 
 
 def _expert_only(out: Path, n: int) -> float:
@@ -80,20 +90,20 @@ def main() -> None:
     try:
         runs = {}
         for procs in (1, 2):
-            wall, s = _build(tmp / f"p{procs}", procs, args.questions, size)
-            runs[procs] = (wall, s["episodes"], s["frames"])
+            wall, s, cores = _build(tmp / f"p{procs}", procs, args.questions, size)
+            runs[procs] = (wall, s["episodes"], s["frames"], cores)
         expert_s = _expert_only(tmp / "expert", args.questions)
         encode_per_frame = _encode_per_frame(size, tmp)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print(f"machine: {os.cpu_count()} CPUs, load before: {os.getloadavg()[0]:.2f}; cameras 3 x {size[0]}x{size[1]}")
-    for procs, (wall, eps, frames) in runs.items():
+    for procs, (wall, eps, frames, cores) in runs.items():
         print(f"{procs} process(es): {eps} demos, {frames} frames in {wall:.1f} s -> {60 * eps / wall:.1f} demos/min, "
-              f"{frames / wall:.1f} rendered frames/s")
+              f"{frames / wall:.1f} rendered frames/s, {cores:.2f} CPU cores busy on average")
     ratio = (runs[2][2] / runs[2][0]) / (runs[1][2] / runs[1][0])
     print(f"frames/s with 2 processes / with 1: {ratio:.2f}x (target >= 1.8x)")
 
-    wall1, eps, frames = runs[1]
+    wall1, eps, frames, _ = runs[1]
     frames_per_demo = frames / eps
     expert_per_demo = expert_s / eps
     render_per_frame = max(wall1 - expert_s, 0.0) / frames  # render + encode + write, this machine, one process

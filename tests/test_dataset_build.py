@@ -166,3 +166,23 @@ def test_lerobot_loads_the_merged_dataset(one_proc):
     assert got["last_index"] == len(data["index"]) - 1 and got["shape"] == [3, 48, 64]
     eps = pq.read_table(one_proc / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
     assert got["task"] == eps[3]["tasks"][0]
+
+
+def test_workers_get_one_task_each_whatever_the_suites():
+    """--num-procs N starts N workers: shards of several suites are dealt to them, not one per suite."""
+    from rsb_maniskill.export.build import SuiteShard, _run
+    from rsb_maniskill.workers import RunOutcome
+
+    class Recorder:
+        def run(self, target, tasks, on_message):
+            self.tasks = tasks
+            return RunOutcome([])
+
+    items = [(Path(f"/w/{s}"), {"env_id": s}, k, SuiteShard(s, 2 * k, 2 * k + 2))
+             for s in ("RSB-Math-4", "RSB-Math-10", "RSB-HardMath-4") for k in range(3)]
+    rec = Recorder()
+    errors, interrupted, _ = _run(items, 2, rec, progress=False)
+    assert errors == [] and not interrupted and len(rec.tasks) == 2
+    dealt = [item for t in rec.tasks for item in t["items"]]
+    assert sorted((w, k) for w, _, k, _ in dealt) == sorted((str(w), k) for w, _, k, _ in items)
+    assert all(len({w for w, *_ in t["items"]}) == 3 for t in rec.tasks)  # each worker spans the suites

@@ -147,12 +147,11 @@ def _check_settings(work: Path, dataset: Path | None, settings: dict) -> bool:
 # ------------------------------------------------------------------ worker side
 
 
-def _write_shard(task: dict, k: int, shard: ExportShard | SuiteShard, emit: Any) -> None:
-    """Makes shard ``k`` whole under a temporary name, then renames it into place."""
+def _write_shard(work: Path, settings: dict, k: int, shard: ExportShard | SuiteShard, emit: Any) -> None:
+    """Makes shard ``k`` of ``work`` whole under a temporary name, then renames it into place."""
     from rsb_maniskill.export.lerobot import check_fps, render_episodes, write_dataset
     from rsb_maniskill.workers import Interrupted
 
-    work, settings = Path(task["work"]), task["settings"]
     final = shard_dir(work, k)
     if (final / SHARD_META).is_file():
         emit({"type": "shard", "expected": shard.size, "episodes": 0, "skipped": True})
@@ -207,13 +206,13 @@ def _generate(shard: SuiteShard, settings: dict, out: Path) -> tuple[Path | None
 
 
 def run_worker(task: dict, emit: Any) -> int:
-    """Executor target: the shards dealt to one worker, one after the other."""
+    """Executor target: the shards dealt to one worker (of any suites), one after the other."""
     if task.get("lp_threads") and "LP_NUM_THREADS" not in os.environ:
         # lavapipe starts one raster thread per CPU in every process: share the CPUs instead
         os.environ["LP_NUM_THREADS"] = str(task["lp_threads"])
-    for k, shard in task["shards"]:
-        _write_shard(task, k, shard, emit)
-    return len(task["shards"])
+    for work, settings, k, shard in task["items"]:
+        _write_shard(Path(work), settings, k, shard, emit)
+    return len(task["items"])
 
 
 # ------------------------------------------------------------------ driver side
@@ -252,15 +251,8 @@ def _run(shards: list[tuple[Path, dict, int, Any]], num_procs: int, executor: An
     from rsb_maniskill.workers import InProcess, ProcessPool, deal
 
     bar = _Progress(sum(s.size for *_, s in shards), progress)
-    by_work: dict[str, dict] = {}
-    for work, settings, k, shard in shards:
-        by_work.setdefault(str(work), {"work": str(work), "settings": settings, "shards": []})["shards"].append((k, shard))
-    # one task per worker; a worker's shards may span suites
-    flat = [(w, item) for w, t in by_work.items() for item in t["shards"]]
-    tasks = []
-    for part in deal(flat, num_procs):
-        for w in dict.fromkeys(w for w, _ in part):
-            tasks.append({"work": w, "settings": by_work[w]["settings"], "shards": [i for ww, i in part if ww == w]})
+    # one task per worker, its shards dealt round-robin (they may span suites)
+    tasks = [{"items": [(str(w), settings, k, s) for w, settings, k, s in part]} for part in deal(shards, num_procs)]
     if len(tasks) > 1 and executor is None:
         for t in tasks:
             t["lp_threads"] = max(1, (os.cpu_count() or 1) // len(tasks))

@@ -102,6 +102,19 @@ def test_sync_and_async_vector_envs(use_async, tmp_path):
     assert seeds == [EVAL_SEED_BASE + 2, EVAL_SEED_BASE + 3]  # one record per sub-env, from two processes if async
 
 
+def test_a_policy_of_other_features_gets_one_error():
+    from rsb_maniskill.integrations.lerobot_env import check_policy_features
+
+    ok = {"observation.images.cam_high": (3, 48, 64), "observation.state": (14,)}
+    check_policy_features(ok, camera_size=SMALL)  # a subset of the cameras is fine
+    with pytest.raises(ValueError) as err:
+        check_policy_features({"observation.images.head_camera": (3, 240, 320), "observation.state": (14,)},
+                              camera_size=SMALL)
+    msg = str(err.value)
+    assert "observation.images.head_camera (3, 240, 320)" in msg and "observation.images.cam_high (3, 48, 64)" in msg
+    assert "--env.naming" in msg and "\n" not in msg
+
+
 def test_expected_features_name_keys_and_shapes():
     assert expected_features("rsb", camera_size=SMALL) == {
         "observation.images.cam_high": (3, 48, 64), "observation.images.cam_left_wrist": (3, 48, 64),
@@ -205,3 +218,8 @@ def test_lerobot_loop_export_train_eval_report(tmp_path):
     tsr = 100 * sum(r["success"] for r in rows) / len(rows)
     assert info["overall"]["pc_success"] == pytest.approx(tsr)
     assert main(["report", str(records)]) == 0 and (records / "report.html").is_file()
+    # the same policy on the RoboTwin naming: one error at once, naming the keys it would get
+    res = subprocess.run([*evaluate[:-1], "--env.naming=robotwin", f"--output_dir={tmp_path / 'eval2'}"],
+                         capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
+    assert res.returncode != 0 and "the policy takes observation.images.cam_high" in res.stderr
+    assert "it gives observation.images.head_camera (3, 48, 64)" in res.stderr

@@ -263,3 +263,18 @@ def expected_features(naming: str = DEFAULT_NAMING, obs_type: str = "pixels_agen
     if obs_type == "pixels_agent_pos":
         out["observation.state"] = (ACTION_DIM,)
     return out
+
+
+def check_policy_features(policy_features: dict[str, tuple[int, ...]], naming: str = DEFAULT_NAMING,
+                          obs_type: str = "pixels_agent_pos", camera_size: tuple[int, int] = (320, 240)) -> None:
+    """Raises one ValueError naming the expected keys and shapes when a policy's observation inputs
+    (LeRobot key -> shape; ``observation.*`` only) are not all given, in those shapes, by the env."""
+    given = expected_features(naming, obs_type, camera_size)
+    wanted = {k: tuple(v) for k, v in policy_features.items() if k.startswith("observation.")}
+    bad = {k: v for k, v in wanted.items() if given.get(k) != v}
+    if bad:
+        show = lambda d: ", ".join(f"{k} {tuple(v)}" for k, v in d.items())  # noqa: E731
+        raise ValueError(f"the policy takes {show(bad)}, which RSB (naming={naming}, obs_type={obs_type}, camera "
+                         f"{camera_size[0]}x{camera_size[1]}) does not give; it gives {show(given)}: set "
+                         "--env.naming / --env.obs_type / --env.camera_width / --env.camera_height as in the "
+                         "policy's training data")

@@ -68,4 +68,30 @@ class RSBEnvConfig(EnvConfig):
     def create_envs(self, n_envs: int, use_async_envs: bool = False):
         from rsb_maniskill.integrations.lerobot_env import create_rsb_envs
 
+        self.check_policy()
         return create_rsb_envs(self.task, n_envs, use_async_envs, **self.gym_kwargs)
+
+    def check_policy(self, policy_path: str | None = None) -> None:
+        """Under ``lerobot-eval --policy.path=P`` (no ``--rename_map``): fails at once, naming the expected keys and
+        shapes, when P's policy takes observations this env does not give (rather than deep in the
+        policy at the first step)."""
+        import sys
+        from pathlib import Path
+
+        from lerobot.configs import parser
+        from lerobot.configs.policies import PreTrainedConfig
+
+        from rsb_maniskill.integrations.lerobot_env import check_policy_features
+
+        if policy_path is None:
+            # only lerobot-eval without a rename map evaluates the policy on these keys as they are
+            # (lerobot-train's --policy.path is a base model to fine-tune, with its own features)
+            if Path(sys.argv[0]).name not in ("lerobot-eval", "lerobot_eval.py") or any(
+                    a.startswith("--rename_map") for a in sys.argv):
+                return
+            policy_path = parser.get_path_arg("policy")
+        if not policy_path:
+            return
+        features = PreTrainedConfig.from_pretrained(policy_path).input_features
+        check_policy_features({k: tuple(f.shape) for k, f in features.items()}, self.naming, self.obs_type,
+                              (self.camera_width, self.camera_height))

@@ -86,6 +86,7 @@ def main() -> None:
     args = ap.parse_args()
     os.environ.setdefault("HF_HUB_OFFLINE", "1")  # pool sizes: local data or the fallback, no network waits
     size = tuple(int(v) for v in args.camera_size.split("x"))
+    load_before = os.getloadavg()[0]  # read before the runs: other work on the machine skews every figure
     tmp = Path(tempfile.mkdtemp(prefix="rsb-dataset-bench-"))
     try:
         runs = {}
@@ -96,7 +97,7 @@ def main() -> None:
         encode_per_frame = _encode_per_frame(size, tmp)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print(f"machine: {os.cpu_count()} CPUs, load before: {os.getloadavg()[0]:.2f}; cameras 3 x {size[0]}x{size[1]}")
+    print(f"machine: {os.cpu_count()} CPUs, load before: {load_before:.2f}; cameras 3 x {size[0]}x{size[1]}")
     for procs, (wall, eps, frames, cores) in runs.items():
         print(f"{procs} process(es): {eps} demos, {frames} frames in {wall:.1f} s -> {60 * eps / wall:.1f} demos/min, "
               f"{frames / wall:.1f} rendered frames/s, {cores:.2f} CPU cores busy on average")

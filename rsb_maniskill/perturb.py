@@ -115,8 +115,11 @@ def axis_rng(suite_id: str, split: str, seed: int, axis: str, level: int) -> np.
 
 # ---------------------------------------------------------------------------------- visual draws
 def camera_offset(rng: np.random.Generator, level: int) -> tuple[np.ndarray, np.ndarray]:
-    """(xyz shift in m, roll / pitch / yaw in rad) of the head camera in its mount's frame."""
-    return rng.uniform(-1, 1, 3) * CAMERA_SHIFT[level], rng.uniform(-1, 1, 3) * CAMERA_TURN[level]
+    """(xyz shift in m, roll / pitch / yaw in rad) of the head camera in its mount's frame (x forward:
+    never backwards, into the camera's housing)."""
+    shift = rng.uniform(-1, 1, 3) * CAMERA_SHIFT[level]
+    shift[0] = abs(shift[0])
+    return shift, rng.uniform(-1, 1, 3) * CAMERA_TURN[level]
 
 
 def lighting(rng: np.random.Generator, level: int) -> dict[str, np.ndarray | float]:

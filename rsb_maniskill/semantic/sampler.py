@@ -6,16 +6,16 @@ from typing import Mapping
 
 import numpy as np
 
+from ..objects.family import get_family
+from ..perturb import axis_rng, language, parse_perturb
+from . import wording
 from .distractors import numeric_options, weighted_options
 from .pools import Pool, get_pool
 from .records import Question, format_number
 from .spec import EpisodeSpec
 from .stable import episode_rng
 from .suites import COLOR_MAPS, INSTRUCTION_SETS, check_split, letters_for, parse_suite_id
-from . import wording
 from .templates import get_template, render_direct, render_instruction, template_ids
-from ..objects.family import get_family
-from ..perturb import axis_rng, language, parse_perturb
 
 
 def _sentence(text: str) -> str:

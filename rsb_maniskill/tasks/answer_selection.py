@@ -20,11 +20,11 @@ import torch
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from rsb_maniskill.agents.aloha import AlohaAgilex
+from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ, TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.objects.family import get_family
 from rsb_maniskill.objects.pool import CandidatePool
 from rsb_maniskill.perturb import language as perturb_language
 from rsb_maniskill.perturb import parse_perturb
-from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ, TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.semantic import EpisodeSampler, EpisodeSpec, parse_suite_id
 from rsb_maniskill.tasks import layout
 from rsb_maniskill.tasks.base import RSBEnv

@@ -46,7 +46,8 @@ class TableSceneBuilder(SceneBuilder):
         leg_h = -FLOOR_Z - TABLE_THICKNESS
         for x in (TABLE_X[0] + 0.05, TABLE_X[1] - 0.05):
             for y in (TABLE_Y[0] + 0.05, TABLE_Y[1] - 0.05):
-                builder.add_box_visual(sapien.Pose([x, y, FLOOR_Z + leg_h / 2]), [0.025, 0.025, leg_h / 2], material=leg_mat)
+                builder.add_box_visual(sapien.Pose([x, y, FLOOR_Z + leg_h / 2]), [0.025, 0.025, leg_h / 2],
+                                       material=leg_mat)
         builder.initial_pose = sapien.Pose()
         if scene_idxs is not None:
             builder.set_scene_idxs(scene_idxs)

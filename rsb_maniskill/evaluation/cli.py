@@ -35,10 +35,10 @@ class EvalError(RuntimeError):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.evaluation.policy import POLICIES
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
     from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
-    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.perturb import AXES
     from rsb_maniskill.workers import add_executor_args
 
@@ -212,11 +212,11 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
 
 
 def _run_eval(args: argparse.Namespace) -> int:
+    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.evaluation.policy import policy_spec
     from rsb_maniskill.evaluation.protocol import eval_seeds
     from rsb_maniskill.evaluation.records import read_records
     from rsb_maniskill.evaluation.report import markdown_tables, results_from_records, write_report
-    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.workers import executor_from_args
 
     suites = resolve_suites(args.suites)

@@ -16,12 +16,11 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
+from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.workers import Executor, InProcess, Interrupted, ProcessPool, deal
 
 from .policy import is_batched, load_policy, policy_name, policy_spec
 from .protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED
-from rsb_maniskill.perturb import label as perturb_label
-
 from .records import RecordWriter, read_records
 from .records import perturb_label as record_perturb
 from .runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop

@@ -71,6 +71,10 @@ def _ci(r: Any) -> str:
     return "n/a" if r.value is None else f"{_pct(r.value)} [{_pct(r.low)}, {_pct(r.high)}]"
 
 
+def _diff(a: float | None, b: float | None) -> float | None:
+    return None if a is None or b is None else a - b
+
+
 def _delta(a: float | None, b: float | None) -> str:
     return "n/a" if a is None or b is None else f"{100 * (a - b):+.1f}"
 
@@ -88,9 +92,8 @@ def robustness_rows(table: Table) -> list[dict[str, Any]]:
                         **{k: getattr(m, k).value for k in ("gsr", "tsr", "nsg")},
                         **{f"{k}_low": getattr(m, k).low for k in ("gsr", "tsr", "nsg")},
                         **{f"{k}_high": getattr(m, k).high for k in ("gsr", "tsr", "nsg")},
-                        **{f"d_{k}": (None if base is None or getattr(m, k).value is None
-                                      or getattr(base, k).value is None
-                                      else getattr(m, k).value - getattr(base, k).value) for k in ("gsr", "tsr", "nsg")},
+                        **{f"d_{k}": _diff(getattr(m, k).value, None if base is None else getattr(base, k).value)
+                           for k in ("gsr", "tsr", "nsg")},
                         "breaks": "-" if base is None else breaks(m, base),
                     })
     return rows

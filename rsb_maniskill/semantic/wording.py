@@ -5,7 +5,8 @@ the option -> candidate binding and so the correct option never change, and no r
 answer: :func:`render` has no answer parameter, as ``templates.render_instruction`` has none.
 
 - ``lang_reference``: candidates named by a synonym (level 1: "the red cube"), a description (2:
-  "the crimson block", "the little car"), or both (3: "the small crimson cube").
+  "the crimson block", "the little car"), or both (3: "the small crimson cube"); the templates'
+  own noun ("block", "object") changes with them ("cube", "wooden block", "small wooden cube").
 - ``lang_layout``: each option written "option A: 12" (1), "A <- 12" (2) or "12 is A" (3).
 - ``lang_distractor``: irrelevant sentences: one at the end (1), at the start and the end (2),
   and after the question too (3).
@@ -23,8 +24,8 @@ from .templates import Template, render_direct, render_template
 
 # lang_reference, per level: 4-choice block colours, lettered blocks, and everyday categories.
 COLOUR_WORDS = {"red": "crimson", "green": "emerald", "blue": "sapphire", "yellow": "golden"}
-BLOCK_NOUN = {1: "cube", 2: "block", 3: "cube"}
-OBJECT_NOUN = {1: "item", 2: "object", 3: "item"}
+BLOCK_NOUN = {1: "cube", 2: "wooden block", 3: "small wooden cube"}  # the templates' noun ("block")
+OBJECT_NOUN = {1: "item", 2: "thing", 3: "household item"}  # ... and the objects' ("object")
 LETTERED_NAME = {1: "cube {X}", 2: "block marked {X}", 3: "cube showing the letter {X}"}
 # category name -> (synonym, description, longer description): never a colour, never another category
 OBJECT_NAMES: dict[str, tuple[str, str, str]] = {
@@ -63,7 +64,7 @@ DISTRACTORS = (
     "The room is quiet at the moment.", "Someone is reading a newspaper nearby.",
     "The window blinds are half open.", "It is a little past noon.",
     "Soft music is playing in the hallway.", "The floor was cleaned this morning.",
-    "A door closes somewhere down the corridor.", "Nobody else is working here right now.",
+    "Somewhere down the corridor a door closes.", "Nobody else is working here right now.",
     "The air conditioner hums quietly.", "The lab lights were replaced last week.",
 )
 # lang_order frames (named: {MAPS}; lettered: {OPTIONS}); {CMD} is the command sentence.
@@ -81,7 +82,7 @@ def reference_names(names: Sequence[str], keys: Sequence[str], level: int) -> tu
             label = key.split(":", 1)[1]
             if label in COLOUR_WORDS:
                 colour = label if level == 1 else COLOUR_WORDS[label]
-                out.append(f"{'small ' if level == 3 else ''}{colour} {BLOCK_NOUN[level]}")
+                out.append(f"{'small ' if level == 3 else ''}{colour} {'block' if level == 2 else 'cube'}")
             else:
                 out.append(LETTERED_NAME[level].format(X=label))
         else:

@@ -17,8 +17,7 @@ import rsb_maniskill  # noqa: F401
 from rsb_maniskill import perturb as P
 from rsb_maniskill.audit.run import audit_suite
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
-from rsb_maniskill.semantic import EpisodeSampler
-from rsb_maniskill.semantic import wording
+from rsb_maniskill.semantic import EpisodeSampler, wording
 from rsb_maniskill.semantic.records import normalize_text
 from rsb_maniskill.semantic.templates import get_template
 from rsb_maniskill.tasks import layout
@@ -284,13 +283,26 @@ def test_perturbed_expert_demo_replays_with_maniskills_tool(tmp_path):
     assert summary.completed == 1, summary
     data = json.loads(summary.path.with_suffix(".json").read_text())
     assert data["env_info"]["env_kwargs"]["perturb"] == {"clutter": 3, "robot_init": 3}
+    src = tmp_path / "copy.h5"  # the replay writes <stem>.state.pd_joint_pos.physx_cpu.h5 next to it
+    src.write_bytes(summary.path.read_bytes())
+    src.with_suffix(".json").write_bytes(summary.path.with_suffix(".json").read_bytes())
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     env["PYTHONPATH"] = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     res = subprocess.run([sys.executable, "-m", "mani_skill.trajectory.replay_trajectory", "--traj-path",
-                          str(summary.path), "-o", "state", "--save-traj"],
+                          str(src), "-o", "state", "--save-traj"],
                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
     assert res.returncode == 0, res.stderr[-3000:]
     assert "1/1=100.00% demos saved" in res.stdout
+    import h5py
+
+    with h5py.File(src, "r") as a, h5py.File(tmp_path / "copy.state.pd_joint_pos.physx_cpu.h5", "r") as b:
+        sa, sb = a["traj_0/env_states"], b["traj_0/env_states"]
+        clutter = [k for k in sa["actors"] if k.startswith("clutter_")]
+        assert sum(float(sa["actors"][k][0, 2]) > 0 for k in clutter) == P.CLUTTER_COUNT[3]
+        for k in clutter:  # the replayed episode starts with the same clutter ...
+            np.testing.assert_allclose(sa["actors"][k][0], sb["actors"][k][0], atol=1e-6)
+        robot = next(iter(sa["articulations"]))  # ... and the same perturbed start pose
+        np.testing.assert_allclose(sa["articulations"][robot][0], sb["articulations"][robot][0], atol=1e-6)
 
 
 @pytest.mark.gpu

@@ -30,6 +30,16 @@ def controller_target_qpos(controller: Any) -> Any:
     return controller._target_qpos
 
 
+def render_cameras(camera: Any) -> list[Any]:
+    """The per-env SAPIEN camera components behind a ManiSkill ``RenderCamera`` (``_render_cameras``)."""
+    return camera._render_cameras
+
+
+def forget_camera_pose(camera: Any) -> None:
+    """After a per-env ``set_local_pose``: drop the ``RenderCamera``'s cached local pose (``_cached_local_pose``)."""
+    camera._cached_local_pose = None
+
+
 @contextmanager
 def obs_mode(env: Any, mode: str) -> Iterator[None]:
     """Steps inside the block compute the observation of ``mode`` (``BaseEnv._obs_mode``); the

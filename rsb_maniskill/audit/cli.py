@@ -26,6 +26,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="audit your own episodes: EpisodeSpec JSON lines (e.g. `rsb questions --json`) with "
                         "split train (probe training) and test (audited), grouped by suite_id")
     p.add_argument("--data-dir", default=None, help="directory with gsm8k/ and mmlu/ (else $RSB_DATA_DIR, else hub cache)")
+    p.add_argument("--perturb", nargs="+", default=[], metavar="AXIS=LEVEL",
+                   help="audit the episodes worded under language robustness axes (lang_reference, lang_layout, "
+                        "lang_distractor, lang_order; levels 0-3), e.g. --perturb lang_layout=3; 'all' audits "
+                        "every language axis at every level 1-3, one after the other")
     p.add_argument("--out", default=None, metavar="DIR", help="write audit.json and audit.md there")
     p.add_argument("--json", action="store_true", help="print JSON instead of the Markdown tables")
     p.set_defaults(func=cmd_audit)
@@ -60,6 +64,21 @@ def _read_specs(paths: list[str]) -> dict[str, dict[str, list]]:
     return by
 
 
+def _perturbs(items: list[str]) -> list[dict[str, int] | None]:
+    """``--perturb``: one perturbation (its axes together), every language axis and level ("all"),
+    or none. Only language axes change what the audit reads; a visual axis is a clear error."""
+    from rsb_maniskill.perturb import LANGUAGE_AXES, LEVELS, PerturbError, parse_perturb
+
+    if items == ["all"]:
+        return [{a: lv} for a in LANGUAGE_AXES for lv in LEVELS if lv]
+    perturb = parse_perturb(",".join(items))
+    visual = [a for a in perturb if a not in LANGUAGE_AXES]
+    if visual:
+        raise PerturbError(f"--perturb {', '.join(visual)}: the audit reads text; give a language axis "
+                           f"({', '.join(LANGUAGE_AXES)}) or 'all'")
+    return [perturb or None]
+
+
 def cmd_audit(args: argparse.Namespace) -> int:
     from rsb_maniskill.semantic.errors import SemanticError
 
@@ -82,9 +101,11 @@ def cmd_audit(args: argparse.Namespace) -> int:
                 print("rsb audit: error: name at least one SUITE (or 'paper', 'all'), or pass --specs", file=sys.stderr)
                 return 2
             for sid, targets in suites:
-                print(f"rsb audit: {sid} ({targets}) ...", file=sys.stderr, flush=True)
-                audits.append(audit_suite(sid, args.split, args.episodes, n_train=args.train_episodes,
-                                          data_dir=args.data_dir, targets=targets))
+                for perturb in _perturbs(args.perturb):
+                    print(f"rsb audit: {sid} ({targets}{', ' + str(perturb) if perturb else ''}) ...",
+                          file=sys.stderr, flush=True)
+                    audits.append(audit_suite(sid, args.split, args.episodes, n_train=args.train_episodes,
+                                              data_dir=args.data_dir, targets=targets, perturb=perturb))
     except (ValueError, SemanticError) as err:
         print(f"rsb audit: error: {err}", file=sys.stderr)
         return 2

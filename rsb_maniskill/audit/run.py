@@ -16,6 +16,7 @@ from rsb_maniskill.semantic.spec import EpisodeSpec
 from .guessers import candidate_guessers, credit, named_guessers
 from .probe import learned_probe
 from .splits import SplitOverlap, split_overlap
+from .wording import instruction_guessers
 
 MARGIN = 0.03  # a guesser fails the audit when its whole 95 % interval lies above chance + 3 points
 MIN_SUBSET = 100  # smallest number of episodes a guesser must apply to for its own verdict
@@ -111,8 +112,9 @@ def ambiguous_sets(specs: Sequence[EpisodeSpec]) -> list[list[str]]:
 
 def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[EpisodeSpec], *,
                 split: str = "test", margin: float = MARGIN, overlap: SplitOverlap | None = None,
-                seed: int = 0) -> SuiteAudit:
-    """Audit ``test`` episodes; the learned probe is fit on ``train`` episodes (never the same seeds)."""
+                seed: int = 0, read_instruction: bool = False) -> SuiteAudit:
+    """Audit ``test`` episodes; the learned probe is fit on ``train`` episodes (never the same seeds).
+    ``read_instruction``: also the guessers of the instruction's wording (``wording.py``)."""
     if not test:
         raise ValueError(f"{suite_id}: no episodes to audit")
     n = test[0].n_choices
@@ -120,7 +122,8 @@ def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[Epis
         raise ValueError(f"{suite_id}: episodes with different numbers of choices cannot be audited together")
     chance = 1.0 / n
     results = []
-    for g in named_guessers(n, test[0].letters) + candidate_guessers(test):
+    extra = instruction_guessers(test) if read_instruction else []
+    for g in named_guessers(n, test[0].letters) + candidate_guessers(test) + extra:
         cr, ap = np.empty(len(test)), np.zeros(len(test), dtype=bool)
         for i, sp in enumerate(test):
             s = g.score(sp)
@@ -151,18 +154,24 @@ def suite_overlap(train: EpisodeSampler, test: EpisodeSampler) -> SplitOverlap:
 
 def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: int | None = None,
                 data_dir: str | os.PathLike | None = None, margin: float = MARGIN,
-                targets: str = "blocks") -> SuiteAudit:
+                targets: str = "blocks", perturb: dict[str, int] | None = None) -> SuiteAudit:
     """Audit ``n`` episodes of ``split`` (the evaluation protocol's seeds) of a suite.
 
     The probe trains on ``n_train`` (default ``n``) train-split episodes of seeds 0, 1, ...; the
     audited episodes use seeds from ``EVAL_SEED_BASE`` on, so the two never share a seed.
+    ``perturb``: language robustness axes (``{"lang_layout": 2}``) worded into both splits.
     """
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
-    train_s = EpisodeSampler(suite_id, "train", data_dir=data_dir, targets=targets)
-    test_s = train_s if split == "train" else EpisodeSampler(suite_id, split, data_dir=data_dir, targets=targets)
+    train_s = EpisodeSampler(suite_id, "train", data_dir=data_dir, targets=targets, perturb=perturb)
+    test_s = train_s if split == "train" else EpisodeSampler(suite_id, split, data_dir=data_dir, targets=targets,
+                                                             perturb=perturb)
     train = [train_s.episode(s) for s in range(n if n_train is None else n_train)]
     test = [test_s.episode(EVAL_SEED_BASE + i) for i in range(n)]
     overlap = suite_overlap(train_s, test_s if split == "test" else EpisodeSampler(suite_id, "test", data_dir=data_dir))
     name = suite_id if targets == "blocks" else f"{suite_id}-{targets.capitalize()}"
-    return audit_specs(name, train, test, split=split, margin=margin, overlap=overlap)
+    if perturb:
+        from rsb_maniskill.perturb import label
+
+        name += f" [{label(perturb)}]"
+    return audit_specs(name, train, test, split=split, margin=margin, overlap=overlap, read_instruction=bool(perturb))

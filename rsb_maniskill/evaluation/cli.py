@@ -3,6 +3,8 @@
     rsb eval oracle --suites RSB-Math-4 -n 100
     rsb eval my_policies:make_policy -a checkpoint=ckpt/last --num-procs 2 --videos 5
     rsb eval remote -a host=gpu-box -a port=8000 --name pi05 --instruction normal blank shuffled
+    rsb eval oracle --suites RSB-Math-4 -n 50 --sweep camera lang_layout    # robustness axes, levels 0-3
+    rsb eval oracle --suites RSB-Math-4 -n 50 --perturb camera=2 noise=1   # one perturbed run
 
 Output directory (``--out``, default ``results/<name>``): ``episodes.jsonl`` (one record per
 finished episode; rerunning the same command resumes), ``run.json`` (the settings each policy row
@@ -25,6 +27,7 @@ MANIFEST_FILE = "run.json"
 # Settings that change what an episode of a row means: a resumed run must keep them.
 MANIFEST_KEYS = ("policy", "policy_kwargs", "obs_mode", "control_mode", "max_steps", "env_kwargs")
 PROTOCOL_KEYS = ("split", "instructions")  # fixed by the protocol; not settable with --env-arg
+SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0: the unperturbed run)
 
 
 class EvalError(RuntimeError):
@@ -32,10 +35,11 @@ class EvalError(RuntimeError):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.evaluation.policy import POLICIES
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
     from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
-    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
+    from rsb_maniskill.perturb import AXES
     from rsb_maniskill.workers import add_executor_args
 
     state_only = [name for name, spec in POLICIES.items() if spec.obs_mode == "state"]
@@ -57,6 +61,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--instruction", nargs="+", default=["normal"], choices=INSTRUCTION_MODES,
                    help="instruction given to the policy: normal, blank or shuffled (another episode's); "
                         "several run one after the other")
+    p.add_argument("--perturb", nargs="+", default=[], metavar="AXIS=LEVEL",
+                   help="robustness axes applied together, each at a level 0-3 (axes: " + ", ".join(AXES) + "); "
+                        "see docs/robustness.md")
+    p.add_argument("--sweep", nargs="+", default=[], metavar="AXIS",
+                   help="run each axis at levels 0-3, one after the other (level 0, the unperturbed run, once for "
+                        "all); resumable; the summary and report.html get a robustness table per suite")
     p.add_argument("--name", default=None, help="row label in records and tables (default: the policy spec)")
     p.add_argument("--out", default=None, help="results directory (default: results/<name>)")
     p.add_argument("-o", "--obs-mode", default=None,
@@ -90,6 +100,23 @@ def parse_kv(items: list[str], what: str) -> dict[str, Any]:
         except json.JSONDecodeError:
             out[key] = value
     return out
+
+
+def perturbations(perturb: list[str], sweep: list[str]) -> list[dict[str, int]]:
+    """The perturbations to run, in order: ``--perturb`` (one, its axes together) or ``--sweep``
+    (no perturbation, then each axis at levels 1-3); ``[{}]`` without either."""
+    from rsb_maniskill.perturb import PerturbError, check_axis, parse_perturb
+
+    if perturb and sweep:
+        raise EvalError("use --perturb or --sweep, not both (a sweep varies one axis at a time)")
+    try:
+        if sweep:
+            for axis in sweep:
+                check_axis(axis)
+            return [{}] + [{axis: level} for axis in dict.fromkeys(sweep) for level in SWEEP_LEVELS if level]
+        return [parse_perturb(",".join(perturb))]
+    except PerturbError as err:
+        raise EvalError(f"{err} (--perturb AXIS=LEVEL, --sweep AXIS)") from None
 
 
 def resolve_suites(names: list[str]) -> list[str]:
@@ -167,14 +194,14 @@ def run_eval(args: argparse.Namespace) -> int:
 
 def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kwargs: dict, obs_mode: str,
               max_steps: int, env_kwargs: dict, out: Path, records_path: Path, num_procs: int,
-              executor: Any) -> None:
-    """Every suite x instruction mode, one after the other."""
+              executor: Any, perturbs: list[dict[str, int]]) -> None:
+    """Every suite x instruction mode x perturbation, one after the other."""
     from rsb_maniskill.evaluation.jobs import EvalJob, run_job
     from rsb_maniskill.evaluation.protocol import eval_seeds
 
     for suite in suites:
-        for mode in args.instruction:
-            job = EvalJob(
+        for mode, perturb in ((m, p) for m in args.instruction for p in perturbs):
+            job = EvalJob(perturb=perturb or None,
                 suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
                 label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
                 control_mode=args.control_mode, num_envs=args.num_envs,
@@ -185,11 +212,11 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
 
 
 def _run_eval(args: argparse.Namespace) -> int:
+    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.evaluation.policy import policy_spec
     from rsb_maniskill.evaluation.protocol import eval_seeds
     from rsb_maniskill.evaluation.records import read_records
     from rsb_maniskill.evaluation.report import markdown_tables, results_from_records, write_report
-    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.workers import executor_from_args
 
     suites = resolve_suites(args.suites)
@@ -222,6 +249,9 @@ def _run_eval(args: argparse.Namespace) -> int:
     fixed = [k for k in PROTOCOL_KEYS if k in env_kwargs]
     if fixed:
         raise EvalError(f"--env-arg cannot set {', '.join(fixed)}: the protocol fixes split=test, instructions=unseen")
+    if "perturb" in env_kwargs:
+        raise EvalError("--env-arg cannot set perturb: use --perturb AXIS=LEVEL or --sweep AXIS (records carry them)")
+    perturbs = perturbations(args.perturb, args.sweep)
     if args.data_dir:
         env_kwargs["data_dir"] = args.data_dir
     check_policy_spec(args.policy, args.num_envs)
@@ -258,25 +288,34 @@ def _run_eval(args: argparse.Namespace) -> int:
             num_procs = args.num_procs or executor.workers()
         try:
             _run_jobs(args, suites, label, policy_kwargs, obs_mode, max_steps, env_kwargs, out, records_path,
-                      num_procs, executor)
+                      num_procs, executor, perturbs)
         except KeyboardInterrupt:
             interrupted = True
 
-    wanted = {(s, m) for s in suites for m in args.instruction}
+    from rsb_maniskill.evaluation.records import perturb_label as record_perturb
+    from rsb_maniskill.perturb import label as perturb_label
+
+    wanted = {(s, m, perturb_label(p)) for s in suites for m in args.instruction for p in perturbs}
     all_records = read_records(records_path)
     results = results_from_records(all_records)
     if results:
         from rsb_maniskill.evaluation.html_report import write_html_report
 
-        paths = write_report(results, out)
+        paths = write_report(results, out, records=all_records)
         page = write_html_report(out, records=all_records)
         print(markdown_tables(results))
+        from rsb_maniskill.evaluation.robustness import robustness_markdown, robustness_table
+
+        robust = robustness_table(all_records)
+        if robust:
+            print(robustness_markdown(robust))
         print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\nreport: {page}")
     if interrupted:
         print(f"rsb eval: interrupted; finished episodes are in {records_path}. "
               "Rerun the same command to resume.", file=sys.stderr)
         return 130
-    n_run = sum(1 for r in all_records if r["policy"] == label and (r["suite_id"], r["instruction_mode"]) in wanted
+    n_run = sum(1 for r in all_records if r["policy"] == label
+                and (r["suite_id"], r["instruction_mode"], record_perturb(r)) in wanted
                 and int(r["seed"]) - eval_seeds(r["suite_id"], 1)[0] < args.num_episodes)
     expected = len(wanted) * args.num_episodes
     if n_run != expected:

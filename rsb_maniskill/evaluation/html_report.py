@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from .metrics import OUTCOMES, SuiteMetrics, average, outcome
-from .records import dedupe, read_records
+from .records import dedupe, perturb_label, read_records
 from .report import markdown_tables, results_from_records, row_label, suite_columns
 
 REPORT_FILE = "report.html"
@@ -87,7 +87,7 @@ def episode_cards(records: Iterable[Mapping[str, Any]], results_dir: Path) -> li
         if video and (results_dir / "videos" / video).exists():
             thumbs = video_thumbnails(results_dir / "videos" / video)
         cards.append({
-            "row": row_label(str(r.get("policy", "?")), r.get("instruction_mode", "normal")),
+            "row": row_label(str(r.get("policy", "?")), r.get("instruction_mode", "normal"), perturb_label(r)),
             "policy": str(r.get("policy", "?")),
             "suite": r["suite_id"],
             "mode": r.get("instruction_mode", "normal"),
@@ -206,6 +206,20 @@ def _script_json(data: Any) -> str:
     return json.dumps(data, ensure_ascii=False, separators=(",", ":")).replace("</", "<\\/")
 
 
+def _robustness(records: Sequence[Mapping[str, Any]]) -> str:
+    """The robustness section (per axis and level, GSR / TSR / nSG and their change from level 0),
+    or nothing when no episode was perturbed."""
+    from .robustness import robustness_markdown, robustness_table
+
+    table = robustness_table(records)
+    if not table:
+        return ""
+    return ('<section id="robustness"><h2>Robustness</h2><p class="note">Per axis and level: a GSR drop means '
+            'the perturbation breaks the grasp, an nSG drop with GSR intact that it breaks the choice. Level 0 '
+            'is the unperturbed run of the same seeds.</p>' + markdown_to_html(robustness_markdown(table))
+            + "</section>")
+
+
 def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: str | None = None) -> str:
     """The report page for ``records`` (episode files of ``results_dir`` feed the thumbnails)."""
     records = dedupe(records)
@@ -255,7 +269,7 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
         colors=_script_json({"colors": OUTCOME_COLORS, "labels": OUTCOME_LABELS}),
         meta=f"{len(cards)} episodes &middot; {len(rows)} row(s) &middot; {len(suites)} suite(s) &middot; "
              f"{n_videos} with video &middot; rsb_maniskill {__version__} &middot; written {stamp}",
-        summary="".join(summary), tables=markdown_to_html(markdown_tables(results)),
+        summary="".join(summary), tables=markdown_to_html(markdown_tables(results)), robustness=_robustness(records),
         errors="".join(err_rows), legend=legend, filters=filter_html,
     )
 
@@ -314,7 +328,7 @@ _PAGE = """<!DOCTYPE html>
 (correct block placed), <b style="color:#fd8d3c">nSG</b> (choice among grasps, 0 = random); whiskers: Wilson 95%
 intervals; dashed red: 1/N, the TSR of random selection.</p>
 {summary}</section>
-<section id="tables"><h2>Paper tables</h2>{tables}</section>
+<section id="tables"><h2>Paper tables</h2>{tables}</section>{robustness}
 <section id="errors"><h2>Error analysis</h2><p class="legend">{legend}</p>
 <div class="scroll"><table class="errors"><thead><tr><th>Policy</th><th>Suite</th><th>Episodes</th><th>success</th>
 <th>not placed</th><th>wrong target</th><th>no grasp</th><th>outcomes</th></tr></thead>

@@ -16,11 +16,13 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
+from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.workers import Executor, InProcess, Interrupted, ProcessPool, deal
 
 from .policy import is_batched, load_policy, policy_name, policy_spec
 from .protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED
 from .records import RecordWriter, read_records
+from .records import perturb_label as record_perturb
 from .runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
 
 Write = Callable[[dict], None]
@@ -47,6 +49,8 @@ def make_env(job: EvalJob) -> Any:
 
     kwargs: dict[str, Any] = {**EVAL_ENV_KWARGS, **job.env_kwargs}
     kwargs.update(obs_mode=job.obs_mode, sim_backend=job.sim_backend, num_envs=job.num_envs)
+    if job.perturb:
+        kwargs["perturb"] = dict(job.perturb)
     if job.control_mode:
         kwargs["control_mode"] = job.control_mode
     if job.num_videos and job.video_dir:
@@ -81,10 +85,11 @@ class ProgressBar:
 
 
 def job_records(out_path: str | os.PathLike, settings: EpisodeSettings) -> list[dict]:
-    """The records of ``out_path`` that belong to this policy label, suite and instruction mode."""
+    """The records of ``out_path`` that belong to this policy label, suite, instruction mode and perturbation."""
+    want = perturb_label(settings.perturb or {})
     return [r for r in read_records(out_path)
             if r.get("suite_id") == settings.suite_id and r.get("instruction_mode") == settings.instruction_mode
-            and r.get("policy") == settings.label]
+            and r.get("policy") == settings.label and record_perturb(r) == want]
 
 
 def drive(settings: EpisodeSettings, out_path: str | os.PathLike, run: Callable[[list[int], Write], None],
@@ -99,7 +104,8 @@ def drive(settings: EpisodeSettings, out_path: str | os.PathLike, run: Callable[
     todo = [s for s in settings.seeds if s not in done]
     if not todo:
         return records
-    bar = ProgressBar(settings.label, settings.suite_id, settings.instruction_mode, len(settings.seeds),
+    mode = settings.instruction_mode + (f", {perturb_label(settings.perturb)}" if settings.perturb else "")
+    bar = ProgressBar(settings.label, settings.suite_id, mode, len(settings.seeds),
                       len(settings.seeds) - len(todo), progress)
     try:
         with RecordWriter(out_path) as writer:

@@ -20,7 +20,9 @@ RECORD_FIELDS: tuple[str, ...] = (
 )
 INSTRUCTION_MODES: tuple[str, ...] = ("normal", "blank", "shuffled")
 # A record's identity: the same episode of the same evaluation. Later duplicates are dropped.
-RECORD_KEY: tuple[str, ...] = ("policy", "suite_id", "instruction_mode", "seed")
+RECORD_KEY: tuple[str, ...] = ("policy", "suite_id", "instruction_mode", "perturb", "seed")
+# Values of key fields that a record may lack (records written before the field existed).
+KEY_DEFAULTS: dict[str, Any] = {"perturb": "none"}
 
 
 def validate_record(record: Mapping[str, Any]) -> None:
@@ -146,11 +148,16 @@ def iter_records(path: str | os.PathLike) -> Iterator[dict]:
 
 
 def _key(record: Mapping[str, Any]) -> tuple:
-    return tuple(record.get(k) for k in RECORD_KEY)
+    return tuple(record.get(k, KEY_DEFAULTS.get(k)) for k in RECORD_KEY)
+
+
+def perturb_label(record: Mapping[str, Any]) -> str:
+    """The record's robustness perturbation (``"camera=2"``), ``"none"`` for an unperturbed episode."""
+    return str(record.get("perturb", "none"))
 
 
 def dedupe(records: Iterable[Mapping[str, Any]]) -> list[dict]:
-    """Keep the first record of each (policy, suite, instruction mode, seed)."""
+    """Keep the first record of each (policy, suite, instruction mode, perturbation, seed)."""
     seen: set[tuple] = set()
     out = []
     for r in records:

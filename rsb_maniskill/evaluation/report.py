@@ -17,21 +17,24 @@ from typing import Any, Iterable, Mapping, Sequence
 from rsb_maniskill.objects.family import OBJECTS_SUFFIX
 
 from .metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, SuiteMetrics, average, suite_order, summarize
-from .records import dedupe
+from .records import dedupe, perturb_label
 
 Results = Mapping[str, Mapping[str, SuiteMetrics]]
 
 
-def row_label(policy: str, instruction_mode: str = "normal") -> str:
-    """Table row of a policy; ablation modes get their own row, e.g. ``"pi0 (blank)"``."""
-    return policy if instruction_mode == "normal" else f"{policy} ({instruction_mode})"
+def row_label(policy: str, instruction_mode: str = "normal", perturb: str = "none") -> str:
+    """Table row of a policy; ablation modes and perturbations get their own rows, e.g.
+    ``"pi0 (blank)"``, ``"pi0 [camera=2]"``."""
+    label = policy if instruction_mode == "normal" else f"{policy} ({instruction_mode})"
+    return label if perturb == "none" else f"{label} [{perturb}]"
 
 
 def results_from_records(records: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, SuiteMetrics]]:
     """Group (deduplicated) records by policy and instruction mode, then by suite."""
     rows: dict[str, list[Mapping[str, Any]]] = {}
     for r in dedupe(records):
-        rows.setdefault(row_label(str(r.get("policy", "?")), r.get("instruction_mode", "normal")), []).append(r)
+        rows.setdefault(row_label(str(r.get("policy", "?")), r.get("instruction_mode", "normal"), perturb_label(r)),
+                        []).append(r)
     return {label: summarize(recs) for label, recs in rows.items()}
 
 
@@ -254,8 +257,13 @@ def _slug(label: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", label).strip("_") or "policy"
 
 
-def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summary") -> dict[str, Path]:
-    """Write ``<stem>.json``, ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<row>.png`` per row."""
+def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summary",
+                 records: Iterable[Mapping[str, Any]] | None = None) -> dict[str, Path]:
+    """Write ``<stem>.json``, ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<row>.png`` per row;
+    with ``records`` that hold perturbed episodes, the robustness tables go into the JSON
+    (``robustness``) and the Markdown too."""
+    from .robustness import robustness_markdown, robustness_rows, robustness_table
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {
@@ -263,6 +271,13 @@ def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summ
         "csv": write_csv(results, out / f"{stem}.csv"),
         "markdown": write_markdown(results, out / f"{stem}.md"),
     }
+    table = robustness_table(records) if records is not None else {}
+    if table:
+        summary = json.loads(paths["json"].read_text(encoding="utf-8"))
+        summary["robustness"] = robustness_rows(table)
+        paths["json"].write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        with open(paths["markdown"], "a", encoding="utf-8") as f:
+            f.write("\n" + robustness_markdown(table))
     for label, row in results.items():
         if row:
             paths[f"png:{label}"] = plot_summary(row, out / f"{stem}_{_slug(label)}.png", title=f"{label}: GSR and TSR")

@@ -24,6 +24,8 @@ import numpy as np
 from rsb_maniskill import compat
 from rsb_maniskill.batch import env_row, first_value, single_env_obs
 from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.perturb import label as perturb_label
+from rsb_maniskill.perturb import parse_perturb
 
 from .policy import PerEnvPolicies, as_chunk, as_chunks, env_action_space, is_batched, obs_rows
 from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
@@ -59,15 +61,28 @@ class EpisodeSettings:
     # Render the cameras at every step, as a plain env.step does; by default they are rendered only
     # when the policy asks for a chunk (same records, less time). For benchmarks and checks.
     render_every_step: bool = False
+    # Robustness axes of the env, {axis: level} (rsb_maniskill.perturb); records carry them.
+    perturb: Mapping[str, int] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+        object.__setattr__(self, "perturb", parse_perturb(self.perturb) or None)
         if self.instruction_mode not in INSTRUCTION_MODES:
             raise ValueError(f"instruction_mode must be one of {INSTRUCTION_MODES}, got {self.instruction_mode!r}")
         if len(set(self.seeds)) != len(self.seeds):
             raise ValueError("seeds contain duplicates")
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+
+
+def perturb_fields(perturb: Mapping[str, int]) -> dict[str, Any]:
+    """A perturbed episode's record fields: ``perturb`` ("camera=2"), and with one axis its
+    ``perturb_axis`` and ``perturb_level``."""
+    out: dict[str, Any] = {"perturb": perturb_label(perturb)}
+    if len(perturb) == 1:
+        (axis, level), = perturb.items()
+        out.update(perturb_axis=axis, perturb_level=int(level))
+    return out
 
 
 def info_flag(info: Mapping[str, Any], key: str, default: Any = False) -> Any:
@@ -187,9 +202,13 @@ class _Episodes:
                extra: dict[str, Any], frames: list | None) -> dict[str, Any]:
         """The record of a finished episode; writes its video first when it was filmed."""
         s = self.settings
+        if s.perturb:
+            extra.update(perturb_fields(s.perturb))
         if frames is not None:
             # The policy label leads the name: rows of one results directory share videos/.
             name = f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', s.label)}_{s.suite_id}_{s.instruction_mode}_seed{seed}"
+            if s.perturb:
+                name += "_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", perturb_label(s.perturb))
             extra["video"] = write_video(frames, s.video_dir, name).name
         if s.keep_spec and hasattr(spec, "to_dict"):
             extra["episode"] = spec.to_dict()

@@ -67,12 +67,16 @@ def _add_part(builder, p: Part, density: float, physx_mat) -> None:
         add_vis(pose, **args, material=mat)
 
 
-def build_object(scene: ManiSkillScene, key: str, name: str, initial_pose: sapien.Pose) -> Actor:
-    """The catalog model ``key`` ("mug:1"): one merged actor, the same object in every env."""
+def build_object(scene: ManiSkillScene, key: str, name: str, initial_pose: sapien.Pose,
+                 scene_idxs: list[int] | None = None) -> Actor:
+    """The catalog model ``key`` ("mug:1"): one merged actor, the same object in every env (or in
+    the envs ``scene_idxs``, with materials of their own)."""
     m: ObjectModel = model(key)
     physx_mat = sapien.physx.PhysxMaterial(FRICTION, FRICTION, 0.0)
     builder = scene.create_actor_builder()
     for p in m.parts:
         _add_part(builder, p, m.density, physx_mat)
     builder.initial_pose = initial_pose
+    if scene_idxs is not None:
+        builder.set_scene_idxs(scene_idxs)
     return builder.build(name=name)

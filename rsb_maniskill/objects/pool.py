@@ -47,8 +47,9 @@ class CandidatePool:
         """True when the pool holds more members than candidates (some are parked each episode)."""
         return len(self.keys) > self.n
 
-    def build(self, scene: ManiSkillScene, park_xyz: np.ndarray) -> list[Actor]:
-        """Builds every member at its park position ``park_xyz[k]`` (origin at rest there)."""
+    def build(self, scene: ManiSkillScene, park_xyz: np.ndarray, per_env_materials: bool = False) -> list[Actor]:
+        """Builds every member at its park position ``park_xyz[k]`` (origin at rest there);
+        ``per_env_materials``: env by env, merged, so each env can colour its members its own way."""
         from rsb_maniskill.objects.blocks import build_block
         from rsb_maniskill.objects.everyday import build_object
 
@@ -56,8 +57,14 @@ class CandidatePool:
         park = np.asarray(park_xyz, dtype=np.float32).copy()
         park[:, 2] += self._rest_z.cpu().numpy()
         self._park = torch.as_tensor(park, device=self.device)
-        self.actors = [build(scene, k, f"candidate_{k.replace(':', '_')}", sapien.Pose(p=park[i].tolist()))
-                       for i, k in enumerate(self.keys)]
+        self.actors = []
+        for i, k in enumerate(self.keys):
+            name, pose = f"candidate_{k.replace(':', '_')}", sapien.Pose(p=park[i].tolist())
+            if per_env_materials:
+                parts = [build(scene, k, f"{name}-{e}", pose, [e]) for e in range(self.num_envs)]
+                self.actors.append(Actor.merge(parts, name))
+            else:
+                self.actors.append(build(scene, k, name, pose))
         self._cpu = not scene.gpu_sim_enabled
         for k in range(len(self.keys)):
             self._set_visible(k, False)

@@ -2,17 +2,20 @@
 from __future__ import annotations
 
 import os
+from typing import Mapping
 
 import numpy as np
 
+from ..objects.family import get_family
+from ..perturb import axis_rng, language, parse_perturb
+from . import wording
 from .distractors import numeric_options, weighted_options
 from .pools import Pool, get_pool
 from .records import Question, format_number
 from .spec import EpisodeSpec
 from .stable import episode_rng
 from .suites import COLOR_MAPS, INSTRUCTION_SETS, check_split, letters_for, parse_suite_id
-from .templates import render_direct, render_instruction, template_ids
-from ..objects.family import get_family
+from .templates import get_template, render_direct, render_instruction, template_ids
 
 
 def _sentence(text: str) -> str:
@@ -32,13 +35,17 @@ class EpisodeSampler:
     training and the unseen ones for evaluation. ``color_map="shuffle"`` draws the 4-choice
     option->candidate map per episode (10-choice blocks carry their letter, so it has no effect
     there). ``targets`` names the candidate family (``rsb_maniskill.objects.TARGETS``): it says
-    what the candidates are called; questions and options do not depend on it.
+    what the candidates are called; questions and options do not depend on it. ``perturb``: the
+    language robustness axes and their levels (``{"lang_layout": 2}``, see ``wording``); only the
+    instruction's wording changes, never the question, the options or the answer.
     """
 
     def __init__(self, suite_id: str, split: str = "train", instructions: str | None = None,
                  color_map: str = "fixed", data_dir: str | os.PathLike | None = None,
-                 targets: str = "blocks") -> None:
+                 targets: str = "blocks", perturb: Mapping[str, int] | str | None = None) -> None:
         self.suite_id = suite_id
+        # the language robustness axes (rsb_maniskill.perturb); visual ones are the simulator's
+        self.perturb = language(parse_perturb(perturb))
         self.suite, self.n_choices = parse_suite_id(suite_id)
         self.split = check_split(split)
         if instructions is None:
@@ -104,8 +111,13 @@ class EpisodeSampler:
         slot = int(np.flatnonzero(perm == 0)[0])
         letter = self.letters[slot]
         names = cands.names
-        instruction = render_instruction(n, template_id, q.text, ordered, self.letters, names, block_of_option,
-                                         self.lettered, self.family.noun)
+        if self.perturb:
+            instruction = wording.render(get_template(n, template_id, lettered=self.lettered), q.text, ordered,
+                                         self.letters, names, cands.keys, block_of_option, self.family.noun,
+                                         self.perturb, self._axis_rngs(seed))
+        else:
+            instruction = render_instruction(n, template_id, q.text, ordered, self.letters, names, block_of_option,
+                                             self.lettered, self.family.noun)
         binding = (f"Option {letter} is {_sentence(ordered[slot])} "
                    f"Option {letter} is {candidate_phrase(names[block_of_option[slot]], self.lettered)}.")
         if q.source == "math":
@@ -126,9 +138,17 @@ class EpisodeSampler:
         letter = self.letters[slot]
         name = names[target]
         rationale = f"The instruction names {candidate_phrase(name, self.lettered)}."
+        if self.perturb:
+            instruction = wording.render_direct_perturbed(self.n_choices, template_id, name, keys[target], self.perturb,
+                                                          self._axis_rngs(seed))
+        else:
+            instruction = render_direct(self.n_choices, template_id, name)
         return EpisodeSpec(self.suite_id, self.suite, self.n_choices, self.split, seed, target, "", options,
                            self.letters, slot, letter, block_of_option, names, keys,
-                           render_direct(self.n_choices, template_id, name), template_id, rationale)
+                           instruction, template_id, rationale)
+
+    def _axis_rngs(self, seed: int) -> dict[str, np.random.Generator]:
+        return {a: axis_rng(self.suite_id, self.split, seed, a, lv) for a, lv in self.perturb.items()}
 
     def _options(self, qi: int, q: Question, rng: np.random.Generator) -> list[str]:
         n = self.n_choices

@@ -195,7 +195,15 @@ def render_instruction(n_choices: int, template_id: int, question: str, options:
     """Instruction for a multiple-choice episode. Deliberately has no answer parameter.
 
     ``block_names[c]`` names candidate ``c``; option ``i`` is bound to ``block_of_option[i]``."""
-    t = get_template(n_choices, template_id, lettered=lettered)
+    return render_template(get_template(n_choices, template_id, lettered=lettered), question, options, letters,
+                           block_names, block_of_option, noun)
+
+
+def render_template(t: Template, question: str, options: Sequence[str], letters: Sequence[str],
+                    block_names: Sequence[str], block_of_option: Sequence[int], noun: str = "block") -> str:
+    """:func:`render_instruction` with the template given (the language robustness axes build
+    their own); no answer parameter either."""
+    n_choices = len(options)
     entries = [t.entry.format(L=letters[i], O=normalize_text(options[i]), B=block_names[block_of_option[i]])
                for i in range(n_choices)]
     fields = {"Q": normalize_text(question)}

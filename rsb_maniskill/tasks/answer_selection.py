@@ -20,13 +20,16 @@ import torch
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from rsb_maniskill.agents.aloha import AlohaAgilex
+from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ, TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.objects.family import get_family
 from rsb_maniskill.objects.pool import CandidatePool
-from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.perturb import language as perturb_language
+from rsb_maniskill.perturb import parse_perturb
 from rsb_maniskill.semantic import EpisodeSampler, EpisodeSpec, parse_suite_id
 from rsb_maniskill.tasks import layout
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.contacts import PairContacts
+from rsb_maniskill.tasks.perturb_scene import CLUTTER_ITEMS, SceneAxes, build_clutter
 from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
 
 # Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0); cells: tasks/layout.py.
@@ -60,6 +63,8 @@ class AnswerSelectionEnv(RSBEnv):
         data_dir: directory with GSM8K / MMLU files (else ``$RSB_DATA_DIR``, else the HF hub cache).
         camera_size: (width, height) of the head and wrist cameras; default 320x240.
         targets: ``"blocks"`` or ``"objects"`` (everyday objects; the ``-Objects`` ids set it).
+        perturb: robustness axes and their levels 0-3, e.g. ``{"camera": 2, "lang_layout": 1}``
+            (``rsb_maniskill.perturb.AXES``; level 0 is today's episode). See docs/robustness.md.
     """
 
     SUPPORTED_ROBOTS = ["aloha_agilex"]
@@ -70,14 +75,16 @@ class AnswerSelectionEnv(RSBEnv):
     def __init__(self, *args, suite_id: str, split: str = "train", instructions: str | None = None,
                  color_map: str = "fixed", data_dir: str | None = None,
                  camera_size: tuple[int, int] | None = None, targets: str = "blocks",
-                 robot_uids: str = "aloha_agilex", **kwargs):
+                 perturb: dict[str, int] | str | None = None, robot_uids: str = "aloha_agilex", **kwargs):
         self.suite_id = suite_id
+        self.perturb = parse_perturb(perturb)  # first: a bad axis or level fails before anything is built
         self.suite, self.n_choices = parse_suite_id(suite_id)
         self.family = get_family(targets)
         self.targets = targets
         # Built first so that a bad split, template set, colour map or missing data fails fast.
         self.sampler = EpisodeSampler(suite_id, split=split, instructions=instructions,
-                                      color_map=color_map, data_dir=data_dir, targets=targets)
+                                      color_map=color_map, data_dir=data_dir, targets=targets,
+                                      perturb=perturb_language(self.perturb))
         self.split = split
         if camera_size is not None:
             w, h = camera_size
@@ -104,11 +111,25 @@ class AnswerSelectionEnv(RSBEnv):
     def _load_agent(self, options: dict):
         super()._load_agent(options, sapien.Pose())
 
+    def _load_lighting(self, options: dict):
+        if self.axes.level("lighting"):
+            self.axes.load_lighting(self.enable_shadow)
+        else:
+            super()._load_lighting(options)
+
     def _load_scene(self, options: dict):
+        self.axes = SceneAxes(self, self.perturb)
         self.table_scene = TableSceneBuilder(self)
-        self.table_scene.build()
+        self.table_scene.build(per_env_materials=bool(self.axes.level("table")) and self.axes.per_env_materials)
         self.pool = CandidatePool(self.family, self.n_choices, self.sampler.letters, self.num_envs, self.device)
-        self.pool.build(self.scene, _park_positions(len(self.pool.keys)))
+        n_clutter = len(CLUTTER_ITEMS) if self.axes.level("clutter") else 0
+        park = _park_positions(len(self.pool.keys) + n_clutter)
+        self.pool.build(self.scene, park[:len(self.pool.keys)],
+                        per_env_materials=bool(self.axes.level("candidate")) and self.axes.per_env_materials)
+        if n_clutter:
+            self.axes.clutter = build_clutter(self.scene, park[len(self.pool.keys):])
+            self.axes.set_clutter_park(park[len(self.pool.keys):])
+        self.axes.after_load(self.table_scene.table, self.pool.actors)
         builder = self.scene.create_actor_builder()
         builder.add_box_visual(half_size=[ZONE_HALF, ZONE_HALF, 0.0005],
                                material=sapien.render.RenderMaterial(base_color=ZONE_COLOR, roughness=0.9))
@@ -149,6 +170,7 @@ class AnswerSelectionEnv(RSBEnv):
             self.block_of_option[i] = torch.as_tensor(spec.block_of_option, device=self.device)
             self.pool.assign(int(i), spec.candidates)
         self._place_candidates(env_idx)
+        self.axes.initialize(env_idx)
         self.hold_steps[env_idx] = 0
         self.first_grasped[env_idx] = -1
         self.grasped_correct[env_idx] = False
@@ -261,6 +283,10 @@ class AnswerSelectionEnv(RSBEnv):
         )
 
     # ------------------------------------------------------------------ observations / rewards
+    def _get_obs_sensor_data(self, apply_texture_transforms: bool = True) -> dict:
+        data = super()._get_obs_sensor_data(apply_texture_transforms)
+        return self.axes.add_noise(data) if self.axes.level("noise") else data
+
     def _get_obs_extra(self, info: dict):
         obs = {f"{a}_tcp_pose": pose for a, pose in zip(self.agent.arms, self._tcp_raw_poses())}
         obs["zone_pos"] = self.zone.pose.p

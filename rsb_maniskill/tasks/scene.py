@@ -10,6 +10,7 @@ from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.building.ground import build_ground
 from mani_skill.utils.scene_builder.scene_builder import SceneBuilder
+from mani_skill.utils.structs.actor import Actor
 
 TABLE_X = (-0.10, 0.80)  # the robot's arm bases stand at x = 0
 TABLE_Y = (-0.75, 0.75)
@@ -23,7 +24,18 @@ HUMAN_CAMERA_EYE, HUMAN_CAMERA_TARGET = (1.15, -0.95, 0.85), (0.15, 0.0, 0.05)
 class TableSceneBuilder(SceneBuilder):
     """Builds the table and floor; ``initialize`` puts the robot in its rest pose."""
 
-    def build(self):
+    def build(self, per_env_materials: bool = False):
+        """``per_env_materials``: one table per env, merged, each with its own colours (the table
+        robustness axis with parallel envs)."""
+        if per_env_materials:
+            parts = [self._build_table([e], f"table-{e}") for e in range(self.env.num_envs)]
+            self.table = Actor.merge(parts, "table")
+        else:
+            self.table = self._build_table(None, "table")
+        self.ground = build_ground(self.scene, altitude=FLOOR_Z)
+        self.scene_objects = [self.table, self.ground]
+
+    def _build_table(self, scene_idxs: list[int] | None, name: str) -> Actor:
         builder = self.scene.create_actor_builder()
         size = np.array([TABLE_X[1] - TABLE_X[0], TABLE_Y[1] - TABLE_Y[0], TABLE_THICKNESS])
         center = [sum(TABLE_X) / 2, sum(TABLE_Y) / 2, -TABLE_THICKNESS / 2]
@@ -34,11 +46,12 @@ class TableSceneBuilder(SceneBuilder):
         leg_h = -FLOOR_Z - TABLE_THICKNESS
         for x in (TABLE_X[0] + 0.05, TABLE_X[1] - 0.05):
             for y in (TABLE_Y[0] + 0.05, TABLE_Y[1] - 0.05):
-                builder.add_box_visual(sapien.Pose([x, y, FLOOR_Z + leg_h / 2]), [0.025, 0.025, leg_h / 2], material=leg_mat)
+                builder.add_box_visual(sapien.Pose([x, y, FLOOR_Z + leg_h / 2]), [0.025, 0.025, leg_h / 2],
+                                       material=leg_mat)
         builder.initial_pose = sapien.Pose()
-        self.table = builder.build_static(name="table")
-        self.ground = build_ground(self.scene, altitude=FLOOR_Z)
-        self.scene_objects = [self.table, self.ground]
+        if scene_idxs is not None:
+            builder.set_scene_idxs(scene_idxs)
+        return builder.build_static(name=name)
 
     def initialize(self, env_idx: torch.Tensor):
         agent = self.env.agent

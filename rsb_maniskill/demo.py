@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from rsb_maniskill.evaluation.jobs import EvalJob, run_job
     from rsb_maniskill.evaluation.protocol import eval_seeds
     from rsb_maniskill.evaluation.records import read_records
-    from rsb_maniskill.evaluation.report import markdown_tables, results_from_records, write_report
+    from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records, write_report
     from rsb_maniskill.motionplan.generate import GenerateConfig, describe, generate
 
     ensure_renderer()

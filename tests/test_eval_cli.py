@@ -15,9 +15,9 @@ import pytest
 import rsb_maniskill  # noqa: F401  (registers the suites)
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation import EVAL_ENV_KWARGS, eval_seeds, run_episodes
-from rsb_maniskill.evaluation.baselines import ExpertPolicy, blind_target
 from rsb_maniskill.evaluation.records import read_records
-from rsb_maniskill.evaluation.report import results_from_records, summary_dict
+from rsb_maniskill.evaluation.reference_policies import ExpertPolicy, blind_target
+from rsb_maniskill.evaluation.reporting.summary import results_from_records, summary_dict
 
 SUITE = "RSB-Math-4"
 
@@ -158,8 +158,8 @@ def test_errors_leave_results_untouched(tmp_path, capsys):
 
 def test_oracle_served_over_websocket_loopback(tmp_path):
     """RemotePolicy -> PolicyServer -> oracle: the wire protocol carries a real policy to success."""
-    from rsb_maniskill.evaluation.remote import RemotePolicy
-    from rsb_maniskill.evaluation.serve import PolicyServer
+    from rsb_maniskill.evaluation.remote.client import RemotePolicy
+    from rsb_maniskill.evaluation.remote.server import PolicyServer
 
     env = gym.make(SUITE, obs_mode="state", render_backend="none", **EVAL_ENV_KWARGS)
     seeds = eval_seeds(SUITE, 3)

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rsb_maniskill.evaluation.baselines import ExpertPolicy
 from rsb_maniskill.evaluation.policy import (
     POLICIES,
     Policy,
@@ -22,6 +21,7 @@ from rsb_maniskill.evaluation.policy import (
     register_policy,
     resolve_factory,
 )
+from rsb_maniskill.evaluation.reference_policies import ExpertPolicy
 
 
 class ConstantPolicy:
@@ -115,10 +115,10 @@ def test_builtin_table():
 
 
 def test_naming_a_policy_imports_nothing():
-    """The table holds module paths: importing it loads neither the baselines nor the websocket client."""
+    """The table holds module paths: importing it loads neither the reference policies nor the websocket client."""
     code = ("import sys, rsb_maniskill.evaluation.policy as p; p.policy_spec('remote'); "
-            "print([m for m in ('rsb_maniskill.evaluation.remote', 'rsb_maniskill.evaluation.baselines') "
-            "if m in sys.modules])")
+            "print([m for m in ('rsb_maniskill.evaluation.remote.client', "
+            "'rsb_maniskill.evaluation.reference_policies') if m in sys.modules])")
     repo = Path(__file__).resolve().parents[1]
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=repo, timeout=120,
                          env={"PYTHONPATH": str(repo), "PATH": ""})

@@ -15,7 +15,7 @@ from rsb_maniskill.evaluation.records import (
     repair_tail,
     validate_record,
 )
-from rsb_maniskill.evaluation.report import results_from_records, summary_dict
+from rsb_maniskill.evaluation.reporting.summary import results_from_records, summary_dict
 
 
 def episode(seed, suite="RSB-Math-4", policy="p", mode="normal"):

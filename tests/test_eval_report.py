@@ -8,7 +8,7 @@ import struct
 import pytest
 
 from rsb_maniskill.evaluation.metrics import PAPER_SUITES
-from rsb_maniskill.evaluation.report import (
+from rsb_maniskill.evaluation.reporting.summary import (
     markdown_tables,
     plot_summary,
     results_from_records,

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from rsb_maniskill.cli import main
-from rsb_maniskill.evaluation.baselines import ExpertPolicy
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
 from rsb_maniskill.evaluation.records import read_records
+from rsb_maniskill.evaluation.reference_policies import ExpertPolicy
 from rsb_maniskill.integrations.lerobot_env import RSBLeRobotEnv, create_rsb_envs, expected_features
 from rsb_maniskill.robot import to_aloha14
 

@@ -5,6 +5,7 @@ Simulator-independent: these modules see the env only through the task contract 
 """
 from __future__ import annotations
 
+from .jobs import EvalJob, drive, run_episodes, run_job
 from .metrics import (
     PAPER_SUITES,
     Average,
@@ -18,7 +19,17 @@ from .metrics import (
     summarize,
     wilson_interval,
 )
-from .policy import BatchedPolicy, PerEnvPolicies, Policy, RandomPolicy, as_chunk, builtin_policies, load_policy, policy_name, register_policy
+from .policy import (
+    BatchedPolicy,
+    PerEnvPolicies,
+    Policy,
+    RandomPolicy,
+    as_chunk,
+    builtin_policies,
+    load_policy,
+    policy_name,
+    register_policy,
+)
 from .protocol import (
     EPISODES_PER_SUITE,
     EVAL_ENV_KWARGS,
@@ -29,13 +40,13 @@ from .protocol import (
     shuffled_instruction,
 )
 from .records import INSTRUCTION_MODES, RECORD_FIELDS, RecordWriter, completed_seeds, read_records
-from .report import markdown_tables, plot_summary, results_from_records, summary_dict, write_report
-from .jobs import EvalJob, drive, run_episodes, run_job
+from .reporting.summary import markdown_tables, plot_summary, results_from_records, summary_dict, write_report
 from .runner import EpisodeSettings, batched_loop, build_record, episode_loop
 
 __all__ = [
     "Average", "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "EpisodeSettings", "ErrorAnalysis",
-    "EvalJob", "INSTRUCTION_MODES", "BatchedPolicy", "PerEnvPolicies", "PAPER_SUITES", "Policy", "RECORD_FIELDS", "RandomPolicy", "Rate",
+    "EvalJob", "INSTRUCTION_MODES", "BatchedPolicy", "PerEnvPolicies", "PAPER_SUITES", "Policy", "RECORD_FIELDS",
+    "RandomPolicy", "Rate",
     "RecordWriter", "SuiteMetrics", "apply_instruction_mode", "as_chunk", "average", "batched_loop", "build_record",
     "builtin_policies", "completed_seeds", "derangement", "drive", "episode_loop", "eval_seeds", "load_policy",
     "markdown_tables", "nsg", "num_choices", "plot_summary", "policy_name", "read_records", "register_policy",

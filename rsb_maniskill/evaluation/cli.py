@@ -57,7 +57,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "'all' (with the Direct controls), 'paper-objects' / 'all-objects' (the same with everyday "
                         "objects: the Beyond Blocks table)")
     p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
-                   help=f"episodes per suite (default {EPISODES_PER_SUITE}); the first n are a prefix of any longer run")
+                   help=f"episodes per suite (default {EPISODES_PER_SUITE}); "
+                        "the first n are a prefix of any longer run")
     p.add_argument("--instruction", nargs="+", default=["normal"], choices=INSTRUCTION_MODES,
                    help="instruction given to the policy: normal, blank or shuffled (another episode's); "
                         "several run one after the other")
@@ -216,7 +217,7 @@ def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.evaluation.policy import policy_spec
     from rsb_maniskill.evaluation.protocol import eval_seeds
     from rsb_maniskill.evaluation.records import read_records
-    from rsb_maniskill.evaluation.report import markdown_tables, results_from_records, write_report
+    from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records, write_report
     from rsb_maniskill.workers import executor_from_args
 
     suites = resolve_suites(args.suites)
@@ -257,7 +258,7 @@ def _run_eval(args: argparse.Namespace) -> int:
     check_policy_spec(args.policy, args.num_envs)
     check_data(suites, env_kwargs.get("data_dir"))
     if args.policy == "remote":
-        from rsb_maniskill.evaluation.openpi_preset import check_remote_args
+        from rsb_maniskill.evaluation.remote.openpi import check_remote_args
 
         try:
             check_remote_args(policy_kwargs, args.obs_mode or "rgb")
@@ -272,7 +273,8 @@ def _run_eval(args: argparse.Namespace) -> int:
         probe.touch()
         probe.unlink()
     except OSError as err:
-        raise EvalError(f"cannot write to results directory {out}: {err.strerror or err}; choose another --out") from err
+        raise EvalError(f"cannot write to results directory {out}: {err.strerror or err}; "
+                        "choose another --out") from err
     obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
     max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
     settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
@@ -299,12 +301,12 @@ def _run_eval(args: argparse.Namespace) -> int:
     all_records = read_records(records_path)
     results = results_from_records(all_records)
     if results:
-        from rsb_maniskill.evaluation.html_report import write_html_report
+        from rsb_maniskill.evaluation.reporting.html_report import write_html_report
 
         paths = write_report(results, out, records=all_records)
         page = write_html_report(out, records=all_records)
         print(markdown_tables(results))
-        from rsb_maniskill.evaluation.robustness import robustness_markdown, robustness_table
+        from rsb_maniskill.evaluation.reporting.robustness import robustness_markdown, robustness_table
 
         robust = robustness_table(all_records)
         if robust:

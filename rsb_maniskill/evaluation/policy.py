@@ -170,12 +170,12 @@ class PolicySpec:
 # The one table of built-in names. Privileged baselines are built with the env and drive one env;
 # policies that ignore observations get state obs (and so no renderer) by default.
 POLICIES: dict[str, PolicySpec] = {
-    "oracle": PolicySpec("rsb_maniskill.evaluation.baselines:oracle", needs_env=True, single_env=True,
+    "oracle": PolicySpec("rsb_maniskill.evaluation.reference_policies:oracle", needs_env=True, single_env=True,
                          obs_mode="state"),
-    "blind": PolicySpec("rsb_maniskill.evaluation.baselines:blind", needs_env=True, single_env=True,
+    "blind": PolicySpec("rsb_maniskill.evaluation.reference_policies:blind", needs_env=True, single_env=True,
                         obs_mode="state"),
     "random": PolicySpec("rsb_maniskill.evaluation.policy:RandomPolicy.for_env", needs_env=True, obs_mode="state"),
-    "remote": PolicySpec("rsb_maniskill.evaluation.remote:RemotePolicy"),  # needs the `eval` extra
+    "remote": PolicySpec("rsb_maniskill.evaluation.remote.client:RemotePolicy"),  # needs the `eval` extra
 }
 _USER_SPEC = PolicySpec("")  # what a "package.module:factory" spec is: no env, rgb observations
 

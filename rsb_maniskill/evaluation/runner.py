@@ -234,7 +234,8 @@ class Observations:
         self.env, self.base = env, env.unwrapped
         self.mode = getattr(self.base, "_obs_mode", None)
         self.lazy = (not every_step and isinstance(self.mode, str)
-                     and self.mode not in ("none", "state", "state_dict") and callable(getattr(self.base, "get_obs", None)))
+                     and self.mode not in ("none", "state", "state_dict")
+                     and callable(getattr(self.base, "get_obs", None)))
         self.renders = 0  # camera renders done by current(): one per chunk asked for
         self.obs: Any = None
         self.info: Any = None

@@ -3,9 +3,9 @@
 Serves either an openpi-style object (``infer(obs: dict) -> dict`` with ``"actions"``) or an RSB
 :class:`~rsb_maniskill.evaluation.policy.Policy` (``reset``/``act``), the latter through
 :class:`PolicyAdapter`. Same wire protocol as openpi's ``WebsocketPolicyServer`` (see
-``remote.py``), so openpi's client can talk to it and :class:`RemotePolicy` can talk to openpi.
+``client.py``), so openpi's client can talk to it and :class:`RemotePolicy` can talk to openpi.
 
-Run one from the shell: ``python -m rsb_maniskill.evaluation.serve pkg.mod:make_policy --port 8000``.
+Run one from the shell: ``python -m rsb_maniskill.evaluation.remote.server pkg.mod:make_policy --port 8000``.
 """
 from __future__ import annotations
 
@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from .openpi_preset import PRESETS, make_preset
-from .policy import as_chunk, as_chunks, is_batched, load_policy
-from .remote import INSTALL_HINT, packb, unflatten_obs, unpackb
+from ..policy import as_chunk, as_chunks, is_batched, load_policy
+from .client import INSTALL_HINT, packb, unflatten_obs, unpackb
+from .openpi import PRESETS, make_preset
 
 logger = logging.getLogger(__name__)
 
@@ -32,8 +32,8 @@ class PolicyAdapter:
     The request's ``prompt`` is the instruction and the ``observation/...`` keys are un-flattened
     into the nested obs. The policy is reset on a connection's first request, when the request
     carries ``episode_start`` (``RemotePolicy(mark_episode_start=True)``), or when the prompt changes.
-    With a ``preset`` (``openpi_preset.OpenpiAloha``) the request is in openpi's Aloha layout instead,
-    and so is the reply. A batched request (the prompt a list, see ``remote.py``) goes to the
+    With a ``preset`` (``openpi.OpenpiAloha``) the request is in openpi's Aloha layout instead,
+    and so is the reply. A batched request (the prompt a list, see ``client.py``) goes to the
     policy's batched form (``reset_batch`` / ``act_batch``), reset on the same rule.
     """
 

@@ -9,7 +9,7 @@ packed with msgpack + the msgpack-numpy scheme below:
 
 Batched requests (``--num-envs``: one request per step for all envs that need a chunk) carry
 the same keys with a leading env dim on every array, the prompts as a list of strings and
-``"env_ids"``; the reply's ``"actions"`` is (B, T, D). ``serve.py`` answers them with a policy's
+``"env_ids"``; the reply's ``"actions"`` is (B, T, D). ``server.py`` answers them with a policy's
 batched form; a server that takes one observation at a time needs ``RemotePolicy(batch=False)``.
 
 Arrays travel as ``{"__ndarray__": True, "data": raw bytes, "dtype": dtype.str, "shape": shape}``
@@ -24,7 +24,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .policy import as_chunk
+from ..policy import as_chunk
 
 INSTALL_HINT = "the remote policy client needs `pip install websockets msgpack` (extra: rsb_maniskill[eval])"
 
@@ -135,11 +135,11 @@ class RemotePolicy:
         api_key: sent as ``Authorization: Api-Key ...`` as openpi's client does.
         action_horizon: execute only the first k actions of each chunk before asking again.
         mark_episode_start: add ``"episode_start": True`` to the first request of each episode so
-            that ``serve.py``'s server resets the wrapped policy; off by default because other
+            that ``server.py``'s server resets the wrapped policy; off by default because other
             servers do not expect the key.
         connect_timeout: seconds to keep retrying a refused connection (openpi's client waits forever).
         preset: ``"openpi-aloha"``: send openpi's Aloha keys and layout and read the reply as Aloha-layout
-            actions (``openpi_preset.py``); then ``image_size`` (default 224) sets the image size and
+            actions (``openpi.py``); then ``image_size`` (default 224) sets the image size and
             ``action_horizon`` defaults to 10.
         batch: with parallel envs, one batched request per step (see above); False: one per env
             (always with a preset: openpi's servers take one observation per request).
@@ -164,7 +164,7 @@ class RemotePolicy:
     ) -> None:
         self.preset = None
         if preset is not None:
-            from .openpi_preset import make_preset
+            from .openpi import make_preset
 
             if obs_transform is not None:
                 raise ValueError("give RemotePolicy either a preset or an obs_transform, not both")

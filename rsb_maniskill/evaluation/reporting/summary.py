@@ -16,8 +16,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.objects.family import OBJECTS_SUFFIX
 
-from .metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, SuiteMetrics, average, suite_order, summarize
-from .records import dedupe, perturb_label
+from ..metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, SuiteMetrics, average, suite_order, summarize
+from ..records import dedupe, perturb_label
 
 Results = Mapping[str, Mapping[str, SuiteMetrics]]
 

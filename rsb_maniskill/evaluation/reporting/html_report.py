@@ -6,7 +6,7 @@ suite, instruction mode, outcome) whose cards show the instruction, the correct 
 candidate, and the first and last frames of the episode's video when one was recorded (click to
 play it from ``videos/``). Styles, script, data and thumbnails are inline: it opens from disk,
 with no server and no network. Everything is computed from ``episodes.jsonl`` with the functions
-of ``metrics.py`` and ``report.py``, so the page and the summary files always agree.
+of ``metrics.py`` and ``summary.py``, so the page and the summary files always agree.
 """
 from __future__ import annotations
 
@@ -22,9 +22,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from .metrics import OUTCOMES, SuiteMetrics, average, outcome
-from .records import dedupe, perturb_label, read_records
-from .report import markdown_tables, results_from_records, row_label, suite_columns
+from ..metrics import OUTCOMES, SuiteMetrics, average, outcome
+from ..records import dedupe, perturb_label, read_records
+from .summary import markdown_tables, results_from_records, row_label, suite_columns
 
 REPORT_FILE = "report.html"
 EPISODES_FILE = "episodes.jsonl"  # as cli.py writes it

@@ -12,8 +12,8 @@ from typing import Any, Iterable, Mapping
 
 from rsb_maniskill.perturb import AXES
 
-from .metrics import SuiteMetrics, summarize
-from .records import dedupe, perturb_label
+from ..metrics import SuiteMetrics, summarize
+from ..records import dedupe, perturb_label
 
 Table = dict[str, dict[str, dict[str, dict[int, SuiteMetrics]]]]  # row -> suite -> axis -> level -> metrics
 

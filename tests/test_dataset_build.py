@@ -63,6 +63,24 @@ def test_dataset_contents_and_card(one_proc):
     header = yaml.safe_load(card.split("---")[1])
     assert header["license"] == "mit" and header["task_categories"] == ["robotics"] and "LeRobot" in header["tags"]
     assert header["configs"][0]["data_files"] == "data/*/*.parquet"
+    # the features, in the hub's form: parquet columns under dataset_info, the mp4 streams beside them
+    columns = {f["name"]: f for f in header["dataset_info"]["features"]}
+    videos = {f["name"]: f for f in header["video_features"]}
+    assert set(columns) | set(videos) == set(info["features"]) and not set(columns) & set(videos)
+    for name, ft in info["features"].items():
+        if ft["dtype"] == "video":
+            assert videos[name]["dtype"] == "video" and videos[name]["shape"] == ft["shape"] == [48, 64, 3]
+        elif ft["shape"] == [1]:
+            assert columns[name] == {"name": name, "dtype": ft["dtype"]}
+        else:
+            assert columns[name] == {"name": name, "list": ft["dtype"], "length": ft["shape"][0]}
+    schema = pq.read_schema(one_proc / "data/chunk-000/file-000.parquet")
+    assert list(columns) == [n for n in schema.names if n in columns] and set(columns) == set(schema.names)
+    assert columns["observation.state"] == {"name": "observation.state", "list": "float32", "length": 14}
+    from huggingface_hub import DatasetCard  # the hub's client reads the same header
+
+    assert DatasetCard(card).data.to_dict()["dataset_info"]["features"] == header["dataset_info"]["features"]
+    assert "it is not on PyPI" in card and "bash scripts/setup.sh" in card and "pip install rsb_maniskill" not in card
     for needle in ("RSB-Math-4, train split", "0:4 of a pool of 500", "rsb dataset build --suites RSB-Math-4",
                    "lerobot-train --dataset.repo_id=", "openpi", '"observation.images.cam_high"'):
         assert needle in card, needle
@@ -74,14 +92,24 @@ RUN = """
 import sys
 from rsb_maniskill.export.build import BuildConfig, build_datasets
 if __name__ == "__main__":
-    build_datasets(BuildConfig(suites=["{suite}"], out=sys.argv[1], questions="0:4", shard_size=2, num_procs=1,
-                               progress=False, env_kwargs={{"camera_size": (64, 48)}}))
+    build_datasets(BuildConfig(suites=["{suite}"], out=sys.argv[1], questions="{questions}", shard_size=2,
+                               num_procs={procs}, progress=False, env_kwargs={{"camera_size": (64, 48)}}))
 """
+
+
+def run_script(questions: str = "0:4", procs: int = 1) -> str:
+    return RUN.format(suite=SUITE, questions=questions, procs=procs)
+
+
+def wait_for(path: Path, proc: subprocess.Popen, timeout: float = 300) -> None:
+    deadline = time.monotonic() + timeout
+    while not path.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
 
 
 def test_kill_9_then_rerun_resumes_without_duplicates(one_proc, tmp_path):
     script = tmp_path / "run.py"
-    script.write_text(RUN.format(suite=SUITE))
+    script.write_text(run_script())
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, str(script), str(out)], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
@@ -101,7 +129,7 @@ def test_kill_9_then_rerun_resumes_without_duplicates(one_proc, tmp_path):
 
 def test_sigint_stops_keeping_finished_shards(tmp_path):
     out = tmp_path / "out"
-    cmd = [sys.executable, "-c", textwrap.dedent(RUN.format(suite=SUITE)), str(out)]
+    cmd = [sys.executable, "-c", textwrap.dedent(run_script()), str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = out / WORK_DIR / SUITE / "shards" / "shard-00000" / "meta" / "rsb_shard.json"
     deadline = time.monotonic() + 300
@@ -111,6 +139,39 @@ def test_sigint_stops_keeping_finished_shards(tmp_path):
     _, err = proc.communicate(timeout=300)
     assert proc.returncode != 0 and "rerun the same command to continue" in err
     assert first.exists() and not (out / SUITE).exists()
+
+
+@pytest.mark.parametrize("procs", [1, 2])
+def test_sigterm_stops_keeping_finished_shards_and_rerun_completes(procs, tmp_path):
+    """SIGTERM (what a scheduler or `timeout` sends) mid-build, in this process or to a pool's parent:
+    the process exits, finished shards stay, nothing half-written is left, and a rerun completes
+    with every question once."""
+    script = tmp_path / "run.py"
+    script.write_text(run_script("0:6", procs))  # 3 shards: one worker always has one left to do
+    out = tmp_path / "out"
+    work = out / WORK_DIR / SUITE
+    proc = subprocess.Popen([sys.executable, str(script), str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    wait_for(work / "shards" / "shard-00000" / "meta" / "rsb_shard.json", proc)
+    assert proc.poll() is None, proc.communicate()[1][-2000:]
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode != 0 and "rerun the same command to continue" in err, err[-2000:]
+    assert not (out / SUITE).exists()  # never a merged dataset of part of the shards
+    kept = sorted(d.name for d in (work / "shards").iterdir())
+    assert "shard-00000" in kept and len(kept) < 3
+    assert all((work / "shards" / d / "meta" / "rsb_shard.json").is_file() for d in kept)  # whole or absent
+    assert not list((work / "tmp").glob("*"))  # the shard in flight was dropped, not left half-written
+    inode = {d: (work / "shards" / d / "meta" / "rsb_shard.json").stat().st_ino for d in kept}
+    res = subprocess.run([sys.executable, str(script), str(out)], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    data = read_data(out / SUITE)
+    eps = pq.read_table(out / SUITE / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert [e["rsb/seed"] for e in eps] == [0, 1, 2, 3, 4, 5]  # each question once, in order
+    assert sorted(set(data["episode_index"])) == list(range(6)) and data["index"] == list(range(len(data["index"])))
+    assert json.loads((out / SUITE / "meta/info.json").read_text())["total_episodes"] == 6
+    # the finished shards were reused, not made again (a remade shard is a new directory)
+    assert all((work / "shards" / d / "meta" / "rsb_shard.json").stat().st_ino == inode[d] for d in kept)
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -153,9 +214,15 @@ def test_lerobot_loads_the_merged_dataset(one_proc):
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
         ds = LeRobotDataset("local/rsb-math-4", root={str(one_proc)!r})
         last = ds[len(ds) - 1]
+        # the card's dataset_info.features, read by `datasets` (what the hub runs), is the data files' schema
+        import pyarrow.parquet as pq, yaml
+        from datasets import Features
+        header = yaml.safe_load(open({str(one_proc / "README.md")!r}).read().split("---")[1])
+        card = Features._from_yaml_list(header["dataset_info"]["features"])
+        files = Features.from_arrow_schema(pq.read_schema({str(one_proc / "data/chunk-000/file-000.parquet")!r}))
         print(json.dumps(dict(frames=len(ds), episodes=ds.num_episodes, last_ep=int(last["episode_index"]),
                               last_index=int(last["index"]), shape=list(last["observation.images.cam_high"].shape),
-                              task=last["task"])))
+                              task=last["task"], card_features=card == files)))
     """)
     res = subprocess.run([str(py), "-c", code], capture_output=True, text=True, timeout=600,
                          env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
@@ -166,6 +233,7 @@ def test_lerobot_loads_the_merged_dataset(one_proc):
     assert got["last_index"] == len(data["index"]) - 1 and got["shape"] == [3, 48, 64]
     eps = pq.read_table(one_proc / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
     assert got["task"] == eps[3]["tasks"][0]
+    assert got["card_features"]
 
 
 def test_workers_get_one_task_each_whatever_the_suites():

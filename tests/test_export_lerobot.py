@@ -196,3 +196,50 @@ def test_parallel_export_is_the_same_dataset(demos, exported, tmp_path):
     export_lerobot([demos], tmp_path / "par", progress=False, num_procs=2, shard_size=1)
     assert fingerprint(tmp_path / "par") == fingerprint(exported)
     assert not (tmp_path / ".par.work").exists()  # the shards go once merged
+
+
+@pytest.fixture(scope="module")
+def robotwin(demos, tmp_path_factory) -> Path:
+    """`rsb export lerobot --naming robotwin` (5 fps: fewer frames to render, the same keys)."""
+    out = tmp_path_factory.mktemp("robotwin") / "rsb-math-4-robotwin"
+    assert main(["export", "lerobot", str(demos), "--out", str(out), "--naming", "robotwin", "--fps", "5"]) == 0
+    return out
+
+
+def test_robotwin_naming_writes_robotwin_camera_keys(demos, robotwin):
+    from rsb_maniskill.export.naming import CAMERA_KEYS
+
+    info = json.loads((robotwin / "meta/info.json").read_text())
+    cams = {k for k, ft in info["features"].items() if ft["dtype"] == "video"}
+    assert cams == {"observation.images.head_camera", "observation.images.left_camera",
+                    "observation.images.right_camera"}
+    assert cams == {f"observation.images.{k}" for k in CAMERA_KEYS["robotwin"].values()}
+    assert all(info["features"][k]["shape"] == [240, 320, 3] for k in cams)
+    # state and action keep the Aloha-14 layout, as LeRobot's RoboTwin env gives agent_pos and takes actions
+    assert info["features"]["observation.state"]["shape"] == info["features"]["action"]["shape"] == [14]
+    for k in cams:
+        assert len(list((robotwin / "videos" / k).glob("chunk-000/file-*.mp4"))) == 2
+    assert not list(robotwin.rglob("*cam_high*"))
+    src = json.loads(demos.with_suffix(".json").read_text())
+    assert info["total_frames"] == sum(-(-e["elapsed_steps"] // 5) for e in src["episodes"]) and info["fps"] == 5
+
+
+@pytest.mark.slow
+def test_lerobot_loads_the_robotwin_export(robotwin):
+    py = _lerobot_python()
+    code = textwrap.dedent(f"""
+        import json
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+        ds = LeRobotDataset("local/rsb-math-4-robotwin", root={str(robotwin)!r})
+        item = ds[3]
+        print(json.dumps(dict(frames=len(ds), cameras=sorted(ds.meta.camera_keys),
+                              shape=list(item["observation.images.head_camera"].shape))))
+    """)
+    res = subprocess.run([str(py), "-c", code], capture_output=True, text=True, timeout=600,
+                         env={**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": ""})
+    assert res.returncode == 0, res.stderr[-3000:]
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    assert got["cameras"] == ["observation.images.head_camera", "observation.images.left_camera",
+                              "observation.images.right_camera"]
+    assert got["shape"] == [3, 240, 320]
+    assert got["frames"] == json.loads((robotwin / "meta/info.json").read_text())["total_frames"]

@@ -10,7 +10,8 @@ whole. A shard is therefore there completely or not at all: a run stopped in any
 SIGTERM, kill -9) loses only the shards in flight, and a rerun of the same command skips the
 finished ones. When every shard of a suite is there, they are merged (``export/merge.py``) into
 ``OUT/<suite>`` with its dataset card. The shard list, hence every episode, does not depend on the
-number of workers.
+number of workers. Local worker processes share the CPUs for software rendering: each caps
+lavapipe's raster threads to its share (``LP_NUM_THREADS``, unless the user set it).
 
 Layout: ``OUT/<suite>/`` (the dataset, ready for ``huggingface-cli upload``) and
 ``OUT/.work/<suite>/`` (``settings.json`` and ``shards/shard-NNNNN``; safe to delete after the build).
@@ -22,6 +23,7 @@ import os
 import shutil
 import signal
 import sys
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -205,11 +207,39 @@ def _generate(shard: SuiteShard, settings: dict, out: Path) -> tuple[Path | None
     return summary.path, {"skipped_questions": summary.skipped_questions, "failures": summary.failures}
 
 
+def software_rendering() -> bool:
+    """True when this process renders with Mesa's lavapipe (the Vulkan driver `_render` picked)."""
+    from rsb_maniskill._render import select_vulkan_driver
+
+    icd = select_vulkan_driver() or ""
+    return os.path.basename(icd).startswith("lvp")
+
+
+def limit_lavapipe_threads(threads: int | None) -> bool:
+    """Caps lavapipe's rasterizer threads in this process (Mesa's ``LP_NUM_THREADS``); True if set.
+
+    lavapipe starts one raster thread per CPU in every process, so N worker processes on N cores
+    would run N x N threads fighting for the cores; each worker takes its share instead. Must run
+    before this process's first Vulkan instance (lavapipe reads the variable then); left alone when
+    the user has set it, and on GPU drivers."""
+    if not threads or "LP_NUM_THREADS" in os.environ or not software_rendering():
+        return False
+    os.environ["LP_NUM_THREADS"] = str(threads)
+    return True
+
+
+def lavapipe_share(workers: int) -> int:
+    """Raster threads per worker when ``workers`` local processes share this machine's CPUs."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, cpus // max(1, workers))
+
+
 def run_worker(task: dict, emit: Any) -> int:
     """Executor target: the shards dealt to one worker (of any suites), one after the other."""
-    if task.get("lp_threads") and "LP_NUM_THREADS" not in os.environ:
-        # lavapipe starts one raster thread per CPU in every process: share the CPUs instead
-        os.environ["LP_NUM_THREADS"] = str(task["lp_threads"])
+    limit_lavapipe_threads(task.get("lp_threads"))  # before the first render env of this process
     for work, settings, k, shard in task["items"]:
         _write_shard(Path(work), settings, k, shard, emit)
     return len(task["items"])
@@ -248,17 +278,23 @@ def _run(shards: list[tuple[Path, dict, int, Any]], num_procs: int, executor: An
          progress: bool) -> tuple[list[str], bool, "_Progress"]:
     """Deals ``(work, settings, k, shard)`` items to workers and runs them; returns the workers'
     errors, whether a signal stopped the run, and the progress counters."""
-    from rsb_maniskill.workers import InProcess, ProcessPool, deal
+    from rsb_maniskill.workers import InProcess, InterruptGuard, ProcessPool, deal
 
     bar = _Progress(sum(s.size for *_, s in shards), progress)
     # one task per worker, its shards dealt round-robin (they may span suites)
     tasks = [{"items": [(str(w), settings, k, s) for w, settings, k, s in part]} for part in deal(shards, num_procs)]
-    if len(tasks) > 1 and executor is None:
+    if len(tasks) > 1 and executor is None:  # local worker processes: each its share of the cores
         for t in tasks:
-            t["lp_threads"] = max(1, (os.cpu_count() or 1) // len(tasks))
+            t["lp_threads"] = lavapipe_share(len(tasks))
     try:
         chosen = executor or (InProcess() if len(tasks) <= 1 else ProcessPool())
-        outcome = chosen.run(run_worker, tasks, bar) if tasks else None
+        if not tasks:
+            outcome = None
+        elif isinstance(chosen, InProcess) and threading.current_thread() is threading.main_thread():
+            with InterruptGuard():  # SIGTERM stops a one-process build as Ctrl-C does
+                outcome = chosen.run(run_worker, tasks, bar)
+        else:  # ProcessPool and Ray handle SIGINT / SIGTERM themselves
+            outcome = chosen.run(run_worker, tasks, bar)
     except KeyboardInterrupt:  # in this process (InProcess): the shard in flight was dropped whole
         return [], True, bar
     finally:

@@ -1,7 +1,11 @@
 """The dataset card (``README.md``) of a built dataset, so ``huggingface-cli upload`` publishes it as is.
 
-The YAML header is what the hub reads (licence, task categories, tags, the parquet files for its
-viewer); the text says what the data is, how it was made, and how to train on it.
+The YAML header is what the hub reads: licence, task categories, tags, the parquet files for its
+viewer (``configs``, as LeRobot's own cards have them) and the features. ``dataset_info.features``
+holds the parquet columns in the hub's (``datasets``') form, which the viewer checks against the
+files; the camera streams are mp4 files beside the parquet, not columns of it, so they are listed
+under ``video_features`` (name, dtype ``video``, shape, codec, fps). The text says what the data is,
+how it was made, and how to train on it.
 """
 from __future__ import annotations
 
@@ -26,6 +30,34 @@ def _size_category(n: int) -> str:
     return "1M<n<10M"
 
 
+def hub_features(features: dict[str, dict]) -> tuple[list[dict], list[dict]]:
+    """LeRobot ``info.json`` features as the hub's YAML header holds them: the parquet columns in
+    ``datasets``' form (a scalar column ``dtype``, a fixed-length vector ``list`` + ``length``, as
+    ``datasets.Features._to_yaml_list`` writes the data files' schema), and the videos."""
+    columns, videos = [], []
+    for name, ft in features.items():
+        shape = list(ft["shape"])
+        if ft["dtype"] == "video":
+            info = ft.get("info") or {}
+            videos.append({"name": name, "dtype": "video", "shape": shape, "names": ft.get("names"),
+                           "codec": info.get("video.codec"), "fps": info.get("video.fps")})
+        elif shape == [1]:
+            columns.append({"name": name, "dtype": ft["dtype"]})
+        elif len(shape) == 1:
+            columns.append({"name": name, "list": ft["dtype"], "length": shape[0]})
+        else:
+            raise ValueError(f"feature {name}: shape {shape} has no column form here")
+    return columns, videos
+
+
+def _header(meta: dict[str, Any]) -> str:
+    """The YAML header (between ``---`` lines) of ``meta`` (PyYAML comes with huggingface_hub)."""
+    import yaml
+
+    body = yaml.safe_dump(meta, sort_keys=False, default_flow_style=False, allow_unicode=True, width=1000)
+    return "---\n" + body.rstrip("\n") + "\n---"
+
+
 def dataset_card(dataset: str | Path, settings: dict[str, Any]) -> str:
     """The card of the dataset at ``dataset`` (its meta/ is read), built with ``settings``."""
     from rsb_maniskill.objects.family import split_env_id
@@ -40,26 +72,17 @@ def dataset_card(dataset: str | Path, settings: dict[str, Any]) -> str:
     repo = f"<your-hf-user>/{env_id.lower()}"
     cameras = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
     skipped = settings.get("skipped_questions") or []
-    header = "\n".join([
-        "---",
-        f"license: {licence.lower()}",
-        "task_categories:",
-        "- robotics",
-        "tags:",
-        "- LeRobot",
-        "- robosemanticbench",
-        "- maniskill",
-        "- aloha",
-        "- vision-language-action",
-        f"- {env_id.lower()}",
-        f"pretty_name: RoboSemanticBench {env_id} ({settings['split']})",
-        "size_categories:",
-        f"- {_size_category(info['total_frames'])}",
-        "configs:",
-        "- config_name: default",
-        "  data_files: data/*/*.parquet",
-        "---",
-    ])
+    columns, videos = hub_features(info["features"])
+    header = _header({
+        "license": licence.lower(),
+        "task_categories": ["robotics"],
+        "tags": ["LeRobot", "robosemanticbench", "maniskill", "aloha", "vision-language-action", env_id.lower()],
+        "pretty_name": f"RoboSemanticBench {env_id} ({settings['split']})",
+        "size_categories": [_size_category(info["total_frames"])],
+        "configs": [{"config_name": "default", "data_files": "data/*/*.parquet"}],
+        "dataset_info": {"features": columns},
+        "video_features": videos,
+    })
     body = f"""
 # RoboSemanticBench: {env_id}, {settings['split']} split
 
@@ -87,9 +110,12 @@ Per-episode RSB metadata is in `meta/episodes` (`rsb/question`, `rsb/options`, `
 
 ## How it was made
 
+`rsb_maniskill` is installed from a checkout of its repository (it is not on PyPI):
+`bash scripts/setup.sh` there makes `.venv` with the package, its pins and, on machines without
+an NVIDIA GPU, Mesa's software Vulkan driver; then, in that checkout:
+
 ```bash
-pip install rsb_maniskill
-rsb dataset build --suites {env_id} --split {settings['split']} --questions {settings['questions']} \\
+.venv/bin/rsb dataset build --suites {env_id} --split {settings['split']} --questions {settings['questions']} \\
     --fps {settings['fps']} --cameras {','.join(settings['cameras'])} --naming {settings['naming']} --out DIR
 ```
 

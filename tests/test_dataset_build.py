@@ -254,3 +254,25 @@ def test_workers_get_one_task_each_whatever_the_suites():
     dealt = [item for t in rec.tasks for item in t["items"]]
     assert sorted((w, k) for w, _, k, _ in dealt) == sorted((str(w), k) for w, _, k, _ in items)
     assert all(len({w for w, *_ in t["items"]}) == 3 for t in rec.tasks)  # each worker spans the suites
+
+
+def test_workers_share_lavapipe_threads_unless_told(monkeypatch):
+    """Each local worker caps lavapipe's raster threads to its share of the CPUs (software rendering
+    only; a user's LP_NUM_THREADS wins)."""
+    from rsb_maniskill.export import build as b
+
+    monkeypatch.delenv("LP_NUM_THREADS", raising=False)
+    cpus = len(os.sched_getaffinity(0))
+    assert b.lavapipe_share(2) == max(1, cpus // 2) and b.lavapipe_share(4 * cpus) == 1
+    monkeypatch.setattr(b, "software_rendering", lambda: False)
+    assert not b.limit_lavapipe_threads(1) and "LP_NUM_THREADS" not in os.environ  # a GPU driver: left alone
+    monkeypatch.setattr(b, "software_rendering", lambda: True)
+    assert not b.limit_lavapipe_threads(None) and "LP_NUM_THREADS" not in os.environ  # one worker: all threads
+    assert b.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "1"
+    monkeypatch.setenv("LP_NUM_THREADS", "3")
+    assert not b.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "3"
+    monkeypatch.undo()
+    monkeypatch.setenv("VK_ICD_FILENAMES", "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
+    assert b.software_rendering()
+    monkeypatch.setenv("VK_ICD_FILENAMES", "/usr/share/vulkan/icd.d/nvidia_icd.json")
+    assert not b.software_rendering()

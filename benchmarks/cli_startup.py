@@ -20,7 +20,8 @@ CASES = {
     "python -c pass (interpreter alone)": [sys.executable, "-c", "pass"],
     "first env (gym.make + reset, state)": [sys.executable, "-c",
                                             "import gymnasium as gym, rsb_maniskill; "
-                                            "gym.make('RSB-Math-4', obs_mode='state', render_backend='none').reset(seed=0)"],
+                                            "gym.make('RSB-Math-4', obs_mode='state', render_backend='none')"
+                                            ".reset(seed=0)"],
 }
 
 

@@ -37,6 +37,7 @@ def _suite_ids() -> tuple[str, ...]:
 def _env(suite: str):
     if suite not in _ENVS:
         import gymnasium as gym
+
         import rsb_maniskill  # noqa: F401  (registers the suites)
         _ENVS[suite] = gym.make(suite, obs_mode="state", render_backend="none")
     return _ENVS[suite]
@@ -45,6 +46,7 @@ def _env(suite: str):
 def run_episode(job: tuple[str, int]) -> dict:
     """One expert episode; returns a JSON-able record."""
     import torch
+
     from rsb_maniskill.motionplan import ScriptedExpert
 
     torch.set_num_threads(1)

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 import mani_skill.envs  # noqa: F401
+
 import rsb_maniskill  # noqa: F401
 
 ENVS = ("PickCube-v1", "RSB-Math-4", "RSB-Math-10", "RSB-Math-4-Objects", "RSB-Math-10-Objects")
@@ -68,7 +69,8 @@ def main() -> None:
             rows[env_id] = (max(old[0], s_sps), max(old[1], r_sps), min(old[2], s_reset))
     base_s, base_r, _ = rows["PickCube-v1"]
     print(f"torch threads: {torch.get_num_threads()}")
-    print("| env | state steps/s | ratio to PickCube | ratio to blocks | rgb steps/s | ratio to PickCube | reset (ms) |")
+    print("| env | state steps/s | ratio to PickCube | ratio to blocks | rgb steps/s | ratio to PickCube "
+          "| reset (ms) |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for env_id, (s, r, reset) in rows.items():
         blocks = rows.get(env_id.removesuffix("-Objects"))

@@ -54,8 +54,9 @@ def obs_mode(env: Any, mode: str) -> Iterator[None]:
 
 def check_versions() -> list[str]:
     """What differs from the versions the accessors are written against (empty when all match)."""
-    import mani_skill
     import sapien
+
+    import mani_skill
 
     out = []
     if mani_skill.__version__ != MANISKILL_VERSION:

@@ -33,9 +33,9 @@ def load_simulator() -> None:
     global _LOADED
     if _LOADED:
         return
-    import rsb_maniskill.agents  # noqa: F401  (registers aloha_agilex)
     from mani_skill.utils.registration import register_env
 
+    import rsb_maniskill.agents  # noqa: F401  (registers aloha_agilex)
     from rsb_maniskill.tasks import AnswerSelectionEnv, TableTopEnv
 
     drop_lazy_entries()  # ManiSkill's register_env writes the gymnasium entries itself

@@ -38,7 +38,7 @@ class ArmDriver:
         self.env, self.arm = env, arm
         self.agent = env.unwrapped.agent
         self.model = self.agent.robot.create_pinocchio_model()
-        links = [l.name for l in self.agent.robot.get_links()]
+        links = [link.name for link in self.agent.robot.get_links()]
         self.tcp_index = links.index(f"{PREFIX[arm]}_tcp_link")
         self.mask = np.zeros(len(self.agent.active_joint_names), dtype=int)
         self.mask[self.agent.arm_qpos_index[arm]] = 1

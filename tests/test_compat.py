@@ -29,7 +29,8 @@ def test_accessors_on_a_real_env():
     assert compat.physx_bodies(finger)[0].entity.name.endswith("link7")
     arm = base.agent.controller.controllers["arm"]
     target = compat.controller_target_qpos(arm)[0].cpu().numpy()
-    np.testing.assert_allclose(target, base.agent.robot.get_qpos()[0, arm.active_joint_indices].cpu().numpy(), atol=1e-4)
+    qpos = base.agent.robot.get_qpos()[0, arm.active_joint_indices].cpu().numpy()
+    np.testing.assert_allclose(target, qpos, atol=1e-4)
     with compat.obs_mode(base, "state_dict"):
         obs, *_ = env.step(base.agent.rest_action().numpy())
         assert isinstance(obs, dict)

@@ -61,6 +61,7 @@ def test_text_encoder_loads_offline():
     assert cached and n_cached == 2
 
 
+@pytest.mark.slow
 def test_instruction_gate_selects_the_named_slot():
     """The language-gated observation encoder learns to copy out the pose in the slot the
     instruction names (the operation Direct-4 needs), from its own weights, in a few hundred steps."""
@@ -186,6 +187,7 @@ def test_resume_restores_optimizer_step_and_rng(demos, tmp_path):
         _train(demos, tmp_path / "split", "--total-iters", "8", "--no-paraphrase")
 
 
+@pytest.mark.slow
 def test_overfit_one_demo_reproduces_first_chunk(demos, tmp_path):
     ckpt = _train(demos, tmp_path / "run", "--total-iters", "300", "--max-episodes", "1", "--lr", "1e-3",
                   "--warmup", "20", "--batch-size", "32", "--lr-schedule", "constant_with_warmup",

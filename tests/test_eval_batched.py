@@ -173,10 +173,10 @@ CUDA_REASON = "needs CUDA for the physx_cuda backend (none on this machine)"
 def test_batched_policy_on_gpu_envs_one_call_per_step(tmp_path):
     """A batched policy on 4 physx_cuda envs: one object, rows routed to their envs, CPU episodes."""
     import rsb_maniskill  # noqa: F401
-    from policy_fixtures import EnvIdPolicy
-
     from rsb_maniskill.evaluation import EVAL_ENV_KWARGS, eval_seeds
     from rsb_maniskill.evaluation.jobs import EvalJob, make_env
+
+    from policy_fixtures import EnvIdPolicy
 
     seeds = eval_seeds("RSB-Math-4", 6)
     job = EvalJob(suite_id="RSB-Math-4", seeds=tuple(seeds), policy="policy_fixtures:EnvIdPolicy", label="b",
@@ -198,10 +198,10 @@ def test_batched_policy_on_gpu_envs_one_call_per_step(tmp_path):
 @pytest.mark.skipif(not torch.cuda.is_available(), reason=CUDA_REASON)
 def test_render_on_demand_on_gpu_envs_same_records():
     import rsb_maniskill  # noqa: F401
-    from policy_fixtures import EnvIdPolicy
-
     from rsb_maniskill.evaluation import eval_seeds
     from rsb_maniskill.evaluation.jobs import EvalJob, make_env
+
+    from policy_fixtures import EnvIdPolicy
 
     seeds = eval_seeds("RSB-Math-4", 4)
     out = {}

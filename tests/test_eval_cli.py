@@ -1,5 +1,7 @@
 """`rsb eval` end to end, in physics: oracle and blind baselines, resume after a kill, videos,
-errors that leave results untouched, and the remote client serving the oracle."""
+errors that leave results untouched, and the remote client serving the oracle. The kill / resume,
+video and paper-objects runs are slow (20-70 s each); the resume logic itself is tested without
+physics in test_eval_records.py and test_eval_runner.py."""
 from __future__ import annotations
 
 import json
@@ -51,6 +53,7 @@ def test_oracle_and_blind_on_100_episodes(tmp_path):
     assert (out / "summary_oracle.png").stat().st_size > 0 and (out / "summary.csv").exists()
 
 
+@pytest.mark.slow
 def test_resume_after_a_killed_run_gives_the_same_summary(tmp_path):
     """SIGKILL a running `rsb eval`, rerun the command: same summary as an uninterrupted run."""
     n = "8"
@@ -89,6 +92,7 @@ def _workers(pid: int) -> set[int]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="reads child processes from /proc (Linux)")
 def test_sigterm_stops_workers_and_keeps_finished_episodes(tmp_path):
     out = tmp_path / "res"
@@ -113,6 +117,7 @@ def test_sigterm_stops_workers_and_keeps_finished_episodes(tmp_path):
     assert sorted(r["seed"] for r in read_records(records)) == eval_seeds(SUITE, 12)
 
 
+@pytest.mark.slow
 def test_videos_of_the_first_episodes(tmp_path):
     out = tmp_path / "res"
     assert rsb_eval("oracle", "--suites", "RSB-Math-10", "-n", "2", "--videos", "1", "--out", str(out)) == 0
@@ -197,6 +202,7 @@ def test_shuffled_and_blank_modes_on_the_real_task(tmp_path):
     assert summary_dict(results_from_records(records))["rows"].keys() == rows.keys()
 
 
+@pytest.mark.slow
 def test_paper_objects_prints_the_beyond_blocks_table(tmp_path, capsys, question_data):
     """`--suites paper-objects`: the six paper suites with everyday objects, and the appendix's
     Scene | GSR | TSR table with its Avg row."""

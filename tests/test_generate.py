@@ -2,7 +2,7 @@
 
 Core tests (not slow) use the real motion-planning expert on RSB-Math-4 (no external data) and
 take about a minute together; the slow ones add multi-process runs, control-mode and
-observation conversion, shards and videos.
+observation conversion, shards, videos and the everyday-objects suites.
 """
 from __future__ import annotations
 
@@ -18,22 +18,12 @@ import h5py
 import numpy as np
 import pytest
 
+from rsb_maniskill.motionplan import ExpertResult, ScriptedExpert
 from rsb_maniskill.motionplan.config import output_path
 from rsb_maniskill.motionplan.dataset import annotate_episodes, check_pair
 from rsb_maniskill.motionplan.generate import GenerateConfig, GenerateError, generate
 from rsb_maniskill.motionplan.replay import carry_metadata
 from rsb_maniskill.motionplan.shards import WorkPlan, plan_work
-
-try:
-    from rsb_maniskill.motionplan import ScriptedExpert  # noqa: F401
-    HAVE_EXPERT = True
-except ImportError as err:  # the expert is written in parallel with this module
-    HAVE_EXPERT = False
-    EXPERT_ERROR = repr(err)
-
-needs_expert = pytest.mark.skipif(
-    not HAVE_EXPERT,
-    reason=f"rsb_maniskill.motionplan.ScriptedExpert not importable yet ({EXPERT_ERROR if not HAVE_EXPERT else ''})")
 
 ENV_ID = "RSB-Math-4"
 REPO = Path(__file__).resolve().parents[1]
@@ -48,8 +38,6 @@ class FlakyExpert:
         self.env = env
 
     def run(self):
-        from rsb_maniskill.motionplan import ExpertResult, ScriptedExpert
-
         base = self.env.unwrapped
         seed = int(base._episode_seed[0])
         if seed % 2 == 0 or seed >= 500:
@@ -67,8 +55,6 @@ class OverclaimingExpert:
         self.env = env
 
     def run(self):
-        from rsb_maniskill.motionplan import ExpertResult
-
         hold = self.env.unwrapped.agent.rest_action()
         for _ in range(3):
             self.env.step(hold)
@@ -114,8 +100,6 @@ def _check_dataset(h5_path: Path) -> dict:
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     """Three demos from seeds 0.. with the real expert (shared by the checks below)."""
-    if not HAVE_EXPERT:
-        pytest.skip(f"rsb_maniskill.motionplan.ScriptedExpert not importable yet ({EXPERT_ERROR})")
     tmp = tmp_path_factory.mktemp("gen")
     summary = generate(_cfg(tmp, num=3))
     assert summary.path is not None and summary.completed == 3, summary
@@ -196,7 +180,6 @@ def test_annotate_episodes_joins_by_seed_after_the_pair_is_written(tmp_path):
 
 
 # ---------------------------------------------------------------------------- generation
-@needs_expert
 def test_the_envs_verdict_overrules_the_expert(tmp_path):
     summary = generate(_cfg(tmp_path, num=1, max_attempts=2, expert="test_generate:OverclaimingExpert"))
     assert summary.path is None and summary.completed == 0
@@ -207,7 +190,6 @@ def test_the_envs_verdict_overrules_the_expert(tmp_path):
 
 
 
-@needs_expert
 def test_generated_dataset_is_valid_and_self_describing(dataset):
     data = _check_dataset(dataset.path)
     env_info = data["env_info"]
@@ -230,7 +212,6 @@ def test_generated_dataset_is_valid_and_self_describing(dataset):
     assert [p.name for p in dataset.path.parent.iterdir() if p.name.startswith(".")] == []
 
 
-@needs_expert
 def test_failed_episodes_are_discarded_and_logged(tmp_path):
     summary = generate(_cfg(tmp_path, num=2, expert="test_generate:FlakyExpert"))
     data = _check_dataset(summary.path)
@@ -238,7 +219,6 @@ def test_failed_episodes_are_discarded_and_logged(tmp_path):
     assert data["rsb"]["failures"] == [dict(seed=1, question_index=1, reason="stand_in_failure", steps=3)]
 
 
-@needs_expert
 def test_questions_mode_retries_seed_plus_pool_size(tmp_path):
     # question 1 fails on seed 1 (odd), then succeeds with seed 1 + 500 (same question).
     summary = generate(_cfg(tmp_path, num=None, questions="0:3", expert="test_generate:FlakyExpert"))
@@ -255,7 +235,6 @@ def test_questions_mode_retries_seed_plus_pool_size(tmp_path):
     assert data["rsb"]["skipped_questions"] == [1] and summary.exit_code == 0
 
 
-@needs_expert
 def test_existing_output_needs_overwrite(tmp_path, dataset):
     cfg = _cfg(tmp_path, num=1)
     first = generate(cfg)
@@ -291,7 +270,6 @@ def _sigterm_after_first_episode(tmp_path: Path, procs: int) -> tuple[int, Path,
     return proc.returncode, directory / "train.state.pd_joint_pos.physx_cpu.h5", stdout + stderr
 
 
-@needs_expert
 def test_sigterm_leaves_valid_file_of_finished_episodes(tmp_path):
     rc, path, log = _sigterm_after_first_episode(tmp_path, procs=1)
     assert rc == 128 + signal.SIGTERM, log
@@ -302,7 +280,6 @@ def test_sigterm_leaves_valid_file_of_finished_episodes(tmp_path):
     assert sorted(p.name for p in path.parent.iterdir()) == [path.name, path.with_suffix(".json").name]
 
 
-@needs_expert
 def test_replay_actions_reproduce_success(dataset, tmp_path):
     src = tmp_path / "copy.h5"  # replay writes <stem>.<obs>.<control>.<backend>.h5 next to it
     src.write_bytes(dataset.path.read_bytes())
@@ -323,7 +300,6 @@ def _replay(src: Path, *args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
-@needs_expert
 def test_replay_converts_to_delta_joint_control(dataset):
     res = _replay(dataset.path, "-c", "pd_joint_delta_pos", "--save-traj")
     assert res.returncode == 0, res.stderr[-3000:]
@@ -339,7 +315,6 @@ def test_replay_converts_to_delta_joint_control(dataset):
 
 
 @pytest.mark.slow
-@needs_expert
 def test_replay_to_rgb_observations(dataset):
     res = _replay(dataset.path, "-o", "rgb", "--save-traj", "--count", "1")
     assert res.returncode == 0, res.stderr[-3000:]
@@ -354,7 +329,6 @@ def test_replay_to_rgb_observations(dataset):
 
 
 @pytest.mark.slow
-@needs_expert
 def test_maniskills_own_replay_tool_as_is(dataset, tmp_path):
     """`python -m mani_skill.trajectory.replay_trajectory`, nothing imported by hand: the file names
     its env "rsb_maniskill:RSB-Math-4", so gymnasium imports the pack in each process (2 workers
@@ -389,7 +363,6 @@ def test_maniskills_own_replay_tool_as_is(dataset, tmp_path):
 
 
 @pytest.mark.slow
-@needs_expert
 def test_two_processes_make_the_same_dataset_as_one(tmp_path):
     one = generate(_cfg(tmp_path / "one", num=4))
     two = generate(_cfg(tmp_path / "two", num=4, num_procs=2))
@@ -412,7 +385,6 @@ def test_two_processes_make_the_same_dataset_as_one(tmp_path):
 
 
 @pytest.mark.slow
-@needs_expert
 def test_sigterm_with_worker_processes(tmp_path):
     rc, path, log = _sigterm_after_first_episode(tmp_path, procs=2)
     assert rc == 128 + signal.SIGTERM, log
@@ -422,7 +394,6 @@ def test_sigterm_with_worker_processes(tmp_path):
 
 
 @pytest.mark.slow
-@needs_expert
 def test_shards_merge_into_one_dataset(tmp_path):
     paths = []
     for i in range(2):
@@ -439,7 +410,6 @@ def test_shards_merge_into_one_dataset(tmp_path):
 
 
 @pytest.mark.slow
-@needs_expert
 def test_save_video_writes_one_mp4_per_demo(tmp_path):
     summary = generate(_cfg(tmp_path, num=1, save_video=True))
     data = _check_dataset(summary.path)
@@ -447,7 +417,7 @@ def test_save_video_writes_one_mp4_per_demo(tmp_path):
     assert video.exists() and video.stat().st_size > 1000
 
 
-@needs_expert
+@pytest.mark.slow
 def test_objects_demos_replay_with_maniskills_tool_in_delta_joint_control(tmp_path):
     """Everyday objects: generated demos replay with ManiSkill's replay tool (fresh process,
     nothing imported by hand) converted to pd_joint_delta_pos, every demo still a success."""

@@ -24,7 +24,8 @@ REPO = Path(__file__).resolve().parents[1]
 def home(tmp_path, monkeypatch):
     """A home without the library; no offline switch; no proxy unless a test sets one."""
     monkeypatch.setenv("HOME", str(tmp_path))
-    for var in (*physx_gpu.OFFLINE_VARS, "HTTPS_PROXY", "https_proxy", "HTTP_PROXY", "http_proxy", "NO_PROXY", "no_proxy"):
+    proxies = ("HTTPS_PROXY", "https_proxy", "HTTP_PROXY", "http_proxy", "NO_PROXY", "no_proxy")
+    for var in (*physx_gpu.OFFLINE_VARS, *proxies):
         monkeypatch.delenv(var, raising=False)
     assert not physx_gpu.library_path().exists()
     return tmp_path
@@ -160,7 +161,8 @@ def test_rsb_eval_num_envs_reports_the_missing_library_up_front(home, monkeypatc
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     monkeypatch.setenv("RSB_OFFLINE", "1")
-    rc = main(["eval", "random", "--suites", "RSB-Math-4", "-n", "2", "--num-envs", "2", "--out", str(tmp_path / "out")])
+    rc = main(["eval", "random", "--suites", "RSB-Math-4", "-n", "2", "--num-envs", "2",
+               "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert rc == 2 and "rsb eval: error: GPU physics" in err and "libPhysXGpu_64.so" in err
     assert not list((tmp_path / "out").glob("*/episodes.jsonl"))

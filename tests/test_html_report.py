@@ -10,12 +10,13 @@ import shutil
 from pathlib import Path
 
 import pytest
-from cdp_browser import Browser, find_chromium
 
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.metrics import OUTCOMES
 from rsb_maniskill.evaluation.records import RecordWriter, read_records
 from rsb_maniskill.evaluation.reporting.html_report import episode_cards, markdown_to_html, write_html_report
+
+from cdp_browser import Browser, find_chromium
 
 SUITE = "RSB-Math-4"
 N_SYNTHETIC = 130  # more than one page of cards (120)

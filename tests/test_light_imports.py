@@ -22,8 +22,10 @@ def _run(code: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("stmt", ["import rsb_maniskill", "import rsb_maniskill.semantic", "import rsb_maniskill.env_ids",
-                                  "from rsb_maniskill.semantic import EpisodeSampler; EpisodeSampler('RSB-Math-4').episode(0)",
+@pytest.mark.parametrize("stmt", ["import rsb_maniskill", "import rsb_maniskill.semantic",
+                                  "import rsb_maniskill.env_ids",
+                                  "from rsb_maniskill.semantic import EpisodeSampler; "
+                                  "EpisodeSampler('RSB-Math-4').episode(0)",
                                   "import rsb_maniskill.motionplan.generate, rsb_maniskill.evaluation.metrics"])
 def test_imports_are_light(stmt):
     got = _run(f"""
@@ -73,7 +75,8 @@ def test_qualified_id_needs_no_import():
         import json, gymnasium as gym
         env = gym.make("rsb_maniskill:RSB-Math-10", obs_mode="state", render_backend="none")
         env.reset(seed=3)
-        print(json.dumps(dict(n=len(env.unwrapped.pool.actors), instr=env.unwrapped.get_language_instruction()[0][:20])))
+        instr = env.unwrapped.get_language_instruction()[0][:20]
+        print(json.dumps(dict(n=len(env.unwrapped.pool.actors), instr=instr)))
     """)
     assert got["n"] == 10 and got["instr"]
 

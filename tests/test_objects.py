@@ -125,6 +125,7 @@ def _seed_with_target(suite: str, category: str, arm: str) -> int:
                                            ("toy_car", "right"), ("bowl", "right"), ("spray_bottle", "left")])
 def test_expert_lifts_and_places_real_objects(category, arm):
     import gymnasium as gym
+
     from rsb_maniskill.motionplan import ScriptedExpert
 
     seed = _seed_with_target("RSB-Math-4", category, arm)
@@ -144,6 +145,7 @@ def test_expert_lifts_and_places_real_objects(category, arm):
 
 def test_picking_the_wrong_object_is_a_wrong_grasp():
     import gymnasium as gym
+
     from rsb_maniskill.motionplan import ScriptedExpert
 
     env = gym.make("RSB-Math-10-Objects", obs_mode="state", render_backend="none", split="test")

@@ -10,7 +10,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-
 import ray
 
 from rsb_maniskill.evaluation import eval_seeds  # noqa: E402
@@ -69,6 +68,7 @@ def _strip(records):
     return sorted(({k: v for k, v in r.items() if k != "wall_s"} for r in records), key=lambda r: r["seed"])
 
 
+@pytest.mark.slow
 def test_eval_records_equal_local_and_resume(executor, tmp_path):
     job = EvalJob(suite_id=SUITE, seeds=tuple(eval_seeds(SUITE, 6)), policy="blind", label="blind", obs_mode="state",
                   max_steps=60)
@@ -81,6 +81,7 @@ def test_eval_records_equal_local_and_resume(executor, tmp_path):
     assert sorted(r["seed"] for r in read_records(tmp_path / "ray.jsonl")) == list(job.seeds)
 
 
+@pytest.mark.slow
 def test_generate_same_episodes_as_local(executor, tmp_path):
     from rsb_maniskill.motionplan.generate import GenerateConfig, generate
 
@@ -119,6 +120,7 @@ def test_address_needs_the_ray_executor(tmp_path, capsys):
     assert "--executor ray" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_sigterm_stops_a_ray_run_and_keeps_finished_episodes(tmp_path):
     """SIGTERM to `rsb eval --executor ray`: tasks cancelled, exit 130, whole records, resumable."""
     import signal

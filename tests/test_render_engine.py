@@ -58,7 +58,8 @@ def test_state_envs_open_one_vulkan_instance(loader_logs_instances):
     log = _run("""
         import sys, gymnasium as gym, rsb_maniskill
         for i in range(6):
-            env = gym.make(("RSB-Math-4", "RSB-Math-10", "RSB-Direct-10")[i % 3], obs_mode="state", render_backend="none")
+            env_id = ("RSB-Math-4", "RSB-Math-10", "RSB-Direct-10")[i % 3]
+            env = gym.make(env_id, obs_mode="state", render_backend="none")
             env.reset(seed=i)
             env.close()
             if i == 0:

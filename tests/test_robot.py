@@ -10,10 +10,9 @@ import rsb_maniskill  # noqa: F401
 from rsb_maniskill.agents import from_aloha14, to_aloha14
 from rsb_maniskill.agents.aloha import GRIPPER_OPEN
 from rsb_maniskill.agents.aloha_urdf import ASSET_DIR, build_files, sapien_disabled_pairs
+from rsb_maniskill.env_ids import CONTROL_FREQ
 
 from robot_helpers import CUBE_HALF, ArmDriver  # noqa: F401  (registers the cube env)
-
-from rsb_maniskill.env_ids import CONTROL_FREQ  # noqa: E402
 
 
 def make(env_id="RSB-TableTop-v1", **kw):

@@ -103,7 +103,9 @@ print(json.dumps(_episode_fingerprint({suite!r}, {seed})))
 """
 
 
-@pytest.mark.parametrize("suite_id", ["RSB-Math-4", "RSB-Math-10", "RSB-Math-10-Objects"])
+# one suite in test-fast; the 10-candidate layouts in the slow run (a fresh process each, ~5 s)
+@pytest.mark.parametrize("suite_id", ["RSB-Math-4", pytest.param("RSB-Math-10", marks=pytest.mark.slow),
+                                      pytest.param("RSB-Math-10-Objects", marks=pytest.mark.slow)])
 def test_same_seed_same_episode_in_fresh_process(suite_id):
     here = _episode_fingerprint(suite_id, seed=7)
     code = FINGERPRINT_SCRIPT.format(tests=os.path.dirname(__file__), suite=suite_id, seed=7)
@@ -181,7 +183,8 @@ def test_objects_do_not_overlap_and_stay_in_reach(suite_id):
         n = len(box)
         for i in range(n):
             for j in range(i + 1, n):
-                apart = (box[i, 2] < box[j, 0]) | (box[j, 2] < box[i, 0]) | (box[i, 3] < box[j, 1]) | (box[j, 3] < box[i, 1])
+                apart = ((box[i, 2] < box[j, 0]) | (box[j, 2] < box[i, 0])
+                         | (box[i, 3] < box[j, 1]) | (box[j, 3] < box[i, 1]))
                 assert apart, f"seed {seed}: candidates {i} and {j} overlap"
         assert (box[:, 0] > 0.22).all() and (box[:, 2] < 0.48).all() and (box[:, [1, 3]].abs() < 0.32).all()
         assert len(set(u.episode_specs[0].candidates)) == n

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from rsb_maniskill.workers import InProcess, InterruptGuard, Interrupted, ProcessPool, deal
+from rsb_maniskill.workers import InProcess, Interrupted, InterruptGuard, ProcessPool, deal
 
 
 # Targets run in spawned processes: module-level, so they pickle by name.

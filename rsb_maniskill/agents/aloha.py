@@ -188,7 +188,8 @@ class AlohaAgilex(BaseAgent):
         q = self.robot.get_qpos()
         parts = []
         for a in ARMS:
-            parts += [q[:, self.arm_qpos_index[a]], (q[:, self.finger_qpos_index[a]] / GRIPPER_OPEN).clamp(0, 1)[:, None]]
+            opening = (q[:, self.finger_qpos_index[a]] / GRIPPER_OPEN).clamp(0, 1)
+            parts += [q[:, self.arm_qpos_index[a]], opening[:, None]]
         return torch.cat(parts, dim=1)
 
     def tcp_link_name(self, arm: str) -> str:

@@ -134,7 +134,8 @@ def _arm_links(prefix: str) -> list[Link]:
         Link(f"{prefix}_link6", [
             Shape("cylinder", (0.025, 0.04), (0.02, 0.0, 0.0), (0.0, math.pi / 2, 0.0), "gripper"),
             Shape("box", (0.045, 0.115, 0.035), (0.0625, 0.0, 0.0), color="gripper"),
-            Shape("box", (0.02, 0.09, 0.025), (WRIST_CAMERA_XYZ[0] - 0.02, 0.0, WRIST_CAMERA_XYZ[2]), color="camera", collide=False),
+            Shape("box", (0.02, 0.09, 0.025), (WRIST_CAMERA_XYZ[0] - 0.02, 0.0, WRIST_CAMERA_XYZ[2]), color="camera",
+                  collide=False),
         ]),
     ]
     # Fingers: at q = 0 the inner faces meet on the gripper midplane (closed); q opens each side.
@@ -178,15 +179,18 @@ def _joints() -> list[tuple]:
     out = [("head_camera_joint", "fixed", "base_link", "head_camera_link", HEAD_CAMERA_XYZ,
             _look_rpy(HEAD_CAMERA_LOOK), None, None, None)]
     for p in ARM_PREFIXES:
-        out.append((f"{p}_base_joint", "fixed", "base_link", f"{p}_base_link", ARM_BASE_XYZ[p], (0, 0, 0), None, None, None))
+        out.append((f"{p}_base_joint", "fixed", "base_link", f"{p}_base_link", ARM_BASE_XYZ[p], (0, 0, 0),
+                    None, None, None))
         parent = f"{p}_base_link"
         for name, jtype, xyz, rpy, axis, lim in ARM_JOINTS:
             child = f"{p}_link{name[-1]}"
             mimic = f"{p}_joint7" if name == "joint8" else None
-            out.append((f"{p}_{name}", jtype, parent if name != "joint8" else f"{p}_link6", child, xyz, rpy, axis, lim, mimic))
+            out.append((f"{p}_{name}", jtype, parent if name != "joint8" else f"{p}_link6", child, xyz, rpy, axis, lim,
+                        mimic))
             if name not in ("joint7", "joint8"):
                 parent = child
-        out.append((f"{p}_tcp_joint", "fixed", f"{p}_link6", f"{p}_tcp_link", (TCP_OFFSET, 0, 0), (0, 0, 0), None, None, None))
+        out.append((f"{p}_tcp_joint", "fixed", f"{p}_link6", f"{p}_tcp_link", (TCP_OFFSET, 0, 0), (0, 0, 0),
+                    None, None, None))
         out.append((f"{p}_camera_joint", "fixed", f"{p}_link6", f"{p}_camera_link", WRIST_CAMERA_XYZ,
                     (0.0, WRIST_CAMERA_PITCH, 0.0), None, None, None))
     return out
@@ -195,7 +199,8 @@ def _joints() -> list[tuple]:
 def _inertial(link: Link) -> str:
     solid = [s for s in link.shapes if s.collide]
     if not solid:  # frames only (tcp, cameras): tiny mass keeps PhysX happy
-        return '<inertial><origin xyz="0 0 0"/><mass value="0.01"/><inertia ixx="1e-6" ixy="0" ixz="0" iyy="1e-6" iyz="0" izz="1e-6"/></inertial>'
+        return ('<inertial><origin xyz="0 0 0"/><mass value="0.01"/>'
+                '<inertia ixx="1e-6" ixy="0" ixz="0" iyy="1e-6" iyz="0" izz="1e-6"/></inertial>')
     masses = [link.density * s.volume() for s in solid]
     total = sum(masses)
     com = sum(m * np.asarray(s.xyz) for m, s in zip(masses, solid)) / total

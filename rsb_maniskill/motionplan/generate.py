@@ -45,7 +45,8 @@ def _validate(cfg: GenerateConfig) -> int:
 
     suite_id, targets = split_env_id(cfg.env_id)
     if suite_id not in SUITE_IDS:
-        raise GenerateError(f"unknown suite {cfg.env_id!r}; valid: {', '.join(SUITE_IDS)}, each also with {OBJECTS_SUFFIX!r}")
+        raise GenerateError(f"unknown suite {cfg.env_id!r}; valid: {', '.join(SUITE_IDS)}, "
+                            f"each also with {OBJECTS_SUFFIX!r}")
     if cfg.questions is None and (cfg.num is None or cfg.num < 1):
         raise GenerateError("give -n N (number of demos) or --questions all")
     if cfg.num is not None and cfg.num < 1:

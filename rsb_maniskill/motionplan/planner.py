@@ -71,7 +71,7 @@ class ArmPlanner:
 
     def __init__(self, robot, arm: str, time_step: float):
         self.robot, self.arm, self.time_step = robot, arm, float(time_step)
-        link_names = [l.name for l in robot.get_links()]
+        link_names = [link.name for link in robot.get_links()]
         self.joint_names = [j.name for j in robot.get_active_joints()]
         self.planner = get_planner(arm, link_names, self.joint_names)
         self.index = np.asarray(self.planner.move_group_joint_indices)

@@ -6,11 +6,12 @@ from __future__ import annotations
 import dataclasses
 
 from gymnasium.envs.registration import EnvSpec
+
 from mani_skill.envs.sapien_env import BaseEnv
 
 from rsb_maniskill import _render
-from rsb_maniskill.physx_gpu import check_for_sim_backend
 from rsb_maniskill.env_ids import qualified_id
+from rsb_maniskill.physx_gpu import check_for_sim_backend
 
 
 class RSBEnv(BaseEnv):

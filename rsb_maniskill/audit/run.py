@@ -1,4 +1,5 @@
-"""Audit of one suite: named guessers, the learned probe, ambiguous option sets, split overlap."""
+"""Audit of one suite: named guessers, the learned probe, ambiguous option sets, split overlap,
+and question-aware readers as references (``reference.py``)."""
 from __future__ import annotations
 
 import os
@@ -7,7 +8,6 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from rsb_maniskill.evaluation.metrics import wilson_interval
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
 from rsb_maniskill.semantic.normalize import option_key
 from rsb_maniskill.semantic.sampler import EpisodeSampler
@@ -15,6 +15,9 @@ from rsb_maniskill.semantic.spec import EpisodeSpec
 
 from .guessers import candidate_guessers, credit, named_guessers
 from .probe import learned_probe
+from .readers import BoundReader
+from .reference import ReaderResult, read
+from .reference import rate as _rate
 from .splits import SplitOverlap, split_overlap
 from .wording import instruction_guessers
 
@@ -52,6 +55,7 @@ class SuiteAudit:
     ambiguous: int
     ambiguous_examples: list[list[str]]
     overlap: SplitOverlap = field(default_factory=SplitOverlap)
+    readers: list[ReaderResult] = field(default_factory=list)  # references: never fail the suite alone
 
     @property
     def chance(self) -> float:
@@ -79,15 +83,6 @@ class SuiteAudit:
         return d
 
 
-def _rate(credits: np.ndarray) -> tuple[float, float, float]:
-    """Mean credit and its Wilson 95 % interval (credit is a 0/1 outcome or a tie share, whose
-    variance is at most the binomial one, so the interval is conservative)."""
-    n = len(credits)
-    s = float(credits.sum())
-    lo, hi = wilson_interval(int(round(s)), n)
-    return s / n, lo, hi
-
-
 def _result(name: str, desc: str, kind: str, reads_q: bool, credits: np.ndarray, applies: np.ndarray,
             chance: float, margin: float) -> GuesserResult:
     acc, lo, hi = _rate(credits)
@@ -112,9 +107,11 @@ def ambiguous_sets(specs: Sequence[EpisodeSpec]) -> list[list[str]]:
 
 def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[EpisodeSpec], *,
                 split: str = "test", margin: float = MARGIN, overlap: SplitOverlap | None = None,
-                seed: int = 0, read_instruction: bool = False) -> SuiteAudit:
+                seed: int = 0, read_instruction: bool = False,
+                readers: Sequence[BoundReader] = ()) -> SuiteAudit:
     """Audit ``test`` episodes; the learned probe is fit on ``train`` episodes (never the same seeds).
-    ``read_instruction``: also the guessers of the instruction's wording (``wording.py``)."""
+    ``read_instruction``: also the guessers of the instruction's wording (``wording.py``).
+    ``readers``: question-aware readers scored as reference rows (``readers.py``)."""
     if not test:
         raise ValueError(f"{suite_id}: no episodes to audit")
     n = test[0].n_choices
@@ -141,7 +138,7 @@ def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[Epis
                                "learned", False, probe.credits, np.ones(len(test), dtype=bool), chance, margin))
     amb = ambiguous_sets(test)
     return SuiteAudit(suite_id, split, n, len(test), len(train), margin, results, features, len(amb),
-                      amb[:_EXAMPLES], overlap or SplitOverlap())
+                      amb[:_EXAMPLES], overlap or SplitOverlap(), [read(r, test) for r in readers])
 
 
 def suite_overlap(train: EpisodeSampler, test: EpisodeSampler) -> SplitOverlap:
@@ -154,12 +151,14 @@ def suite_overlap(train: EpisodeSampler, test: EpisodeSampler) -> SplitOverlap:
 
 def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: int | None = None,
                 data_dir: str | os.PathLike | None = None, margin: float = MARGIN,
-                targets: str = "blocks", perturb: dict[str, int] | None = None) -> SuiteAudit:
+                targets: str = "blocks", perturb: dict[str, int] | None = None,
+                readers: Sequence[BoundReader] = ()) -> SuiteAudit:
     """Audit ``n`` episodes of ``split`` (the evaluation protocol's seeds) of a suite.
 
     The probe trains on ``n_train`` (default ``n``) train-split episodes of seeds 0, 1, ...; the
     audited episodes use seeds from ``EVAL_SEED_BASE`` on, so the two never share a seed.
     ``perturb``: language robustness axes (``{"lang_layout": 2}``) worded into both splits.
+    ``readers``: question-aware readers scored as reference rows.
     """
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
@@ -174,4 +173,5 @@ def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: i
         from rsb_maniskill.perturb import label
 
         name += f" [{label(perturb)}]"
-    return audit_specs(name, train, test, split=split, margin=margin, overlap=overlap, read_instruction=bool(perturb))
+    return audit_specs(name, train, test, split=split, margin=margin, overlap=overlap, read_instruction=bool(perturb),
+                       readers=readers)

@@ -185,24 +185,25 @@ def check_data() -> list[Check]:
     if root is not None:
         need = [root / "gsm8k" / "train.jsonl", root / "gsm8k" / "test.jsonl"]
         missing = [str(p) for p in need if not p.is_file()]
-        if not any((root / "mmlu" / s).glob("*.csv") for s in data.MMLU_SPLITS):
-            missing.append(str(root / "mmlu" / "{dev,test}" / "*.csv"))
+        if not (root / data.MMLU_PRO_FILE_IN_DIR).is_file():
+            missing.append(str(root / data.MMLU_PRO_FILE_IN_DIR))
         return [Check("data", f"${data.ENV_VAR}", "ok" if not missing else "warn", str(root) + (
             "" if not missing else f": missing {', '.join(missing)}"), "" if not missing else
-            "put GSM8K / MMLU there in their original formats (docs/semantic.md), or unset it to use the hub cache")]
+            "put GSM8K (original jsonl) and MMLU-Pro (the hub's parquet) there (docs/semantic.md), "
+            "or unset it to use the hub cache")]
     import huggingface_hub
 
     missing = []
-    for repo, files, rev in ((data.GSM8K_REPO, data.GSM8K_FILES, data.GSM8K_REVISION),
-                             (data.MMLU_REPO, data.MMLU_FILES, data.MMLU_REVISION)):
-        for fn in files.values():
+    for repo, files, rev in ((data.GSM8K_REPO, tuple(data.GSM8K_FILES.values()), data.GSM8K_REVISION),
+                             (data.MMLU_PRO_REPO, (data.MMLU_PRO_FILE,), data.MMLU_PRO_REVISION)):
+        for fn in files:
             hit = huggingface_hub.try_to_load_from_cache(repo, fn, revision=rev, repo_type="dataset")
             if not isinstance(hit, str):
                 missing.append(f"{repo}/{fn}")
     detail = "hub cache complete" if not missing else f"${data.ENV_VAR} unset, hub cache lacks {len(missing)} file(s)"
     return [Check("data", "question data", "ok" if not missing else "warn",
                   detail + " (Math and Direct suites need none)", "" if not missing else
-                  f"`rsb data download` with network, or set ${data.ENV_VAR} to a directory with gsm8k/ and mmlu/")]
+                  f"`rsb data download` with network, or set ${data.ENV_VAR} to a directory with gsm8k/ and mmlu_pro/")]
 
 
 def check_optional() -> list[Check]:

@@ -1,4 +1,4 @@
-"""Shared fixtures. Question data: the real GSM8K / MMLU files when ``RSB_DATA_DIR`` names them (CI
+"""Shared fixtures. Question data: the real GSM8K / MMLU-Pro files when ``RSB_DATA_DIR`` names them (CI
 sets it to the shared copies), else the small fixtures written for the tests, so that no test that
 only needs *some* questions skips on a machine without the datasets."""
 from __future__ import annotations

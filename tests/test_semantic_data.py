@@ -1,17 +1,18 @@
-"""GSM8K / MMLU loading: data directory, hub path, parsing, clear errors naming file and line."""
+"""GSM8K / MMLU-Pro loading: data directory, hub path, parsing, clear errors naming file and line."""
 from __future__ import annotations
 
 import json
 import os
 from pathlib import Path
 
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
 import huggingface_hub
 from rsb_maniskill.semantic import DataNotFoundError, EpisodeSampler, SemanticDataError, clear_cache
 from rsb_maniskill.semantic import data as data_mod
 from rsb_maniskill.semantic.gsm8k import clean_solution, gsm8k_pool, parse_final_answer
-from rsb_maniskill.semantic.mmlu import exclusion_reason
 
 FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
 REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")  # read before the autouse fixture clears it
@@ -84,29 +85,32 @@ def test_gsm8k_malformed_names_file_and_line(tmp_path, line, reason):
     assert err.value.line == 3
 
 
-@pytest.mark.parametrize("row, reason", [
-    ("q,a,b,c,A\n", "expected 6 columns"),
-    ("q,a,b,c,d,E\n", "answer must be one of A-D"),
-    ("q,a,b,c,d,e,A\n", "expected 6 columns"),
+def _write_pro(root: Path, rows: list[dict]) -> Path:
+    """An MMLU-Pro parquet in the hub's layout under ``root``."""
+    path = root / "mmlu_pro" / "data" / "test-00000-of-00001.parquet"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cols = ("question_id", "question", "options", "answer", "answer_index", "category", "src")
+    pq.write_table(pa.table({c: [r.get(c) for r in rows] for c in cols}), path)
+    return path
+
+
+def _pro_row(i: int, **kw) -> dict:
+    opts = [f"choice {i} {k}" for k in range(10)]
+    return {"question_id": i, "question": f"Question {i}?", "options": opts, "answer": "C", "answer_index": 2,
+            "category": "toy", "src": "stemez-toy", **kw}
+
+
+@pytest.mark.parametrize("bad, reason", [
+    (dict(answer_index=10, answer=None), "answer_index must be 0-9"),
+    (dict(answer="D"), "disagrees with answer_index 2"),
+    (dict(options=[]), "'options' must be a list of texts"),
+    (dict(question=" "), "missing or empty question"),
 ])
-def test_mmlu_malformed_names_file_and_line(tmp_path, row, reason):
-    d = tmp_path / "mmlu" / "test"
-    d.mkdir(parents=True)
-    f = d / "anatomy_test.csv"
-    f.write_text('"multi\nline question",a,b,c,d,A\n' + row)
+def test_mmlu_pro_malformed_names_file_and_row(tmp_path, bad, reason):
+    _write_pro(tmp_path, [_pro_row(0), _pro_row(1), _pro_row(2, **bad)])
     with pytest.raises(SemanticDataError) as err:
         EpisodeSampler("RSB-General-4", data_dir=tmp_path)
-    assert "anatomy_test.csv, line 3" in str(err.value) and reason in str(err.value)
-
-
-def test_mmlu_filters():
-    mk = lambda opts, q="q?": {"question": q, "choices": opts, "answer": 0}
-    assert exclusion_reason(mk(["a", "b", "c", "d"])) is None
-    assert exclusion_reason(mk(["a", "b", "All of the above", "d"])) == "option refers to other options"
-    assert exclusion_reason(mk(["a", "b", "A and B", "d"])) == "option refers to other options"
-    assert exclusion_reason(mk(["Only one", "b", "c", "d"])) is None
-    assert exclusion_reason(mk(["a", "A", "c", "d"])) == "duplicate options"
-    assert exclusion_reason(mk(["a", "b", "c", "d"], q="x" * 2000)) == "question too long"
+    assert "test-00000-of-00001.parquet, line 3: row 3" in str(err.value) and reason in str(err.value)
 
 
 def test_missing_data_names_both_ways(monkeypatch, tmp_path):
@@ -120,7 +124,7 @@ def test_missing_data_names_both_ways(monkeypatch, tmp_path):
     # an explicit directory without the files is an error too (no silent fallback)
     with pytest.raises(DataNotFoundError, match="gsm8k"):
         EpisodeSampler("RSB-HardMath-4", data_dir=tmp_path)
-    with pytest.raises(DataNotFoundError, match="mmlu"):
+    with pytest.raises(DataNotFoundError, match="mmlu_pro"):
         EpisodeSampler("RSB-General-4", data_dir=tmp_path)
 
 
@@ -134,8 +138,7 @@ def test_hub_path_uses_pinned_revisions(monkeypatch, tmp_path):
     calls = []
     gsm_rows = {"train": [{"question": "Q1 has 3 and 4?", "answer": "3+4=<<3+4=7>>7\n#### 7"}],
                 "test": [{"question": "Q2?", "answer": "#### 1,024"}]}
-    mmlu_rows = [{"question": f"Question {i}?", "subject": "toy", "choices": [f"a{i}", f"bb{i}", f"c{i}", f"dd{i}"],
-                  "answer": i % 4} for i in range(30)]
+    pro_rows = [_pro_row(i, answer_index=i % 10, answer="ABCDEFGHIJ"[i % 10]) for i in range(60)]
 
     def fake_download(repo_id, filename, repo_type=None, revision=None, local_files_only=False, **kw):
         calls.append((repo_id, filename, repo_type, revision, local_files_only))
@@ -145,39 +148,39 @@ def test_hub_path_uses_pinned_revisions(monkeypatch, tmp_path):
         p = str(path)
         if "gsm8k" in p:
             return gsm_rows["train" if "train" in p else "test"]
-        return mmlu_rows if "test-" in p else []
+        return pro_rows
 
     monkeypatch.setattr(huggingface_hub, "hf_hub_download", fake_download)
     monkeypatch.setattr(data_mod, "read_parquet_rows", fake_read)
     assert [q.answer for q in gsm8k_pool("test")] == ["1024"]
     assert calls[0] == ("openai/gsm8k", "main/test-00000-of-00001.parquet", "dataset", data_mod.GSM8K_REVISION, True)
     s = EpisodeSampler("RSB-General-10", "train")
-    assert s.pool.source_counts["mmlu"] > 0
-    assert ("cais/mmlu", "all/test-00000-of-00001.parquet", "dataset", data_mod.MMLU_REVISION, True) in calls
-    assert len(data_mod.GSM8K_REVISION) == 40 and len(data_mod.MMLU_REVISION) == 40
+    assert s.pool.source_counts["mmlu_pro"] > 0
+    assert ("TIGER-Lab/MMLU-Pro", "data/test-00000-of-00001.parquet", "dataset", data_mod.MMLU_PRO_REVISION,
+            True) in calls
+    assert len(data_mod.GSM8K_REVISION) == 40 and len(data_mod.MMLU_PRO_REVISION) == 40
 
 
 def test_hub_parquet_roundtrip(monkeypatch, tmp_path):
-    """With pyarrow (the `hub` extra) the real parquet layout is read, and `rsb data download
-    --export` writes a directory in the original formats."""
-    pa = pytest.importorskip("pyarrow", reason="pyarrow not installed (pip install 'rsb_maniskill[hub]')")
-    import pyarrow.parquet as pq
+    """The hub's parquet layout is read, and `rsb data download --export` writes a directory that
+    serves as $RSB_DATA_DIR (GSM8K in its original jsonl, MMLU-Pro in the hub's parquet)."""
     files = {
         "main/train-00000-of-00001.parquet": {"question": ["Q a?"], "answer": ["#### 5"]},
         "main/test-00000-of-00001.parquet": {"question": ["Q b?"], "answer": ["#### -2"]},
-        "all/test-00000-of-00001.parquet": {"question": ["M?"], "subject": ["toy"],
-                                            "choices": [["w", "x", "y", "z"]], "answer": [2]},
-        "all/dev-00000-of-00001.parquet": {"question": ["N?"], "subject": ["toy"],
-                                           "choices": [["p", "q", "r", "s"]], "answer": [0]},
     }
     for fn, cols in files.items():
         out = tmp_path / "hub" / fn
         out.parent.mkdir(parents=True, exist_ok=True)
         pq.write_table(pa.table(cols), out)
-    monkeypatch.setattr(huggingface_hub, "hf_hub_download", lambda repo, fn, **kw: str(tmp_path / "hub" / fn))
+    _write_pro(tmp_path / "hub_pro", [_pro_row(i) for i in range(3)])
+    hub_files = {**{fn: tmp_path / "hub" / fn for fn in files},
+                 data_mod.MMLU_PRO_FILE: tmp_path / "hub_pro" / data_mod.MMLU_PRO_FILE_IN_DIR}
+    monkeypatch.setattr(huggingface_hub, "hf_hub_download", lambda repo, fn, **kw: str(hub_files[fn]))
     assert [q.answer for q in gsm8k_pool("test")] == ["-2"]
     data_mod.download_hub_data(tmp_path / "export")
-    assert (tmp_path / "export" / "mmlu" / "test" / "toy_test.csv").read_text().strip() == "M?,w,x,y,z,C"
+    exported = tmp_path / "export" / data_mod.MMLU_PRO_FILE_IN_DIR  # the hub's file, byte for byte
+    assert exported.read_bytes() == hub_files[data_mod.MMLU_PRO_FILE].read_bytes()
+    assert [r["question"] for r in data_mod.mmlu_pro_rows(tmp_path / "export")] == [f"Question {i}?" for i in range(3)]
     assert [q.answer for q in gsm8k_pool("train", tmp_path / "export")] == ["5"]
 
 
@@ -197,10 +200,10 @@ def test_real_pool_sizes():
     assert EpisodeSampler("RSB-HardMath-10", "test", data_dir=d).num_questions == 1319
     train = EpisodeSampler("RSB-General-4", "train", data_dir=d)
     test = EpisodeSampler("RSB-General-10", "test", data_dir=d)
-    # MMLU rows whose options repeat a question word, or are all numbers, are left out
-    # (docs/semantic.md); the train pool takes every other eligible row, up to 10,000 questions
-    assert 4000 < train.num_questions <= 10_000
-    assert train.pool.excluded["option shares a word with the question"] > 5000
+    # MMLU-Pro questions with ten options of their own, less those left out (docs/semantic.md)
+    assert 3500 < train.num_questions
+    assert train.pool.excluded["fewer than 10 options"] == 2051
+    assert train.pool.excluded["numeric options centred on the answer"] > 2000
     assert test.num_questions > 1000  # the 500 evaluation episodes ask 500 different questions
     assert not {q.text for q in train.pool.questions} & {q.text for q in test.pool.questions}
     assert train.pool.source_counts["commonsense"] > 400

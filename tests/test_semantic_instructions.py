@@ -87,7 +87,7 @@ def test_no_leak_every_source(suite_id, split):
             sources.add(s.pool.questions[spec.question_id].source)
         _check_no_leak(spec)
     if suite_id.startswith("RSB-General") and split == "train":
-        assert sources == {"commonsense", "mmlu"}
+        assert sources == {"commonsense", "mmlu_pro"}
 
 
 def test_same_options_any_answer_same_instruction():

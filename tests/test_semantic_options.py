@@ -13,10 +13,9 @@ from rsb_maniskill.semantic import EpisodeSampler, clear_cache
 from rsb_maniskill.semantic.commonsense import commonsense_pool, in_train
 from rsb_maniskill.semantic.distractors import (
     Bins, inclusion_probabilities, lattice_options, numeric_options, systematic_sample, value_bins, weighted_options)
-from rsb_maniskill.semantic.mmlu import exclusion_reason
-from rsb_maniskill.semantic.mmlu_padding import Padding, area
+from rsb_maniskill.semantic import mmlu_pro
+from rsb_maniskill.semantic.mmlu_pro import exclusion_reason
 from rsb_maniskill.semantic.normalize import option_key, question_key, related_words
-from rsb_maniskill.semantic.records import Question
 
 FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
 REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")
@@ -26,8 +25,8 @@ def _real_data_dir() -> Path:
     d = REAL_DATA_DIR
     if not d:
         pytest.skip("RSB_DATA_DIR is not set (CI sets RSB_DATA_DIR=../shared/data)")
-    if not (Path(d) / "gsm8k" / "test.jsonl").is_file() or not (Path(d) / "mmlu" / "test").is_dir():
-        pytest.skip(f"RSB_DATA_DIR={d} lacks gsm8k/ or mmlu/")
+    if not (Path(d) / "gsm8k" / "test.jsonl").is_file() or not (Path(d) / "mmlu_pro" / "data").is_dir():
+        pytest.skip(f"RSB_DATA_DIR={d} lacks gsm8k/ or mmlu_pro/")
     return Path(d)
 
 
@@ -161,39 +160,93 @@ def test_option_key_normal_forms():
     assert question_key("in parallel in a circuit, the current") == question_key("in parallel in a circuit the current")
 
 
-def test_mmlu_exclusions():
-    row = dict(question="What is the capital of France?", choices=["Paris", "Lyon", "Nice", "Lille"], answer=0)
+TEN = ["Paris", "Lyon", "Nice", "Lille", "Nantes", "Rouen", "Brest", "Dijon", "Metz", "Reims"]
+
+
+def test_mmlu_pro_exclusions():
+    row = dict(question="What is the capital of France?", choices=TEN, answer=0)
     assert exclusion_reason(row) is None
-    assert exclusion_reason({**row, "choices": ["Paris", "paris.", "Nice", "Lille"]}) == "duplicate options"
-    assert exclusion_reason({**row, "choices": ["2 m/s", "4 m/s", "6 m/s", "8 m/s"]}) == "numeric options centred on the answer"
-    assert exclusion_reason({**row, "choices": ["Paris, capital", "Lyon", "Nice", "Lille"]}) == \
-        "option shares a word with the question"
+    assert exclusion_reason({**row, "choices": TEN[:4]}) == "fewer than 10 options"
+    assert exclusion_reason({**row, "choices": ["paris."] + TEN[1:]}) is None
+    assert exclusion_reason({**row, "choices": TEN[:9] + ["paris."]}) == "duplicate options"
+    numbers = [f"{2 * i} m/s" for i in range(1, 11)]
+    assert exclusion_reason({**row, "choices": numbers}) == "numeric options centred on the answer"
+    assert exclusion_reason({**row, "choices": TEN[:9] + ["All of the above"]}) == "option refers to other options"
+    assert exclusion_reason({**row, "choices": TEN[:9] + ["G and H"]}) == "option refers to other options"
+    # an option naming a block colour would be bound to a block of another colour
+    assert exclusion_reason({**row, "choices": TEN[:9] + ["The Red Sea"]}) == "option names a block colour"
 
 
-def _mmlu(i: int, subject: str, text: str, answer: str, others: tuple[str, ...]) -> Question:
-    return Question(text, answer, "mmlu", subject, choices=(answer, *others), origin=f"row {i}")
+def _pro(i: int, text: str, choices: list[str], answer: int = 0) -> dict:
+    return dict(question=text, choices=choices, answer=answer, id=i, src="stemez-toy", subject="toy", origin=f"row {i}")
 
 
-def test_padding_groups_shapes_and_blocked_answers():
-    qs = [_mmlu(i, subj, f"Question number {i} about topic {subj}?", f"ans{i}", (f"x{i}a", f"x{i}b", f"x{i}c"))
-          for i, subj in enumerate(["philosophy", "anatomy", "astronomy", "sociology"] * 6)]
-    # another row with question 0's text: its answer would be right for question 0 too
-    blocked = {question_key(qs[0].text): {option_key("ans5")}}
-    pad = Padding(qs, blocked)
-    owner = {c: i for i, q in enumerate(qs) for c in q.choices}
+def test_ten_own_options_and_four_without_a_twin_of_the_answer():
+    """General-10 shows the question's own ten; General-4 the answer and three of its nine, drawn
+    so that no shown option is a near twin of another (here "Increased heart rhythm" of the answer
+    "Increased heart rate": a twin on show would point at the answer it was written around)."""
+    ten = ["Increased heart rate", "Increased heart rhythm", "Lower body temperature", "Dry skin", "Blurred vision",
+           "Loss of appetite", "Muscle cramps", "Hair loss", "Tooth decay", "Night sweats"]
+    q = mmlu_pro.to_question(_pro(0, "What does adrenaline cause?", ten))
     rng = np.random.default_rng(0)
-    shapes = Counter()
-    for _ in range(400):
-        opts = pad.options(0, 10, rng)
-        assert opts[0] == "ans0" and len({option_key(o) for o in opts}) == 10
-        assert "ans5" not in opts
-        groups = Counter(owner[o] for o in opts)
-        shapes[groups[0]] += 1
-        assert sorted(groups.values()) == [2, 4, 4]
-        for k in groups:  # every group shows its own answer; padding comes from other subject areas
-            assert qs[k].answer in opts
-            assert k == 0 or area(qs[k].group) != area("philosophy")
-    assert shapes[2] / 400 == pytest.approx(0.2, abs=0.06)  # the asked group is the short one 2/10 of the time
+    seen = Counter()
+    for _ in range(500):
+        shown = mmlu_pro.options(q, 10, rng)
+        assert shown[0] == ten[0] and sorted(shown) == sorted(ten)  # General-10: the question's own ten
+        four = mmlu_pro.options(q, 4, rng)
+        assert four[0] == ten[0] and len(set(four)) == 4 and set(four) <= set(ten)
+        seen.update(four[1:])
+    assert "Increased heart rhythm" not in seen
+    assert len(seen) >= 5  # the three vary from episode to episode
+    with pytest.raises(ValueError, match="fewer than 10"):
+        mmlu_pro.options(mmlu_pro.to_question(_pro(1, "Q?", TEN[:4])), 10, rng)
+
+
+def test_questions_sharing_an_option_land_in_one_split():
+    rows = [_pro(i, f"Which of these words is listed in toy question number {i}?",
+                 [f"word{i}x{k}" for k in range(10)]) for i in range(60)]
+    for i in range(0, 60, 2):  # pairs of questions that share an option text
+        rows[i + 1]["choices"][3] = rows[i]["choices"][5]
+    by_split, _ = mmlu_pro.split_questions(rows, filtered=())
+    side = {q.text: s for s, qs in by_split.items() for q in qs}
+    assert len(side) == 60 and {len(by_split["train"]), len(by_split["test"])} != {0}
+    for i in range(0, 60, 2):
+        assert side[rows[i]["question"]] == side[rows[i + 1]["question"]]
+    # the shipped surface filter leaves questions out by content, whatever their ids
+    drop = {mmlu_pro.content_key(rows[0])}
+    kept, excluded = mmlu_pro.split_questions(rows, filtered=drop)
+    assert rows[0]["question"] not in {q.text for qs in kept.values() for q in qs}
+    assert excluded["answer found from the options alone (surface filter)"] == 1
+
+
+def test_balance_keeps_the_answers_rank_near_uniform():
+    """Answers that are always the longest option get thinned out until the longest is the
+    answer in about 1/10 of the kept questions."""
+    rng = np.random.default_rng(1)
+    qs = []
+    for i in range(3000):
+        words = [f"w{i}{k}" + "x" * int(rng.integers(0, 12)) for k in range(10)]
+        a = int(np.argmax([len(w) for w in words])) if i % 3 == 0 else int(rng.integers(10))
+        qs.append(mmlu_pro.to_question(_pro(i, f"Toy question {i}?", words, a)))
+    kept, dropped = mmlu_pro.balanced_selection(qs)
+
+    def longest(q):  # "pick the longest", ties split
+        lens = [len(c) for c in q.choices]
+        return (lens[q.choices.index(q.answer)] == max(lens)) / lens.count(max(lens))
+
+    before, longest = np.mean([longest(q) for q in qs]), np.mean([longest(q) for q in kept])
+    assert before > 0.3 and abs(longest - 0.1) < 0.02 and dropped > 500
+
+
+def test_every_general_option_is_free_of_block_colours(question_data):
+    """No General option names a block colour (an option "yellow" bound to the red block)."""
+    clear_cache()
+    pattern = mmlu_pro._BLOCK_COLOR
+    for split in ("train", "test"):
+        pool = EpisodeSampler("RSB-General-10", split, data_dir=question_data).pool
+        for i, q in enumerate(pool.questions):
+            texts = q.choices if q.choices else [q.answer] + [c for c, _ in pool.candidates[i][0]]
+            assert not any(pattern.search(t) for t in texts), (q.text, texts)
 
 
 @pytest.mark.parametrize("suite_id", ["RSB-HardMath-4", "RSB-HardMath-10"])
@@ -208,8 +261,11 @@ def test_fixture_pools_still_give_valid_options(suite_id):
 # ------------------------------------------------------------------ real data, many episodes
 
 
-@pytest.mark.parametrize("suite_id", ["RSB-Math-4", "RSB-Math-10", "RSB-HardMath-4", "RSB-HardMath-10",
-                                      "RSB-General-4", "RSB-General-10", "RSB-Direct-4", "RSB-Direct-10"])
+@pytest.mark.slow
+@pytest.mark.parametrize("suite_id", [
+    "RSB-Math-4", "RSB-Math-10", "RSB-Direct-4", "RSB-Direct-10",
+    *(pytest.param(s, marks=pytest.mark.data) for s in ("RSB-HardMath-4", "RSB-HardMath-10", "RSB-General-4",
+                                                         "RSB-General-10"))])
 def test_no_second_answer_in_50000_episodes(suite_id):
     d = None if suite_id.split("-")[1] in ("Math", "Direct") else _real_data_dir()
     s = EpisodeSampler(suite_id, "test", data_dir=d)

@@ -44,7 +44,7 @@ def register(subparsers) -> None:
                         "worker gives up (seed mode); default 20")
     p.add_argument("--instructions", default=None, help="env kwarg: seen / unseen instruction templates")
     p.add_argument("--color-map", default=None, help="env kwarg: fixed / shuffle (4-choice colours)")
-    p.add_argument("--data-dir", default=None, help="env kwarg: GSM8K / MMLU directory")
+    p.add_argument("--data-dir", default=None, help="env kwarg: GSM8K / MMLU-Pro directory")
     p.add_argument("--expert", default=DEFAULT_EXPERT, help=argparse.SUPPRESS)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("-v", "--verbose", action="store_true", help="log each failed seed with its reason")

@@ -18,7 +18,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="first seed (episodes use seed, seed+1, ...)")
     p.add_argument("--instructions", choices=INSTRUCTION_SETS, default=None, help="template set (default: seen for train, unseen for test)")
     p.add_argument("--color-map", choices=COLOR_MAPS, default="fixed")
-    p.add_argument("--data-dir", default=None, help="directory with gsm8k/ and mmlu/ (else $RSB_DATA_DIR, else hub cache)")
+    p.add_argument("--data-dir", default=None, help="directory with gsm8k/ and mmlu_pro/ (else $RSB_DATA_DIR, else hub cache)")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.set_defaults(func=cmd_questions)
 
@@ -26,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.add_argument("--data-dir", default=None)
     s.set_defaults(func=cmd_stats)
 
-    d = subparsers.add_parser("data", help="question data (GSM8K, MMLU)")
+    d = subparsers.add_parser("data", help="question data (GSM8K, MMLU-Pro)")
     dsub = d.add_subparsers(dest="data_command", metavar="ACTION")
     dl = dsub.add_parser("download", help="fetch and cache the pinned hub data for offline use")
     dl.add_argument("--export", default=None, metavar="DIR",
@@ -101,7 +101,7 @@ def cmd_stats(args: argparse.Namespace) -> int:
 
 
 def cmd_data_download(args: argparse.Namespace) -> int:
-    """Fetch the pinned GSM8K / MMLU hub files into the huggingface_hub cache."""
+    """Fetch the pinned GSM8K / MMLU-Pro hub files into the huggingface_hub cache."""
     from .data import download_hub_data
     from .errors import SemanticError
 

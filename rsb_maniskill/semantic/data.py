@@ -1,16 +1,16 @@
-"""Where GSM8K and MMLU come from: a data directory, else the pinned Hugging Face hub copy.
+"""Where GSM8K and MMLU-Pro come from: a data directory, else the pinned Hugging Face hub copy.
 
-Order (issue 3): ``data_dir`` argument, else ``$RSB_DATA_DIR`` -- a directory holding
-``gsm8k/{train,test}.jsonl`` and ``mmlu/{dev,test}/<subject>_<split>.csv`` in their original
-formats -- else the hub files at pinned revisions (cached by huggingface_hub, so the second run
-is offline), else :class:`DataNotFoundError` naming both ways. Readers return raw row dicts with
+Order: ``data_dir`` argument, else ``$RSB_DATA_DIR`` -- a directory holding
+``gsm8k/{train,test}.jsonl`` (GSM8K's original format) and ``mmlu_pro/data/test-*.parquet`` (the
+hub's layout) -- else the hub files at pinned revisions (cached by huggingface_hub, so the second
+run is offline), else :class:`DataNotFoundError` naming both ways. Readers return raw row dicts with
 their origin ("file, line N") so that every later error can point at the record.
 """
 from __future__ import annotations
 
-import csv
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -23,13 +23,13 @@ ENV_VAR = "RSB_DATA_DIR"
 GSM8K_REPO = "openai/gsm8k"
 GSM8K_REVISION = "cc7b047b6e5bb11b4f1af84efc572db110a51b3c"
 GSM8K_FILES = {"train": "main/train-00000-of-00001.parquet", "test": "main/test-00000-of-00001.parquet"}
-MMLU_REPO = "cais/mmlu"
-MMLU_REVISION = "c30699e8356da336a370243923dbaf21066bb9fe"
-MMLU_FILES = {"test": "all/test-00000-of-00001.parquet", "dev": "all/dev-00000-of-00001.parquet"}
-MMLU_SPLITS = ("dev", "test")  # the original release splits the project reads
+MMLU_PRO_REPO = "TIGER-Lab/MMLU-Pro"
+MMLU_PRO_REVISION = "b189ec765aa7ed75c8acfea42df31fdae71f97be"
+MMLU_PRO_FILE = "data/test-00000-of-00001.parquet"  # the test split: 12,032 questions (MIT)
 GSM8K_SPLITS = ("train", "test")
 
 Row = dict[str, Any]
+MMLU_PRO_FILE_IN_DIR = f"mmlu_pro/{MMLU_PRO_FILE}"
 
 
 def resolve_data_dir(data_dir: str | os.PathLike | None) -> Path | None:
@@ -43,8 +43,8 @@ def resolve_data_dir(data_dir: str | os.PathLike | None) -> Path | None:
 def _how_to_provide(what: str) -> str:
     return (f"{what} not found. Provide it either way: (1) a data directory passed as data_dir / "
             f"--data-dir or in ${ENV_VAR}, holding gsm8k/{{train,test}}.jsonl and "
-            f"mmlu/{{dev,test}}/<subject>_<split>.csv (original formats); or (2) the Hugging Face hub "
-            f"copy ({GSM8K_REPO}@{GSM8K_REVISION[:12]}, {MMLU_REPO}@{MMLU_REVISION[:12]}): run "
+            f"{MMLU_PRO_FILE_IN_DIR} (the hub's layout); or (2) the Hugging Face hub "
+            f"copy ({GSM8K_REPO}@{GSM8K_REVISION[:12]}, {MMLU_PRO_REPO}@{MMLU_PRO_REVISION[:12]}): run "
             f"`rsb data download` once on a machine with network (needs pip install 'rsb_maniskill[hub]'). "
             f"`rsb doctor` shows what this machine has.")
 
@@ -73,33 +73,24 @@ def read_gsm8k_jsonl(path: Path) -> list[Row]:
     return rows
 
 
-def read_mmlu_csv(path: Path, subject: str) -> list[Row]:
-    """MMLU rows from one original CSV (no header: question, A, B, C, D, answer letter)."""
+def read_mmlu_pro_rows(path: Path) -> list[Row]:
+    """MMLU-Pro rows ``{"question", "choices", "answer", "subject", "src", "id", "origin"}`` from the hub's
+    parquet file; a malformed row raises with file and row."""
     rows: list[Row] = []
-    with open(path, encoding="utf-8", newline="") as fh:
-        reader = csv.reader(fh)
-        start = 1
-        for rec in reader:
-            lineno = start  # first physical line of the record (fields may span lines)
-            start = reader.line_num + 1
-            if not rec or all(not f.strip() for f in rec):
-                continue
-            if len(rec) != 6:
-                raise SemanticDataError(path, lineno, f"expected 6 columns (question, A, B, C, D, answer), got {len(rec)}")
-            letter = rec[5].strip().upper()
-            if letter not in ("A", "B", "C", "D"):
-                raise SemanticDataError(path, lineno, f"answer must be one of A-D, got {rec[5]!r}")
-            rows.append(_mmlu_row(rec[0], rec[1:5], "ABCD".index(letter), subject, f"{path}, line {lineno}", path, lineno))
+    for i, rec in enumerate(read_parquet_rows(path), 1):
+        q, opts, ans = rec.get("question"), rec.get("options"), rec.get("answer_index")
+        if not isinstance(q, str) or not q.strip():
+            raise SemanticDataError(path, i, f"row {i}: missing or empty question")
+        if not isinstance(opts, list) or not opts or not all(isinstance(o, str) for o in opts):
+            raise SemanticDataError(path, i, f"row {i}: 'options' must be a list of texts, got {opts!r}")
+        if not isinstance(ans, int) or not 0 <= ans < len(opts):
+            raise SemanticDataError(path, i, f"row {i}: answer_index must be 0-{len(opts) - 1}, got {ans!r}")
+        letter = rec.get("answer")
+        if letter is not None and letter != "ABCDEFGHIJ"[ans]:
+            raise SemanticDataError(path, i, f"row {i}: answer {letter!r} disagrees with answer_index {ans}")
+        rows.append({"question": q, "choices": opts, "answer": ans, "subject": str(rec.get("category", "")),
+                     "src": str(rec.get("src", "")), "id": rec.get("question_id"), "origin": f"{path}, row {i}"})
     return rows
-
-
-def _mmlu_row(question: Any, choices: Any, answer: int, subject: str, origin: str, path: Any, line: int | None) -> Row:
-    if not isinstance(question, str) or not question.strip():
-        raise SemanticDataError(path, line, "missing or empty question")
-    choices = list(choices)
-    if len(choices) != 4 or not all(isinstance(c, str) for c in choices):
-        raise SemanticDataError(path, line, f"expected 4 text choices, got {choices!r}")
-    return {"question": question, "choices": choices, "answer": int(answer), "subject": subject, "origin": origin}
 
 
 def _gsm8k_dir_file(root: Path, split: str) -> Path:
@@ -109,16 +100,12 @@ def _gsm8k_dir_file(root: Path, split: str) -> Path:
     return path
 
 
-def _mmlu_dir_files(root: Path) -> Iterator[tuple[Path, str]]:
-    found = False
-    for split in MMLU_SPLITS:
-        folder = root / "mmlu" / split
-        for path in sorted(folder.glob(f"*_{split}.csv")):
-            found = True
-            yield path, path.name[: -len(f"_{split}.csv")]
-    if not found:
-        raise DataNotFoundError(f"no MMLU CSV under {root / 'mmlu'}/{{dev,test}}/ (data directory {root}). "
-                                + _how_to_provide("MMLU"))
+def _mmlu_pro_dir_files(root: Path) -> list[Path]:
+    files = sorted((root / "mmlu_pro" / "data").glob("test-*.parquet"))
+    if not files:
+        raise DataNotFoundError(f"no MMLU-Pro file {root / MMLU_PRO_FILE_IN_DIR} (data directory {root}). "
+                                + _how_to_provide("MMLU-Pro"))
+    return files
 
 
 # ---------------------------------------------------------------------------------------------
@@ -165,19 +152,6 @@ def _gsm8k_hub_rows(split: str) -> list[Row]:
     return rows
 
 
-def _mmlu_hub_rows() -> list[Row]:
-    rows = []
-    for split in MMLU_SPLITS:
-        path = hub_file(MMLU_REPO, MMLU_FILES[split], MMLU_REVISION)
-        for i, rec in enumerate(read_parquet_rows(path), 1):
-            ans = rec.get("answer")
-            if not isinstance(ans, int) or not 0 <= ans <= 3:
-                raise SemanticDataError(path, i, f"row {i}: answer must be an index 0-3, got {ans!r}")
-            rows.append(_mmlu_row(rec.get("question"), rec.get("choices") or [], ans, str(rec.get("subject", "")),
-                                  f"{path}, row {i}", path, i))
-    return rows
-
-
 # ---------------------------------------------------------------------------------------------
 # public entry points
 
@@ -192,21 +166,18 @@ def gsm8k_rows(split: str, data_dir: str | os.PathLike | None = None) -> list[Ro
     return _gsm8k_hub_rows(split)
 
 
-def mmlu_rows(data_dir: str | os.PathLike | None = None) -> list[Row]:
-    """All raw MMLU rows (dev + test, every subject) from the first source that has them."""
+def mmlu_pro_rows(data_dir: str | os.PathLike | None = None) -> list[Row]:
+    """All raw MMLU-Pro test rows from the first source that has them."""
     root = resolve_data_dir(data_dir)
-    if root is not None:
-        rows: list[Row] = []
-        for path, subject in _mmlu_dir_files(root):
-            rows.extend(read_mmlu_csv(path, subject))
-        return rows
-    return _mmlu_hub_rows()
+    paths = _mmlu_pro_dir_files(root) if root is not None else [
+        hub_file(MMLU_PRO_REPO, MMLU_PRO_FILE, MMLU_PRO_REVISION)]
+    return [row for path in paths for row in read_mmlu_pro_rows(path)]
 
 
 def data_source_label(data_dir: str | os.PathLike | None = None) -> str:
     """Human-readable description of where data would be read from (for `rsb stats`)."""
     root = resolve_data_dir(data_dir)
-    return f"directory {root}" if root is not None else f"hub cache ({GSM8K_REPO}, {MMLU_REPO}, pinned)"
+    return f"directory {root}" if root is not None else f"hub cache ({GSM8K_REPO}, {MMLU_PRO_REPO}, pinned)"
 
 
 def download_hub_data(export_dir: str | os.PathLike | None = None) -> dict[str, Path]:
@@ -215,8 +186,7 @@ def download_hub_data(export_dir: str | os.PathLike | None = None) -> dict[str, 
     paths: dict[str, Path] = {}
     for split, fn in GSM8K_FILES.items():
         paths[f"gsm8k/{split}"] = hub_file(GSM8K_REPO, fn, GSM8K_REVISION)
-    for split, fn in MMLU_FILES.items():
-        paths[f"mmlu/{split}"] = hub_file(MMLU_REPO, fn, MMLU_REVISION)
+    paths["mmlu_pro"] = hub_file(MMLU_PRO_REPO, MMLU_PRO_FILE, MMLU_PRO_REVISION)
     if export_dir is not None:
         root = Path(export_dir)
         for split in GSM8K_SPLITS:
@@ -225,14 +195,7 @@ def download_hub_data(export_dir: str | os.PathLike | None = None) -> dict[str, 
             with open(out, "w", encoding="utf-8") as fh:
                 for rec in read_parquet_rows(paths[f"gsm8k/{split}"]):
                     fh.write(json.dumps({"question": rec["question"], "answer": rec["answer"]}) + "\n")
-        for split in MMLU_SPLITS:
-            by_subject: dict[str, list[list[str]]] = {}
-            for rec in read_parquet_rows(paths[f"mmlu/{split}"]):
-                by_subject.setdefault(str(rec["subject"]), []).append(
-                    [rec["question"], *rec["choices"], "ABCD"[int(rec["answer"])]])
-            folder = root / "mmlu" / split
-            folder.mkdir(parents=True, exist_ok=True)
-            for subject, recs in sorted(by_subject.items()):
-                with open(folder / f"{subject}_{split}.csv", "w", encoding="utf-8", newline="") as fh:
-                    csv.writer(fh).writerows(recs)
+        out = root / MMLU_PRO_FILE_IN_DIR
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(paths["mmlu_pro"], out)  # the hub's file as it is: the directory layout is the hub's
     return paths

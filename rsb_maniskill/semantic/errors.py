@@ -13,7 +13,7 @@ class SemanticError(Exception):
 
 
 class DataNotFoundError(SemanticError, FileNotFoundError):
-    """GSM8K / MMLU data could be found neither in a data directory nor in the hub cache."""
+    """GSM8K / MMLU-Pro data could be found neither in a data directory nor in the hub cache."""
 
 
 class SemanticDataError(SemanticError, ValueError):

@@ -1,7 +1,7 @@
 """Normal forms of options and questions: when two texts mean the same thing on the surface.
 
 Used for duplicate options (an option set must have exactly one correct member), for the
-MMLU train/test split (near-duplicate questions fall on one side) and by ``rsb audit``.
+MMLU-Pro train/test split (near-duplicate questions fall on one side) and by ``rsb audit``.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Question pools per (suite, split, data source), loaded once per process.
 
-The 4- and 10-choice suites of a subset share one pool (paper section 4.1).
+The 4- and 10-choice suites of a subset share one pool.
 """
 from __future__ import annotations
 
@@ -10,17 +10,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import commonsense, mmlu
-from .data import mmlu_rows, resolve_data_dir
+from . import commonsense, mmlu_pro
+from .data import mmlu_pro_rows, resolve_data_dir
 from .distractors import Bins, value_bins
 from .gsm8k import gsm8k_pool
 from .math_source import math_pool
-from .mmlu_padding import Padding
-from .normalize import option_key, question_key
 from .records import Question
 from .suites import SUITES, check_split
-
-GENERAL_TRAIN_SIZE = 10_000
 
 
 @dataclass
@@ -35,9 +31,6 @@ class Pool:
     source_counts: dict[str, int] = field(default_factory=dict)
     excluded: Counter = field(default_factory=Counter)
     _bins: dict[tuple[int, str, int], Bins | None] = field(default_factory=dict, repr=False)
-    answers_by_question: dict[str, set[str]] = field(default_factory=dict, repr=False)  # MMLU, both splits
-    mmlu_start: int = 0  # General: the MMLU questions follow the commonsense ones
-    _padding: Padding | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.questions)
@@ -54,19 +47,9 @@ class Pool:
                 self._bins[key] = None
         return self._bins[key]
 
-    def mmlu_options(self, qi: int, n: int, rng: np.random.Generator) -> list[str]:
-        """N options of the MMLU question ``qi`` (answer first): its own four, or for N > 4 the
-        option groups of three questions (mmlu_padding.py)."""
-        q = self.questions[qi]
-        if n <= len(q.choices):
-            return [q.answer, *(c for c in q.choices if c != q.answer)]
-        if self._padding is None:
-            self._padding = Padding(self.questions[self.mmlu_start:], self.answers_by_question)
-        return self._padding.options(qi - self.mmlu_start, n, rng)
-
 
 _POOLS: dict[tuple[str, str, str], Pool] = {}
-_MMLU: dict[str, tuple[dict[str, list[Question]], Counter]] = {}
+_MMLU_PRO: dict[str, tuple[dict[str, list[Question]], Counter]] = {}
 
 
 def _dir_key(data_dir: str | os.PathLike | None) -> str:
@@ -74,26 +57,21 @@ def _dir_key(data_dir: str | os.PathLike | None) -> str:
     return str(root.resolve()) if root is not None else "hub"
 
 
-def _mmlu_split(data_dir: str | os.PathLike | None) -> tuple[dict[str, list[Question]], Counter]:
+def _mmlu_pro_split(data_dir: str | os.PathLike | None) -> tuple[dict[str, list[Question]], Counter]:
     key = _dir_key(data_dir)
-    if key not in _MMLU:
-        _MMLU[key] = mmlu.split_mmlu(mmlu_rows(data_dir))
-    return _MMLU[key]
+    if key not in _MMLU_PRO:
+        _MMLU_PRO[key] = mmlu_pro.split_questions(mmlu_pro_rows(data_dir))
+    return _MMLU_PRO[key]
 
 
 def _general(split: str, data_dir: str | os.PathLike | None) -> Pool:
     cs = commonsense.commonsense_pool(split)
-    by_split, excluded = _mmlu_split(data_dir)
-    limit = GENERAL_TRAIN_SIZE - len(cs) if split == "train" else None
-    mq = mmlu.balanced_selection(by_split[split], limit)
+    by_split, excluded = _mmlu_pro_split(data_dir)
+    mq, dropped = mmlu_pro.balanced_selection(by_split[split])
+    excluded = excluded + Counter({"answer rank balance (this split)": dropped}) if dropped else excluded
     questions = tuple(item.question for item in cs) + tuple(mq)
     cands = tuple((item.candidates, item.answer_weight) for item in cs) + (None,) * len(mq)
-    answers: dict[str, set[str]] = {}
-    for qs in by_split.values():
-        for q in qs:
-            answers.setdefault(question_key(q.text), set()).add(option_key(q.answer))
-    return Pool("General", split, questions, cands, {"commonsense": len(cs), "mmlu": len(mq)}, excluded,
-                answers_by_question=answers, mmlu_start=len(cs))
+    return Pool("General", split, questions, cands, {"commonsense": len(cs), "mmlu_pro": len(mq)}, excluded)
 
 
 def get_pool(suite: str, split: str, data_dir: str | os.PathLike | None = None) -> Pool:
@@ -118,6 +96,6 @@ def get_pool(suite: str, split: str, data_dir: str | os.PathLike | None = None) 
 def clear_cache() -> None:
     """Forget loaded pools (tests; after changing $RSB_DATA_DIR)."""
     _POOLS.clear()
-    _MMLU.clear()
+    _MMLU_PRO.clear()
     math_pool.cache_clear()
     commonsense.commonsense_pool.cache_clear()

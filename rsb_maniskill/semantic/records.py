@@ -10,13 +10,13 @@ class Question:
 
     Numeric questions (Math, GSM8K) carry ``value``, the answer in units of 10**-decimals; their
     distractors are answers of other questions of the same ``group`` (Math: the operation).
-    Text questions carry ``choices`` (MMLU's own options, answer included) and/or ``group``
+    Text questions carry ``choices`` (MMLU-Pro's own ten, answer included) and/or ``group``
     (subject or knowledge category).
     """
 
     text: str
     answer: str
-    source: str  # "math" | "gsm8k" | "mmlu" | "commonsense"
+    source: str  # "math" | "gsm8k" | "mmlu_pro" | "commonsense"
     group: str = ""
     value: int | None = None
     decimals: int = 0

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..objects.family import get_family
 from ..perturb import axis_rng, language, parse_perturb
-from . import wording
+from . import mmlu_pro, wording
 from .distractors import numeric_options, weighted_options
 from .pools import Pool, get_pool
 from .records import Question, format_number
@@ -19,7 +19,7 @@ from .templates import get_template, render_direct, render_instruction, template
 
 
 def _sentence(text: str) -> str:
-    """Text closed by exactly one full stop (MMLU options often end with their own)."""
+    """Text closed by exactly one full stop (MMLU-Pro options often end with their own)."""
     return text if text[-1:] in ".!?" else text + "."
 
 
@@ -124,7 +124,7 @@ class EpisodeSampler:
             rationale = f"{q.solution} {binding}"
         elif q.source == "gsm8k":
             rationale = f"{q.solution} The answer is {_sentence(q.answer)} {binding}"
-        else:  # MMLU, commonsense (the latter states its fact first)
+        else:  # MMLU-Pro, commonsense (the latter states its fact first)
             rationale = f"{q.solution} The answer is {_sentence(q.answer)} {binding}".lstrip()
         return EpisodeSpec(self.suite_id, self.suite, n, self.split, seed, qi, q.text, ordered, self.letters, slot,
                            letter, block_of_option, names, cands.keys, instruction, template_id, rationale)
@@ -155,7 +155,7 @@ class EpisodeSampler:
         if q.numeric:
             values = numeric_options(q.value, self.pool.value_bins(n, q.group, q.decimals), n, rng)
             return [format_number(v, q.decimals) for v in values]
-        if q.source == "mmlu":
-            return self.pool.mmlu_options(qi, n, rng)
+        if q.source == "mmlu_pro":
+            return mmlu_pro.options(q, n, rng)
         cands, weight = self.pool.candidates[qi]
         return weighted_options(q.answer, cands, weight, n, rng)

@@ -16,7 +16,7 @@ COLOR_MAPS: tuple[str, ...] = ("fixed", "shuffle")
 SUITE_SOURCES: dict[str, str] = {
     "Math": "procedural arithmetic",
     "HardMath": "GSM8K",
-    "General": "commonsense table + MMLU",
+    "General": "commonsense table + MMLU-Pro",
     "Direct": "target named in the instruction",
 }
 

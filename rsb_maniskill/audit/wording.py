@@ -2,7 +2,9 @@
 
 A language axis rewrites only how the instruction says things; if a rewording put the correct
 option somewhere special (first, last, repeated, next to an added sentence), these would find it.
-None solves the question; each scores the options by where their text stands in the instruction.
+None solves the question; each scores the options by where their text stands in the instruction,
+and each abstains on an instruction that does not write every option (Direct suites: the
+instruction names the target, by design).
 """
 from __future__ import annotations
 
@@ -32,6 +34,10 @@ def _last(sp: EpisodeSpec) -> Scores:
 
 
 def _repeated(sp: EpisodeSpec) -> Scores:
+    # Only where the instruction lists every option: a Direct instruction names its target and no
+    # other candidate (the task, not a shortcut), so counting there would read the answer itself.
+    if _positions(sp) is None:
+        return None
     return [float(sp.instruction.count(normalize_text(o))) for o in sp.options]
 
 

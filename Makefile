@@ -2,7 +2,7 @@
 VENV ?= .venv
 PY := $(VENV)/bin/python
 
-.PHONY: setup demo test test-fast
+.PHONY: setup demo test test-fast lint
 
 setup:
 	@bash scripts/setup.sh
@@ -15,3 +15,6 @@ test: setup
 
 test-fast: setup
 	$(PY) -m pytest -ra -m "not slow"
+
+lint: setup
+	$(VENV)/bin/ruff check .

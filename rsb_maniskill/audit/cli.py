@@ -28,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="audit your own episodes: EpisodeSpec JSON lines (e.g. `rsb questions --json`) with "
                         "split train (probe training) and test (audited), grouped by suite_id")
     p.add_argument("--data-dir", default=None,
-                   help="directory with gsm8k/ and mmlu/ (else $RSB_DATA_DIR, else hub cache)")
+                   help="directory with gsm8k/ and mmlu_pro/ (else $RSB_DATA_DIR, else hub cache)")
     p.add_argument("--perturb", nargs="+", default=[], metavar="AXIS=LEVEL",
                    help="audit the episodes worded under language robustness axes (lang_reference, lang_layout, "
                         "lang_distractor, lang_order; levels 0-3), e.g. --perturb lang_layout=3; 'all' audits "

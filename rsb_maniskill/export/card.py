@@ -18,7 +18,7 @@ from typing import Any
 QUESTION_SOURCES = {
     "Math": ("procedural two-operand arithmetic written by rsb_maniskill", "MIT"),
     "HardMath": ("GSM8K word problems (openai/gsm8k, MIT)", "MIT"),
-    "General": ("a commonsense knowledge table written by rsb_maniskill, and MMLU (cais/mmlu, MIT)", "MIT"),
+    "General": ("a commonsense knowledge table written by rsb_maniskill and MMLU-Pro (TIGER-Lab/MMLU-Pro, MIT)", "MIT"),
     "Direct": ("none: the instruction names the target", "MIT"),
 }
 
@@ -102,7 +102,8 @@ episode's instruction is its task string.
 | episodes / frames | {info['total_episodes']} / {info['total_frames']} at {info['fps']} fps |
 | questions without a demo | {len(skipped)} (the expert failed on {settings['max_attempts']} seeds) |
 | cameras | {', '.join(f"`{c}`" for c in cameras)} |
-| state / action | `observation.state`, `action`: Aloha 14 numbers [left arm 6, left gripper, right arm 6, right gripper], grippers in [0, 1] (absolute joint targets) |
+| state / action | `observation.state`, `action`: Aloha 14 numbers [left arm 6, left gripper, right arm 6, \
+right gripper], grippers in [0, 1] (absolute joint targets) |
 | seeds | question q is episode seed q (+ k x pool size after k failed attempts); `rsb/seed` per episode |
 
 Per-episode RSB metadata is in `meta/episodes` (`rsb/question`, `rsb/options`, `rsb/correct_letter`,

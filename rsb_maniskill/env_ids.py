@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
+from rsb_maniskill.objects.family import DEFAULT_TARGETS, FAMILIES, OBJECTS_SUFFIX, split_env_id
 from rsb_maniskill.semantic.suites import SUITE_IDS
 
 MODULE = "rsb_maniskill"
@@ -27,10 +27,11 @@ PAPER_OBJECT_SUITES: tuple[str, ...] = tuple(s + OBJECTS_SUFFIX for s in PAPER_S
 SUITE_GROUPS: dict[str, tuple[str, ...]] = {
     "paper": PAPER_SUITES, "all": SUITE_IDS, "paper-objects": PAPER_OBJECT_SUITES, "all-objects": OBJECT_ENV_IDS,
 }
-# answer-selection id -> default kwargs of its task class
+# answer-selection id -> default kwargs of its task class: every suite with every candidate family
+# (the default family's ids carry no suffix and no ``targets``)
 TASK_ENVS: dict[str, dict[str, Any]] = {
-    **{sid: {"suite_id": sid} for sid in SUITE_IDS},
-    **{eid: {"suite_id": eid[: -len(OBJECTS_SUFFIX)], "targets": "objects"} for eid in OBJECT_ENV_IDS},
+    sid + fam.suffix: {"suite_id": sid, **({} if fam.name == DEFAULT_TARGETS else {"targets": fam.name})}
+    for fam in FAMILIES.values() for sid in SUITE_IDS
 }
 # every id -> (max_episode_steps, default kwargs), as registered with ManiSkill and gymnasium
 ENVS: dict[str, tuple[int, dict[str, Any]]] = {
@@ -53,8 +54,9 @@ def resolve_env_ids(names: str | list[str] | tuple[str, ...]) -> list[str]:
     for name in (n.strip() for n in names):
         for eid in SUITE_GROUPS.get(name, (name.split(":", 1)[-1],)):
             if split_env_id(eid)[0] not in SUITE_IDS:
+                sfx = " or ".join(repr(f.suffix) for f in FAMILIES.values() if f.suffix)
                 raise ValueError(f"unknown suite {name!r}; valid: a suite id ({', '.join(SUITE_IDS)}), the same with "
-                                 f"{OBJECTS_SUFFIX!r}, or a group ({', '.join(SUITE_GROUPS)})")
+                                 f"{sfx}, or a group ({', '.join(SUITE_GROUPS)})")
             if eid not in out:
                 out.append(eid)
     return out

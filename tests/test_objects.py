@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from rsb_maniskill.objects import catalog
+from rsb_maniskill.objects import family as fam
 from rsb_maniskill.objects.family import BlockFamily, ObjectFamily, get_family
 from rsb_maniskill.semantic import EpisodeSampler
 from rsb_maniskill.tasks.layout import CELL_MARGIN
@@ -48,6 +49,47 @@ def test_unknown_object_key_is_clear():
         catalog.model("mug:7")
     with pytest.raises(ValueError, match="valid: blocks, objects"):
         get_family("lego")
+
+
+def test_registry_lists_both_families_with_their_suffixes():
+    import rsb_maniskill.objects as objects
+
+    assert fam.target_names() == objects.TARGETS == fam.TARGETS == ("blocks", "objects")
+    assert {n: f.suffix for n, f in fam.FAMILIES.items()} == {"blocks": "", "objects": "-Objects"}
+    assert fam.OBJECTS_SUFFIX == "-Objects"
+    assert fam.split_env_id("rsb_maniskill:RSB-Math-4-Objects") == ("RSB-Math-4", "objects")
+    assert fam.split_env_id("RSB-Math-4") == ("RSB-Math-4", "blocks")
+    assert fam.join_env_id("RSB-Math-4", "objects") == "RSB-Math-4-Objects"
+    assert fam.family_of_keys(["block:red", "block:F"]) == "blocks"
+    assert fam.family_of_keys(["mug:2", "apple:0"]) == "objects"
+    with pytest.raises(ValueError, match="no candidate family"):
+        fam.family_of_keys(["block:red", "mug:2"])
+    assert fam.get_family("blocks").builder.endswith(":build_block")
+    assert fam.get_family("objects").builder.endswith(":build_object")
+    with pytest.raises(ValueError, match="clashes"):
+        fam.register_family(ObjectFamily())
+
+
+def test_a_new_family_is_one_registration():
+    class Toys(BlockFamily):
+        name, suffix = "toys", "-Toys"
+        builder = "rsb_maniskill.objects.blocks:build_block"
+
+        def owns(self, key):
+            return key.startswith("toy:")
+
+    fam.register_family(Toys())
+    try:
+        assert fam.split_env_id("RSB-Math-4-Toys") == ("RSB-Math-4", "toys")
+        assert isinstance(get_family("toys"), Toys) and "toys" in fam.TARGETS
+        assert fam.family_of_keys(["toy:1"]) == "toys"
+        assert fam.split_env_id("RSB-Math-4-Objects") == ("RSB-Math-4", "objects")
+    finally:
+        fam.unregister_family("toys")
+    assert fam.target_names() == ("blocks", "objects")
+    assert fam.split_env_id("RSB-Math-4-Toys") == ("RSB-Math-4-Toys", "blocks")
+    with pytest.raises(ValueError, match="unknown targets 'toys'"):
+        get_family("toys")
 
 
 def test_block_family_is_the_old_blocks():

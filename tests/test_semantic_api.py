@@ -85,11 +85,28 @@ def test_shuffle_color_map_varies():
     assert len(maps) > 10
 
 
+def test_spec_records_its_targets():
+    for targets in ("blocks", "objects"):
+        spec = EpisodeSampler("RSB-Math-4", targets=targets).sample(3)
+        assert spec.targets == targets
+        d = json.loads(json.dumps(spec.to_dict()))
+        assert d["targets"] == targets and EpisodeSpec.from_dict(d) == spec
+        old = {k: v for k, v in d.items() if k != "targets"}  # written before ``targets``
+        assert EpisodeSpec.from_dict(old) == spec
+        older = {k: v for k, v in old.items() if k != "candidates"}
+        if targets == "blocks":  # written before ``candidates``: blocks
+            assert EpisodeSpec.from_dict(older) == spec
+
+
 def test_from_dict_rejects_bad_input():
     spec = EpisodeSampler("RSB-Math-4").sample(0)
     d = spec.to_dict()
     d.pop("rationale")
     with pytest.raises(ValueError, match="rationale"):
+        EpisodeSpec.from_dict(d)
+    d = spec.to_dict()
+    d["family"] = "blocks"
+    with pytest.raises(ValueError, match="family"):
         EpisodeSpec.from_dict(d)
     d = spec.to_dict()
     d["correct_letter"] = "Z"

@@ -337,11 +337,11 @@ def _suite_plan(cfg: BuildConfig) -> list[tuple[str, int, int, int]]:
     from rsb_maniskill.env_ids import resolve_env_ids
     from rsb_maniskill.motionplan.config import GenerateError
     from rsb_maniskill.motionplan.shards import question_list
-    from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
+    from rsb_maniskill.objects.family import DEFAULT_TARGETS, join_env_id, split_env_id, target_names
     from rsb_maniskill.semantic import EpisodeSampler, SemanticError
 
-    if cfg.targets not in ("blocks", "objects"):
-        raise ExportError(f"unknown --targets {cfg.targets!r}; valid: blocks, objects")
+    if cfg.targets not in target_names():
+        raise ExportError(f"unknown --targets {cfg.targets!r}; valid: {', '.join(target_names())}")
     if cfg.shard_size < 1 or cfg.num_procs < 1:
         raise ExportError(f"--shard-size and --num-procs must be >= 1, got {cfg.shard_size} and {cfg.num_procs}")
     try:
@@ -351,8 +351,8 @@ def _suite_plan(cfg: BuildConfig) -> list[tuple[str, int, int, int]]:
     plan = []
     for eid in env_ids:
         suite_id, targets = split_env_id(eid)
-        if cfg.targets == "objects":
-            eid, targets = suite_id + OBJECTS_SUFFIX, "objects"
+        if cfg.targets != DEFAULT_TARGETS:  # --targets other than the default: every suite with that family
+            eid, targets = join_env_id(suite_id, cfg.targets), cfg.targets
         try:
             pool = EpisodeSampler(suite_id, split=cfg.split, targets=targets, data_dir=cfg.data_dir).num_questions
             qs = question_list(cfg.questions, pool, None)

@@ -47,7 +47,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     b.add_argument("--suites", default="paper",
                    help="comma-separated suite ids or groups: paper (the six of the paper), all, paper-objects, "
                         "all-objects, RSB-Math-4, ... (default paper)")
-    b.add_argument("--targets", choices=("blocks", "objects"), default="blocks",
+    from rsb_maniskill.objects.family import DEFAULT_TARGETS, target_names
+
+    b.add_argument("--targets", choices=target_names(), default=DEFAULT_TARGETS,
                    help="blocks, or the Beyond Blocks everyday objects (the -Objects ids)")
     b.add_argument("--split", default="train", help="question split (default train)")
     b.add_argument("--questions", default="all", help="'all' or START:STOP of the split's questions (default all)")

@@ -40,13 +40,13 @@ __all__ = ["GenerateConfig", "GenerateError", "GenerateSummary", "describe", "ge
 
 def _validate(cfg: GenerateConfig) -> int:
     """Checks everything knowable before any file is written; returns the pool size."""
-    from rsb_maniskill.objects.family import OBJECTS_SUFFIX, split_env_id
+    from rsb_maniskill.objects.family import FAMILIES, split_env_id
     from rsb_maniskill.semantic import SUITE_IDS, EpisodeSampler, SemanticError
 
     suite_id, targets = split_env_id(cfg.env_id)
     if suite_id not in SUITE_IDS:
-        raise GenerateError(f"unknown suite {cfg.env_id!r}; valid: {', '.join(SUITE_IDS)}, "
-                            f"each also with {OBJECTS_SUFFIX!r}")
+        sfx = " or ".join(repr(f.suffix) for f in FAMILIES.values() if f.suffix)
+        raise GenerateError(f"unknown suite {cfg.env_id!r}; valid: {', '.join(SUITE_IDS)}, each also with {sfx}")
     if cfg.questions is None and (cfg.num is None or cfg.num < 1):
         raise GenerateError("give -n N (number of demos) or --questions all")
     if cfg.num is not None and cfg.num < 1:

@@ -6,6 +6,13 @@ convex parts with grasp frames). With the simulator: ``pool`` builds a family's 
 and places, parks and reads the candidates of each parallel env (``blocks`` and ``everyday``
 build the actors). See docs/objects.md.
 """
-from rsb_maniskill.objects.family import TARGETS, get_family
+from rsb_maniskill.objects import family as _family
+from rsb_maniskill.objects.family import get_family, register_family
 
-__all__ = ["TARGETS", "get_family"]
+__all__ = ["TARGETS", "get_family", "register_family"]
+
+
+def __getattr__(attr: str):  # TARGETS follows the family registry
+    if attr == "TARGETS":
+        return _family.target_names()
+    raise AttributeError(f"module {__name__!r} has no attribute {attr!r}")

@@ -4,11 +4,17 @@ A family draws the N candidates of an episode (asset keys and the names the inst
 says which noun the templates use ("block", "object"), whether its candidates carry the option
 letters themselves (the 10 lettered blocks), and gives the geometry that the task's layout and
 the expert need. Importable without sapien or torch: the semantic sampler uses it.
+
+Families live in a registry (:func:`register_family`): each declares its name (the ``targets``
+string), its env-id suffix (``""`` for blocks, ``"-Objects"`` for everyday objects), which asset
+keys it owns and its actor builder (``"module:function"``, imported only when a scene is built).
+A new family is one class and one registration.
 """
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -22,18 +28,7 @@ BLOCK_COLORS: dict[str, tuple[float, float, float]] = {  # RGB of the 4-choice b
     "blue": (0.12, 0.30, 0.85),
     "yellow": (0.95, 0.82, 0.10),
 }
-TARGETS: tuple[str, ...] = ("blocks", "objects")
-OBJECTS_SUFFIX = "-Objects"  # env id of a suite with everyday objects: "RSB-Math-4-Objects"
-
-
-def split_env_id(env_id: str) -> tuple[str, str]:
-    """``"RSB-Math-4-Objects"`` -> ``("RSB-Math-4", "objects")``; other ids -> ``(id, "blocks")``.
-
-    Does not check the suite: ``semantic.parse_suite_id`` does."""
-    eid = env_id.split(":", 1)[-1]
-    if eid.endswith(OBJECTS_SUFFIX):
-        return eid[:-len(OBJECTS_SUFFIX)], "objects"
-    return eid, "blocks"
+DEFAULT_TARGETS = "blocks"  # the family of env ids without a family suffix ("RSB-Math-4")
 
 
 @dataclass(frozen=True)
@@ -68,13 +63,18 @@ class Layout:
 class BlockFamily:
     """Four coloured cubes (4-choice) or ten cubes carrying the option letters (10-choice)."""
 
-    name = "blocks"
+    name, suffix = "blocks", ""
+    builder = "rsb_maniskill.objects.blocks:build_block"
     noun, nouns = "block", "blocks"
     # 7.4 cm or more between neighbouring centres; letters stay upright enough to read.
     layout = Layout(pitch=(0.10, 0.09), pos_jitter=0.008, yaw_jitter=0.2, yaw_choices=(0.0,))
 
     def lettered(self, n: int) -> bool:
         return n == 10
+
+    def owns(self, key: str) -> bool:
+        """True when ``key`` is an asset key of this family ("block:red", "block:F")."""
+        return key.startswith("block:")
 
     def draw(self, n: int, letters: Sequence[str], rng: np.random.Generator | None = None) -> CandidateSet:
         """Always the same blocks (block i = colour i or letter i); ``rng`` is not used."""
@@ -101,7 +101,8 @@ class BlockFamily:
 class ObjectFamily:
     """Everyday objects (Beyond Blocks): N distinct categories an episode, each in a random variant."""
 
-    name = "objects"
+    name, suffix = "objects", "-Objects"
+    builder = "rsb_maniskill.objects.everyday:build_object"
     noun, nouns = "object", "objects"
     # Long sides roughly along x (either way round): the grasp across them keeps the wrist within
     # reach at the edges of the layout.
@@ -109,6 +110,10 @@ class ObjectFamily:
 
     def lettered(self, n: int) -> bool:
         return False
+
+    def owns(self, key: str) -> bool:
+        """True when ``key`` is an everyday model's key ("mug:2")."""
+        return key.split(":", 1)[0] in catalog.CATEGORY_KEYS
 
     def draw(self, n: int, letters: Sequence[str], rng: np.random.Generator) -> CandidateSet:
         """N distinct categories in random order, each in a random variant: every category is
@@ -126,11 +131,79 @@ class ObjectFamily:
         return Shape(rest_z=0.0, half_extents=m.half_extents, height=m.height, grasps=m.grasps)
 
 
-FAMILIES = {"blocks": BlockFamily(), "objects": ObjectFamily()}
+FAMILIES: dict[str, Any] = {}  # name -> family, in registration order (blocks first)
 
 
-def get_family(targets: str) -> BlockFamily | ObjectFamily:
+def register_family(family: Any) -> Any:
+    """Adds ``family`` to the registry and returns it. A family has ``name`` (the ``targets``
+    string), ``suffix`` (of its env ids; ``""`` only for the default family), ``builder``
+    (``"module:function"`` building one actor: ``(scene, key, name, pose[, scene_idxs])``),
+    ``noun``/``nouns``, ``layout`` and the methods of :class:`BlockFamily`. A name or a suffix
+    already taken raises ValueError."""
+    for other in FAMILIES.values():
+        if other.name == family.name or other.suffix == family.suffix:
+            raise ValueError(f"family {family.name!r} (suffix {family.suffix!r}) clashes with {other.name!r}")
+    FAMILIES[family.name] = family
+    return family
+
+
+def unregister_family(name: str) -> None:
+    """Removes a family added with :func:`register_family` (tests); the default family stays."""
+    if name == DEFAULT_TARGETS:
+        raise ValueError(f"the default family {name!r} cannot be removed")
+    FAMILIES.pop(name, None)
+
+
+def target_names() -> tuple[str, ...]:
+    """The registered family names, in registration order: ``("blocks", "objects")``."""
+    return tuple(FAMILIES)
+
+
+def __getattr__(attr: str) -> Any:  # TARGETS follows the registry
+    if attr == "TARGETS":
+        return target_names()
+    raise AttributeError(f"module {__name__!r} has no attribute {attr!r}")
+
+
+def get_family(targets: str) -> Any:
     """The family named ``targets`` ("blocks" or "objects"); ValueError lists the valid names."""
     if targets not in FAMILIES:
-        raise ValueError(f"unknown targets {targets!r}; valid: {', '.join(TARGETS)}")
+        raise ValueError(f"unknown targets {targets!r}; valid: {', '.join(FAMILIES)}")
     return FAMILIES[targets]
+
+
+def split_env_id(env_id: str) -> tuple[str, str]:
+    """``"RSB-Math-4-Objects"`` -> ``("RSB-Math-4", "objects")``: the id without its family's suffix,
+    and the family's name; ids without a registered suffix -> ``(id, "blocks")``.
+
+    Does not check the suite: ``semantic.parse_suite_id`` does."""
+    eid = env_id.split(":", 1)[-1]
+    for fam in sorted(FAMILIES.values(), key=lambda f: -len(f.suffix)):
+        if fam.suffix and eid.endswith(fam.suffix):
+            return eid[:-len(fam.suffix)], fam.name
+    return eid, DEFAULT_TARGETS
+
+
+def join_env_id(suite_id: str, targets: str) -> str:
+    """``("RSB-Math-4", "objects")`` -> ``"RSB-Math-4-Objects"`` (inverse of :func:`split_env_id`)."""
+    return suite_id + get_family(targets).suffix
+
+
+def family_of_keys(keys: Sequence[str]) -> str:
+    """The name of the family owning every asset key in ``keys`` (``["block:red", ...]`` -> "blocks");
+    ValueError when none does."""
+    for fam in FAMILIES.values():
+        if all(fam.owns(k) for k in keys):
+            return fam.name
+    raise ValueError(f"no candidate family owns all of {list(keys)}; families: {', '.join(FAMILIES)}")
+
+
+def actor_builder(family: Any) -> Callable[..., Any]:
+    """The function building one actor of ``family`` (imports the simulator module on first use)."""
+    module, _, func = family.builder.partition(":")
+    return getattr(importlib.import_module(module), func)
+
+
+register_family(BlockFamily())
+register_family(ObjectFamily())
+OBJECTS_SUFFIX = FAMILIES["objects"].suffix  # "RSB-Math-4-Objects"

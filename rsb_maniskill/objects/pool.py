@@ -7,7 +7,7 @@ table). Different envs may hold different candidates (``index`` is per env), on 
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import sapien
@@ -18,14 +18,14 @@ from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 
 from rsb_maniskill.compat import entities, physx_bodies
-from rsb_maniskill.objects.family import BlockFamily, ObjectFamily, Shape
+from rsb_maniskill.objects.family import Shape, actor_builder
 
 
 class CandidatePool:
     """Pool members ``keys`` (K), the per-env candidate -> member map ``index`` (B, N) and the
     geometry the task and expert read, gathered per candidate."""
 
-    def __init__(self, family: BlockFamily | ObjectFamily, n: int, letters: Sequence[str], num_envs: int,
+    def __init__(self, family: Any, n: int, letters: Sequence[str], num_envs: int,
                  device: torch.device | str):
         self.family, self.n, self.num_envs, self.device = family, n, num_envs, device
         self.keys = family.pool_keys(n, letters)
@@ -50,10 +50,7 @@ class CandidatePool:
     def build(self, scene: ManiSkillScene, park_xyz: np.ndarray, per_env_materials: bool = False) -> list[Actor]:
         """Builds every member at its park position ``park_xyz[k]`` (origin at rest there);
         ``per_env_materials``: env by env, merged, so each env can colour its members its own way."""
-        from rsb_maniskill.objects.blocks import build_block
-        from rsb_maniskill.objects.everyday import build_object
-
-        build = build_block if isinstance(self.family, BlockFamily) else build_object
+        build = actor_builder(self.family)
         park = np.asarray(park_xyz, dtype=np.float32).copy()
         park[:, 2] += self._rest_z.cpu().numpy()
         self._park = torch.as_tensor(park, device=self.device)

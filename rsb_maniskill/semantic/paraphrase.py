@@ -7,7 +7,6 @@ rather than one template's wording. The rewording never leaves the episode's set
 from __future__ import annotations
 
 from ..objects.family import get_family
-
 from .spec import EpisodeSpec
 from .templates import render_direct, render_instruction, sibling_template_ids
 
@@ -18,7 +17,7 @@ def paraphrases(spec: EpisodeSpec) -> tuple[str, ...]:
     Raises ValueError when the templates do not reproduce ``spec.instruction`` (a spec written by
     another version of the templates): rewording it would train on instructions of another episode."""
     n, tid = spec.n_choices, spec.template_id
-    family = get_family("blocks" if all(k.startswith("block:") for k in spec.candidates) else "objects")
+    family = get_family(spec.targets)
     lettered, direct = family.lettered(n), spec.suite == "Direct"
     ids = sibling_template_ids(n, tid, direct, lettered)
     texts = []

@@ -127,7 +127,8 @@ class EpisodeSampler:
         else:  # MMLU-Pro, commonsense (the latter states its fact first)
             rationale = f"{q.solution} The answer is {_sentence(q.answer)} {binding}".lstrip()
         return EpisodeSpec(self.suite_id, self.suite, n, self.split, seed, qi, q.text, ordered, self.letters, slot,
-                           letter, block_of_option, names, cands.keys, instruction, template_id, rationale)
+                           letter, block_of_option, names, cands.keys, instruction, template_id, rationale,
+                           self.family.name)
 
     # -----------------------------------------------------------------------------------------
 
@@ -145,7 +146,7 @@ class EpisodeSampler:
             instruction = render_direct(self.n_choices, template_id, name)
         return EpisodeSpec(self.suite_id, self.suite, self.n_choices, self.split, seed, target, "", options,
                            self.letters, slot, letter, block_of_option, names, keys,
-                           instruction, template_id, rationale)
+                           instruction, template_id, rationale, self.family.name)
 
     def _axis_rngs(self, seed: int) -> dict[str, np.random.Generator]:
         return {a: axis_rng(self.suite_id, self.split, seed, a, lv) for a, lv in self.perturb.items()}

@@ -16,7 +16,8 @@ class EpisodeSpec:
     The correct answer lives only here (``answer_slot`` / ``correct_letter``); it is evaluation
     metadata and never appears in ``instruction``. "Block" in field names means candidate (a
     block or an everyday object): candidate ``c`` is called ``block_names[c]`` and is the asset
-    ``candidates[c]``; option ``i`` is bound to candidate ``block_of_option[i]``.
+    ``candidates[c]``; option ``i`` is bound to candidate ``block_of_option[i]``. ``targets`` names
+    the candidates' family (``rsb_maniskill.objects.TARGETS``: "blocks", "objects").
     """
 
     suite_id: str
@@ -36,6 +37,7 @@ class EpisodeSpec:
     instruction: str
     template_id: int
     rationale: str
+    targets: str = "blocks"  # last, with a default: positional construction keeps working
 
     def __post_init__(self) -> None:
         n = self.n_choices
@@ -69,10 +71,15 @@ class EpisodeSpec:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "EpisodeSpec":
-        """Inverse of :meth:`to_dict`; unknown or missing keys raise ValueError."""
+        """Inverse of :meth:`to_dict`; unknown or missing keys raise ValueError. Dicts written before
+        ``candidates`` (blocks) or ``targets`` (the family owning the candidates' keys) still load."""
         names = [f.name for f in dataclasses.fields(cls)]
         if "candidates" not in d and "block_names" in d:  # written before everyday objects: blocks
             d = {**d, "candidates": [_legacy_block_key(b) for b in d["block_names"]]}
+        if "targets" not in d and "candidates" in d:  # written before ``targets``
+            from rsb_maniskill.objects.family import family_of_keys
+
+            d = {**d, "targets": family_of_keys(d["candidates"])}
         missing = [k for k in names if k not in d]
         extra = [k for k in d if k not in names]
         if missing or extra:

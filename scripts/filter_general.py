@@ -14,8 +14,9 @@ options alone -- never the question -- teaches and rewards shortcuts, so it is l
 
 The content keys of the questions left out (``mmlu_pro.content_key``) are written to
 rsb_maniskill/semantic/mmlu_pro_surface_filtered.txt, which the package ships: pools are built with
-that list and no model at run time, so every machine builds the same pool. The audit's learned probe (gradient-boosted trees on other features) is the
-independent check that the filter generalises. Run (needs the MMLU-Pro data, see docs/semantic.md):
+that list and no model at run time, so every machine builds the same pool. The audit's learned
+probe (gradient-boosted trees on other features) is the independent check that the filter
+generalises. Run (needs the MMLU-Pro data, see docs/semantic.md):
 
     python scripts/filter_general.py [--data-dir DIR] [--out rsb_maniskill/semantic/mmlu_pro_surface_filtered.txt]
 """

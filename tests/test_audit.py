@@ -44,7 +44,8 @@ def test_commonsense_questions_alone_pass_the_audit(suite_id):
     own; built into the project, so the MMLU part comes from the test fixtures."""
     fixtures = Path(__file__).parent / "fixtures" / "semantic_data"
     tr, te = (EpisodeSampler(suite_id, split, data_dir=fixtures) for split in ("train", "test"))
-    idx = {s: [i for i, q in enumerate(x.pool.questions) if q.source == "commonsense"] for s, x in (("tr", tr), ("te", te))}
+    idx = {s: [i for i, q in enumerate(x.pool.questions) if q.source == "commonsense"]
+           for s, x in (("tr", tr), ("te", te))}
     train = [tr.sample(k, question_index=idx["tr"][k % len(idx["tr"])]) for k in range(CI_EPISODES)]
     test = [te.sample(10_000_000 + k, question_index=idx["te"][k % len(idx["te"])]) for k in range(CI_EPISODES)]
     a = audit_specs(suite_id, train, test)
@@ -79,7 +80,8 @@ def test_injected_longest_shortcut_fails_the_audit():
         return max(range(sp.n_choices), key=lambda i: (len(sp.options[i]), sp.options[i]))
     # Direct options are block names: make them text of different lengths first
     def lengthen(sp):
-        return dataclasses.replace(sp, options=tuple(o + " x" * ((i * 7 + sp.seed) % 10) for i, o in enumerate(sp.options)))
+        return dataclasses.replace(sp, options=tuple(o + " x" * ((i * 7 + sp.seed) % 10)
+                                                     for i, o in enumerate(sp.options)))
     train = [_with_answer(lengthen(tr.episode(s)), longest) for s in range(1000)]
     test = [_with_answer(lengthen(te.episode(10_000_000 + s)), longest) for s in range(1000)]
     a = audit_specs("RSB-Direct-10", train, test)

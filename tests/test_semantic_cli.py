@@ -5,9 +5,9 @@ import json
 import os
 from pathlib import Path
 
+import huggingface_hub
 import pytest
 
-import huggingface_hub
 from rsb_maniskill.cli import main
 from rsb_maniskill.semantic import EpisodeSampler, clear_cache
 

@@ -5,11 +5,11 @@ import json
 import os
 from pathlib import Path
 
+import huggingface_hub
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-import huggingface_hub
 from rsb_maniskill.semantic import DataNotFoundError, EpisodeSampler, SemanticDataError, clear_cache
 from rsb_maniskill.semantic import data as data_mod
 from rsb_maniskill.semantic.gsm8k import clean_solution, gsm8k_pool, parse_final_answer

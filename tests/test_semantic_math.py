@@ -34,7 +34,10 @@ def test_pools_disjoint_by_text_and_commuted_pair():
     train, test = math_pool("train"), math_pool("test")
     assert not {q.text for q in train} & {q.text for q in test}
     assert len({q.text for q in train}) == len(train)
-    canon = lambda q: (lambda a, op, b: (op, min(a, b), max(a, b)) if op == "plus" else (op, a, b))(*_parse(q))
+
+    def canon(q):
+        a, op, b = _parse(q)
+        return (op, min(a, b), max(a, b)) if op == "plus" else (op, a, b)
     assert not {canon(q) for q in train} & {canon(q) for q in test}
 
 

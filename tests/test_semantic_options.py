@@ -9,11 +9,17 @@ import numpy as np
 import pytest
 
 from rsb_maniskill.audit.splits import split_overlap
-from rsb_maniskill.semantic import EpisodeSampler, clear_cache
+from rsb_maniskill.semantic import EpisodeSampler, clear_cache, mmlu_pro
 from rsb_maniskill.semantic.commonsense import commonsense_pool, in_train
 from rsb_maniskill.semantic.distractors import (
-    Bins, inclusion_probabilities, lattice_options, numeric_options, systematic_sample, value_bins, weighted_options)
-from rsb_maniskill.semantic import mmlu_pro
+    Bins,
+    inclusion_probabilities,
+    lattice_options,
+    numeric_options,
+    systematic_sample,
+    value_bins,
+    weighted_options,
+)
 from rsb_maniskill.semantic.mmlu_pro import exclusion_reason
 from rsb_maniskill.semantic.normalize import option_key, question_key, related_words
 

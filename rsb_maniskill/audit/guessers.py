@@ -116,7 +116,8 @@ def named_guessers(n_choices: int, letters: Sequence[str]) -> list[Guesser]:
         Guesser("largest", "largest value", _numeric(lambda v: v)),
         Guesser("smallest", "smallest value", _numeric(lambda v: -v)),
         Guesser("median", "value closest to the median of the options", _numeric(lambda v: -np.abs(v - np.median(v)))),
-        Guesser("closest to mean", "value closest to the mean of the options", _numeric(lambda v: -np.abs(v - v.mean()))),
+        Guesser("closest to mean", "value closest to the mean of the options",
+                _numeric(lambda v: -np.abs(v - v.mean()))),
         Guesser("digit-edit medoid", "smallest total digit-edit distance to the other options", _numeric(_edit_medoid)),
         Guesser("last-digit majority", "last digit shared by most other options",
                 _numeric(lambda v: _share_count([digit_string(x)[-1] for x in v]))),
@@ -130,11 +131,14 @@ def named_guessers(n_choices: int, letters: Sequence[str]) -> list[Guesser]:
         Guesser("shortest", "shortest text", lambda sp: [-len(o) for o in sp.options]),
         Guesser("text medoid", "most character trigrams shared with the other options", _text_medoid),
         Guesser("lexical overlap", "most content words shared with the question", _lexical_overlap, True),
-        Guesser("least lexical overlap", "fewest content words shared with the question", _negate(_lexical_overlap), True),
-        Guesser("stem overlap", "most words related to a question word (same stem, or one inside the other)", _stem_overlap, True),
+        Guesser("least lexical overlap", "fewest content words shared with the question",
+                _negate(_lexical_overlap), True),
+        Guesser("stem overlap", "most words related to a question word (same stem, or one inside the other)",
+                _stem_overlap, True),
         Guesser("least stem overlap", "fewest words whose stem is in the question", _negate(_stem_overlap), True),
         Guesser("number in question", "value that appears in the question text", _in_question, True),
-        Guesser("number not in question", "value that does not appear in the question text", _negate(_in_question), True),
+        Guesser("number not in question", "value that does not appear in the question text",
+                _negate(_in_question), True),
     ]
     return out
 

@@ -109,7 +109,8 @@ def option_features(sp: EpisodeSpec, prior: AnswerPrior | None = None) -> np.nda
     opts = sp.options
     n = len(opts)
     vals = numeric_values(opts)
-    num = _numeric_block(np.asarray(vals, dtype=float)) if vals is not None else np.full((n, len(NUMERIC_FEATURES)), np.nan)
+    num = (_numeric_block(np.asarray(vals, dtype=float)) if vals is not None
+           else np.full((n, len(NUMERIC_FEATURES)), np.nan))
     chars = np.array([len(o) for o in opts], dtype=float)
     g = [trigrams(o) for o in opts]
     sim = np.array([[jaccard(a, b) for b in g] for a in g])

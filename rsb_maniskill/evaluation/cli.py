@@ -75,7 +75,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-c", "--control-mode", default=None, help="controller (default: the robot's pd_joint_pos)")
     p.add_argument("-e", "--env-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="extra gym.make keyword, e.g. camera_size=[224,224] (VALUE as JSON, else a string)")
-    p.add_argument("--data-dir", default=None, help="GSM8K / MMLU-Pro directory (else $RSB_DATA_DIR, else the hub cache)")
+    p.add_argument("--data-dir", default=None,
+                   help="GSM8K / MMLU-Pro directory (else $RSB_DATA_DIR, else the hub cache)")
     p.add_argument("--num-procs", type=int, default=None,
                    help="CPU worker processes (default 1), or Ray tasks (default: the cluster's CPUs)")
     p.add_argument("--num-envs", type=int, default=1,

@@ -146,6 +146,7 @@ def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int,
     """Episodes of one demo file (those of ``episode_ids``, default all), camera frames rendered
     from the recorded env states."""
     import h5py
+
     from mani_skill.trajectory.utils import dict_to_list_of_dicts
 
     from rsb_maniskill.agents.aloha import to_aloha14
@@ -184,7 +185,8 @@ def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int,
                     "source_episode_id": int(ep["episode_id"]),
                 }
                 yield Episode(np.asarray(state, np.float32), to_aloha14(actions[::stride]).astype(np.float32),
-                              {c: np.stack(v) for c, v in frames.items()}, ep.get("instruction", spec.instruction), meta)
+                              {c: np.stack(v) for c, v in frames.items()}, ep.get("instruction", spec.instruction),
+                              meta)
     except BaseException:
         close_render_env()  # an env left mid-episode by an error is not reused
         raise
@@ -241,9 +243,11 @@ def _tasks_table(tasks: dict[str, int]):
     import pyarrow as pa
 
     names = sorted(tasks, key=tasks.get)
-    table = pa.table({"task_index": pa.array([tasks[t] for t in names], pa.int64()), "task": pa.array(names, pa.string())})
-    pandas_md = {"index_columns": ["task"], "column_indexes": [{"name": None, "field_name": None, "pandas_type": "unicode",
-                                                                 "numpy_type": "object", "metadata": {"encoding": "UTF-8"}}],
+    table = pa.table({"task_index": pa.array([tasks[t] for t in names], pa.int64()),
+                      "task": pa.array(names, pa.string())})
+    pandas_md = {"index_columns": ["task"],
+                 "column_indexes": [{"name": None, "field_name": None, "pandas_type": "unicode",
+                                     "numpy_type": "object", "metadata": {"encoding": "UTF-8"}}],
                  "columns": [{"name": "task_index", "field_name": "task_index", "pandas_type": "int64",
                               "numpy_type": "int64", "metadata": None},
                              {"name": "task", "field_name": "task", "pandas_type": "unicode", "numpy_type": "object",

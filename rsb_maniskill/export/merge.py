@@ -80,7 +80,8 @@ def merge_datasets(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
             if info["features"] != info0["features"] or info["fps"] != info0["fps"]:
                 raise ExportError(f"{shard}: its features or fps differ from {shards[0]}'s; merge shards of one build")
             local_tasks = pq.read_table(shard / "meta/tasks.parquet").to_pydict()
-            task_map = {i: tasks.setdefault(t, len(tasks)) for i, t in zip(local_tasks["task_index"], local_tasks["task"])}
+            task_map = {i: tasks.setdefault(t, len(tasks))
+                        for i, t in zip(local_tasks["task_index"], local_tasks["task"])}
             data = pq.read_table(shard / DATA_FILE)
             e0 = len(rows)
             columns = {

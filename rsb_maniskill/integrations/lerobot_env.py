@@ -86,7 +86,8 @@ class RSBLeRobotEnv(gym.Env):
 
         (self.env_id,) = resolve_env_ids([env_id])
         if instruction_mode not in INSTRUCTION_MODES:
-            raise ValueError(f"instruction_mode must be one of {', '.join(INSTRUCTION_MODES)}, got {instruction_mode!r}")
+            raise ValueError(f"instruction_mode must be one of {', '.join(INSTRUCTION_MODES)}, "
+                             f"got {instruction_mode!r}")
         if obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {', '.join(OBS_TYPES)}, got {obs_type!r}")
         self.naming = check_naming(naming)

@@ -6,6 +6,8 @@ and shared by the tasks, the scripted expert, the evaluator and the exporters. S
 from __future__ import annotations
 
 from .errors import DataNotFoundError, SemanticDataError, SemanticError
+from .paraphrase import paraphrases
+from .pools import clear_cache, get_pool
 from .sampler import EpisodeSampler
 from .spec import EpisodeSpec
 from .suites import (
@@ -21,8 +23,6 @@ from .suites import (
     parse_suite_id,
 )
 from .templates import render_instruction
-from .paraphrase import paraphrases
-from .pools import clear_cache, get_pool
 
 __all__ = [
     "COLOR_MAPS", "DataNotFoundError", "EpisodeSampler", "EpisodeSpec", "INSTRUCTION_SETS",

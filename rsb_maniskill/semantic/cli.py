@@ -10,15 +10,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the semantic engine's sub-commands to the `rsb` dispatcher."""
     from .suites import COLOR_MAPS, INSTRUCTION_SETS, SPLITS, SUITE_IDS
 
-    p = subparsers.add_parser("questions", help="print sample episodes of a suite",
-                              description="Print sample episode specifications (question, options, instruction, answer).")
+    p = subparsers.add_parser(
+        "questions", help="print sample episodes of a suite",
+        description="Print sample episode specifications (question, options, instruction, answer).")
     p.add_argument("suite", help=f"suite id, one of: {', '.join(SUITE_IDS)}")
     p.add_argument("--split", default="train", help=f"{' | '.join(SPLITS)} (test = evaluation pool)")
     p.add_argument("-n", "--num", type=int, default=5, help="number of episodes (default 5)")
     p.add_argument("--seed", type=int, default=0, help="first seed (episodes use seed, seed+1, ...)")
-    p.add_argument("--instructions", choices=INSTRUCTION_SETS, default=None, help="template set (default: seen for train, unseen for test)")
+    p.add_argument("--instructions", choices=INSTRUCTION_SETS, default=None,
+                   help="template set (default: seen for train, unseen for test)")
     p.add_argument("--color-map", choices=COLOR_MAPS, default="fixed")
-    p.add_argument("--data-dir", default=None, help="directory with gsm8k/ and mmlu_pro/ (else $RSB_DATA_DIR, else hub cache)")
+    p.add_argument("--data-dir", default=None,
+                   help="directory with gsm8k/ and mmlu_pro/ (else $RSB_DATA_DIR, else hub cache)")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.set_defaults(func=cmd_questions)
 
@@ -52,7 +55,8 @@ def cmd_questions(args: argparse.Namespace) -> int:
             if args.json:
                 print(json.dumps(spec.to_dict()))
                 continue
-            print(f"=== {spec.suite_id} {spec.split} seed={seed} question_id={spec.question_id} template={spec.template_id}")
+            print(f"=== {spec.suite_id} {spec.split} seed={seed} question_id={spec.question_id} "
+                  f"template={spec.template_id}")
             print(f"instruction: {spec.instruction}")
             for letter, opt, blk in zip(spec.letters, spec.options, spec.block_of_option):
                 mark = "*" if letter == spec.correct_letter else " "

@@ -8,8 +8,6 @@ import os
 from collections import Counter
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from . import commonsense, mmlu_pro
 from .data import mmlu_pro_rows, resolve_data_dir
 from .distractors import Bins, value_bins

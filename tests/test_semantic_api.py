@@ -10,8 +10,16 @@ from pathlib import Path
 import pytest
 
 from rsb_maniskill.objects.family import BLOCK_COLORS
-from rsb_maniskill.semantic import (LETTERS_4, LETTERS_10, SUITE_IDS, DataNotFoundError, EpisodeSampler,
-                                    EpisodeSpec, SemanticDataError, parse_suite_id)
+from rsb_maniskill.semantic import (
+    LETTERS_4,
+    LETTERS_10,
+    SUITE_IDS,
+    DataNotFoundError,
+    EpisodeSampler,
+    EpisodeSpec,
+    SemanticDataError,
+    parse_suite_id,
+)
 
 FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
 REPO = Path(__file__).resolve().parents[1]
@@ -132,7 +140,8 @@ def test_identical_in_fresh_process():
     """Specs must not depend on PYTHONHASHSEED, import order or process state."""
     code = ("import json,sys;from rsb_maniskill.semantic import EpisodeSampler as E;"
             "print(json.dumps([E(s,sp,data_dir=sys.argv[1]).sample(k).to_dict() for s in "
-            "('RSB-Math-4','RSB-General-10','RSB-HardMath-4','RSB-Direct-10') for sp in ('train','test') for k in (0,1,77)]))")
+            "('RSB-Math-4','RSB-General-10','RSB-HardMath-4','RSB-Direct-10') for sp in ('train','test') "
+            "for k in (0,1,77)]))")
     outs = []
     for hashseed in ("1", "2"):
         res = subprocess.run([sys.executable, "-c", code, str(FIXTURES)], capture_output=True, text=True, cwd=REPO,
@@ -140,7 +149,8 @@ def test_identical_in_fresh_process():
         outs.append(res.stdout)
     assert outs[0] == outs[1]
     here = [EpisodeSampler(s, sp, data_dir=FIXTURES).sample(k).to_dict() for s in
-            ("RSB-Math-4", "RSB-General-10", "RSB-HardMath-4", "RSB-Direct-10") for sp in ("train", "test") for k in (0, 1, 77)]
+            ("RSB-Math-4", "RSB-General-10", "RSB-HardMath-4", "RSB-Direct-10") for sp in ("train", "test")
+            for k in (0, 1, 77)]
     assert json.loads(outs[0]) == here
 
 

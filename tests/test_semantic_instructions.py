@@ -45,7 +45,8 @@ def test_seen_for_train_unseen_for_test():
     te = EpisodeSampler("RSB-Math-4", "test")
     assert {tr.sample(s).template_id for s in range(200)} == seen_ids
     assert {te.sample(s).template_id for s in range(200)} == set(T.template_ids(4, "unseen"))
-    assert {EpisodeSampler("RSB-Math-4", "test", instructions="seen").sample(s).template_id for s in range(50)} <= seen_ids
+    seen_test = EpisodeSampler("RSB-Math-4", "test", instructions="seen")
+    assert {seen_test.sample(s).template_id for s in range(50)} <= seen_ids
 
 
 def test_renderer_cannot_see_the_answer():
@@ -66,7 +67,10 @@ def _check_no_leak(spec):
     assert not LEAK.search(rest), spec.instruction
     # 3) every letter appears the same number of times (the answer letter is not singled out)
     fixed = re.sub(r"\{[A-Z]+\}", " ", T.get_template(spec.n_choices, spec.template_id).text)  # e.g. "A question"
-    solo = lambda L, text: len(re.findall(rf"(?<![A-Za-z']){L}(?![A-Za-z'])", text))
+
+    def solo(L, text):
+        return len(re.findall(rf"(?<![A-Za-z']){L}(?![A-Za-z'])", text))
+
     counts = {L: solo(L, rest) - solo(L, fixed) for L in spec.letters}
     assert len(set(counts.values())) == 1, (counts, spec.instruction)
     # 4) every block name appears once per option mapping (4-choice)

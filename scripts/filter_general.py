@@ -30,6 +30,7 @@ import numpy as np
 
 from rsb_maniskill.semantic import mmlu_pro
 from rsb_maniskill.semantic.data import MMLU_PRO_REPO, MMLU_PRO_REVISION, mmlu_pro_rows
+from rsb_maniskill.semantic.normalize import similarity_matrix
 from rsb_maniskill.semantic.records import normalize_text
 
 N = mmlu_pro.N_OPTIONS
@@ -42,9 +43,7 @@ def _z(x: np.ndarray) -> np.ndarray:
 
 def set_features(options: list[str]) -> np.ndarray:
     """(N, F) features of each option relative to its set."""
-    grams = [mmlu_pro._trigrams(o) for o in options]
-    sim = np.array([[len(g & h) / len(g | h) for h in grams] for g in grams])
-    np.fill_diagonal(sim, np.nan)
+    sim = similarity_matrix(options)
     chars = np.array([len(o) for o in options], float)
     words = np.array([len(o.split()) for o in options], float)
     cols = [chars, words, np.nanmean(sim, axis=1), np.nanmax(sim, axis=1),

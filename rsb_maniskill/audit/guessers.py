@@ -12,10 +12,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from rsb_maniskill.semantic.normalize import content_words, numeric_values, overlap
+from rsb_maniskill.semantic.normalize import content_words, jaccard, numeric_values, overlap, trigrams
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
-from .text import digit_string, edit_distance, jaccard, trailing_zeros, trigrams
+from .text import digit_string, edit_distance, trailing_zeros
 
 Scores = Sequence[float] | None
 

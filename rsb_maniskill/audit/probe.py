@@ -15,11 +15,11 @@ from typing import Sequence
 import numpy as np
 
 from rsb_maniskill.objects.catalog import CATEGORY_KEYS
-from rsb_maniskill.semantic.normalize import numeric_values, option_key
+from rsb_maniskill.semantic.normalize import jaccard, numeric_values, option_key, trigrams
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
 from .guessers import credit, made_of_others
-from .text import digit_string, edit_distance, jaccard, trailing_zeros, trigrams
+from .text import digit_string, edit_distance, trailing_zeros
 
 NUMERIC_FEATURES = (
     "value", "log_value", "rank", "z", "abs_z", "median_dev", "abs_median_dev", "edit_mean", "edit_rank",

@@ -3,8 +3,6 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from rsb_maniskill.semantic.normalize import option_key
-
 
 def digit_string(value: float) -> str:
     """Digits of a value as written ("162", "3.75"), sign dropped."""
@@ -31,12 +29,3 @@ def edit_distance(a: str, b: str) -> int:
         prev = cur
     return prev[-1]
 
-
-@lru_cache(maxsize=65536)
-def trigrams(text: str) -> frozenset[str]:
-    t = f"  {option_key(text)} "
-    return frozenset(t[i:i + 3] for i in range(len(t) - 2))
-
-
-def jaccard(a: frozenset, b: frozenset) -> float:
-    return len(a & b) / len(a | b) if a or b else 0.0

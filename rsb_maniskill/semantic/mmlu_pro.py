@@ -20,7 +20,7 @@ import numpy as np
 
 from ..objects.family import BLOCK_COLORS
 from .duplicates import duplicate_groups
-from .normalize import numeric_values, option_key, question_key
+from .normalize import numeric_values, option_key, question_key, similarity_matrix
 from .records import Question, normalize_text
 from .stable import stable_bucket, stable_key
 
@@ -83,11 +83,6 @@ def exclusion_reason(row: dict) -> str | None:
     return None
 
 
-def _trigrams(text: str) -> frozenset[str]:
-    t = f"  {option_key(text)} "
-    return frozenset(t[i:i + 3] for i in range(len(t) - 2))
-
-
 def rank_profile(values: Sequence[float], answer: int) -> np.ndarray:
     """Where the answer ranks among its options by ``values``: a distribution over the N ranks
     (0 = smallest), a tie spread evenly over the ranks it covers (a rule picks among ties at random)."""
@@ -105,9 +100,7 @@ def surface_ranks(q: Question) -> np.ndarray:
     and highest character-trigram Jaccard; distractors written as variants of the answer make it
     the set's medoid and give it a near twin)."""
     a = q.choices.index(q.answer)
-    grams = [_trigrams(o) for o in q.choices]
-    sim = np.array([[len(g & h) / len(g | h) for h in grams] for g in grams])
-    np.fill_diagonal(sim, np.nan)
+    sim = similarity_matrix(q.choices)
     readings = ([len(o) for o in q.choices], [len(o.split()) for o in q.choices], np.nanmean(sim, axis=1),
                 np.nanmax(sim, axis=1))
     return np.stack([rank_profile(r, a) for r in readings])
@@ -216,9 +209,8 @@ def _spread_subsets(choices: tuple[str, ...], answer: str, n: int) -> tuple[tupl
     """The (n - 1)-subsets of the answer's distractors whose most alike pair of shown options
     (answer included; character-trigram Jaccard) is least alike, within SPREAD_TOLERANCE."""
     rest = [c for c in choices if c != answer]
-    grams = [_trigrams(c) for c in [answer, *rest]]
-    sim = np.array([[len(g & h) / len(g | h) for h in grams] for g in grams])
-    subsets = list(combinations(range(1, len(grams)), n - 1))
+    sim = similarity_matrix([answer, *rest])
+    subsets = list(combinations(range(1, len(sim)), n - 1))
     worst = np.array([max(sim[i, j] for i, j in combinations((0, *c), 2)) for c in subsets])
     return tuple(tuple(k - 1 for k in c) for c, w in zip(subsets, worst) if w <= worst.min() + SPREAD_TOLERANCE)
 

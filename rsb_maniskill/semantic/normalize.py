@@ -10,6 +10,8 @@ import unicodedata
 from functools import lru_cache
 from typing import Sequence
 
+import numpy as np
+
 _TIMES = re.compile(r"(?<=[\d)\s])\s*(?:[x×*·]|\\times)\s*(?=[\d(\s])")
 _POW10 = re.compile(r"(-?\d+(?:\.\d+)?)\s*x\s*10\s*\^\s*\{?\s*(-?\d+)\s*\}?")
 _NUMBER = re.compile(r"(?<![\w.])-?\d[\d,]*(?:\.\d+)?(?![\w])")
@@ -116,3 +118,23 @@ def overlap(option: str, question: str) -> int:
 def related_words(a: str, b: str) -> bool:
     """Whether two texts share a content word or a word stem (see :func:`overlap`)."""
     return overlap(a, b) > 0
+
+
+@lru_cache(maxsize=65536)
+def trigrams(text: str) -> frozenset[str]:
+    """Character trigrams of an option's normal form (padded, so never empty)."""
+    t = f"  {option_key(text)} "
+    return frozenset(t[i:i + 3] for i in range(len(t) - 2))
+
+
+def jaccard(a: frozenset, b: frozenset) -> float:
+    return len(a & b) / len(a | b) if a or b else 0.0
+
+
+def similarity_matrix(options: Sequence[str]) -> np.ndarray:
+    """(N, N) character-trigram Jaccard between options, NaN on the diagonal: how alike the
+    members of an option set look (near twins, the set's medoid)."""
+    grams = [trigrams(o) for o in options]
+    sim = np.array([[jaccard(g, h) for h in grams] for g in grams])
+    np.fill_diagonal(sim, np.nan)
+    return sim

@@ -102,6 +102,52 @@ def test_learned_probe_finds_a_shortcut_no_named_guesser_has():
     assert "learned probe" in {g.name for g in a.flagged}
 
 
+def _marked(sp, answer_word: str, distractor_words: tuple[str, ...]):
+    """Options rewritten as text whose words alone mark the answer: every option gets a word of
+    the same length, the answer one word, each distractor one of others (no shape tells them apart)."""
+    def word(i: int) -> str:
+        return answer_word if i == sp.answer_slot else distractor_words[(i + sp.seed) % len(distractor_words)]
+    opts = tuple(f"{o} {word(i)}" for i, o in enumerate(sp.options))
+    return dataclasses.replace(sp, options=opts)
+
+
+def test_lexical_probe_finds_words_that_mark_the_answer():
+    """The answer's option holds "north", a distractor's "south" or "lakes": same length, same
+    shape, so only a model of the words can see it; the audit names the words."""
+    tr, te = EpisodeSampler("RSB-Math-4", "train"), EpisodeSampler("RSB-Math-4", "test")
+    train = [_marked(tr.episode(s), "north", ("south", "lakes")) for s in range(1000)]
+    test = [_marked(te.episode(10_000_000 + s), "north", ("south", "lakes")) for s in range(1000)]
+    a = audit_specs("RSB-Math-4", train, test)
+    lexical = next(g for g in a.guessers if g.name == "lexical probe")
+    assert lexical.flagged and lexical.low > 0.9 and not a.passed
+    assert "north" in " ".join(t for t, _, _ in a.answer_tokens)
+    assert {"south", "lakes"} & set(" ".join(t for t, _, _ in a.distractor_tokens).replace("'", " ").split())
+
+
+def test_lexical_probe_is_at_chance_on_words_that_mark_nothing():
+    """The same words dealt at random: the lexical probe must not invent a signal."""
+    tr, te = EpisodeSampler("RSB-Math-4", "train"), EpisodeSampler("RSB-Math-4", "test")
+    rng = np.random.default_rng(0)
+
+    def noise(sp):
+        return dataclasses.replace(sp, options=tuple(f"{o} {rng.choice(['north', 'south', 'lakes'])}"
+                                                     for o in sp.options))
+    a = audit_specs("RSB-Math-4", [noise(tr.episode(s)) for s in range(1000)],
+                    [noise(te.episode(10_000_000 + s)) for s in range(1000)])
+    lexical = next(g for g in a.guessers if g.name == "lexical probe")
+    assert not lexical.flagged and lexical.low < 0.25 < lexical.high + 0.02
+
+
+def test_train_split_audit_has_no_lexical_probe():
+    """On the train split an option's words are memorised answers, and a word model fit on half of
+    the split's questions reads the other half's answers as distractors (below chance): the audit
+    leaves the lexical probe out there and says so."""
+    a = audit_suite("RSB-Math-4", "train", 600)
+    assert "lexical probe" not in {g.name for g in a.guessers} and "learned probe" in {g.name for g in a.guessers}
+    from rsb_maniskill.audit.report import summary_markdown
+    assert "n/a (train split)" in summary_markdown([a])
+
+
 def test_credit_splits_ties():
     assert credit([1, 3, 3, 0], 1) == 0.5 and credit([1, 3, 3, 0], 0) == 0.0 and credit([2, 2, 2, 2], 3) == 0.25
 
@@ -132,6 +178,19 @@ def test_cli_exit_1_on_a_shortcut_in_user_specs(tmp_path, capsys):
             fh.write(json.dumps(sp.to_dict()) + "\n")
     assert main(["audit", "--specs", str(path)]) == 1
     assert "**FAIL**" in capsys.readouterr().out
+
+
+def test_cli_prints_the_words_that_fail_a_suite(tmp_path, capsys):
+    tr, te = EpisodeSampler("RSB-Math-4", "train"), EpisodeSampler("RSB-Math-4", "test")
+    path = tmp_path / "specs.jsonl"
+    with open(path, "w") as fh:
+        for sp in [_marked(tr.episode(s), "north", ("south",)) for s in range(600)] + \
+                  [_marked(te.episode(10_000_000 + s), "north", ("south",)) for s in range(600)]:
+            fh.write(json.dumps(sp.to_dict()) + "\n")
+    assert main(["audit", "--specs", str(path), "--no-readers"]) == 1
+    captured = capsys.readouterr()
+    assert "| lexical probe |" in captured.out
+    assert "RSB-Math-4: Lexical probe: n-grams marking the answer: " in captured.err and "north" in captured.err
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -8,7 +8,7 @@ import pytest
 
 from rsb_maniskill.audit import audit_specs, lift, twin_failures
 from rsb_maniskill.audit.readers import NumberReachabilityReader, SimilarityReader, bind, question_numbers
-from rsb_maniskill.audit.reference import twin_key
+from rsb_maniskill.audit.twins import twin_key
 from rsb_maniskill.cli import main
 from rsb_maniskill.semantic import EpisodeSampler
 

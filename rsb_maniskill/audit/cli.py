@@ -10,14 +10,16 @@ from pathlib import Path
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "audit", help="shortcut audit: answer-blind guessers and a learned probe against chance",
-        description="Score answer-blind guessers (position, block, value rules, digits, length, word overlap with "
-                    "the question, ...) and a learned probe trained on the train split to pick the answer from the "
-                    "options alone. Also counts option sets with two answers and questions or facts shared by the "
-                    "splits. Exit status 1 when a suite fails (a guesser's 95 %% interval wholly above chance + 3 "
-                    "points, an ambiguous set, or split overlap). Question-aware readers (similarity to the question, "
-                    "numbers reachable from the question's) are reference rows; a 10-choice suite fails when a "
-                    "reader lifts it above its 4-choice twin, intervals apart (the twin rule).")
+        "audit", help="shortcut audit: answer-blind guessers and learned probes against chance",
+        description="Score answer-blind guessers (position, block, value rules, digits, length, word overlap with the "
+                    "question, ...) and two learned probes trained on the train split to pick the answer from the "
+                    "options alone (surface: gradient-boosted trees on each option's shape in its set; lexical: a "
+                    "linear model on its word and character n-grams; for a failing suite the audit prints the n-grams "
+                    "that give the answer away). Also counts option sets with two answers and questions or facts "
+                    "shared by the splits. Exit status 1 when a suite fails (a guesser's 95 %% interval wholly above "
+                    "chance + 3 points, an ambiguous set, or split overlap). Question-aware readers (similarity to "
+                    "the question, numbers reachable from the question's) are reference rows; a 10-choice suite fails "
+                    "when a reader lifts it above its 4-choice twin, intervals apart (the twin rule).")
     p.add_argument("suites", nargs="*", metavar="SUITE",
                    help="suite ids (RSB-Math-4, RSB-Math-4-Objects, ...), 'paper' (the six paper suites), 'all', "
                         "'paper-objects' or 'all-objects'; omit with --specs")
@@ -98,8 +100,8 @@ def cmd_audit(args: argparse.Namespace) -> int:
     from rsb_maniskill.semantic.errors import SemanticError
 
     from . import report
-    from .reference import twin_failures
-    from .run import audit_specs, audit_suite
+    from .run import LEXICAL_PROBE, audit_specs, audit_suite
+    from .twins import twin_failures
 
     if args.episodes < 1:
         print("rsb audit: error: -n must be >= 1", file=sys.stderr)
@@ -135,4 +137,8 @@ def cmd_audit(args: argparse.Namespace) -> int:
     twins = twin_failures(audits)
     for t in twins:
         print(f"rsb audit: twin rule fails: {t}", file=sys.stderr)
+    for a in audits:
+        if any(g.name == LEXICAL_PROBE for g in a.flagged):  # why: the words that give the answer away
+            for line in report.token_lines(a):
+                print(f"rsb audit: {a.suite_id}: {line}", file=sys.stderr)
     return 0 if all(a.passed for a in audits) and not twins else 1

@@ -2,7 +2,7 @@
 
 They are *references*, not guessers: a reader is allowed to beat chance (shallow reading is part
 of what a policy may do), and its row tells a user how much task success shallow reading alone
-buys on a suite. The twin rule (``reference.twin_failures``) is their only verdict.
+buys on a suite. The twin rule (``twins.twin_failures``) is their only verdict.
 
 A reader is anything with ``score(question, options) -> Sequence[float] | None`` (one score per
 option, highest wins, ties split the credit; None where it does not apply: a uniform guess), or a

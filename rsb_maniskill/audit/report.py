@@ -7,8 +7,9 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
-from .reference import ReaderResult, TwinFailure, twin_failures, twin_pairs
-from .run import SuiteAudit
+from .reference import ReaderResult
+from .run import LEXICAL_PROBE, SuiteAudit
+from .twins import TwinFailure, twin_failures, twin_pairs
 
 
 def _pct(x: float | None) -> str:
@@ -50,20 +51,36 @@ def to_dicts(audits: Sequence[SuiteAudit]) -> list[dict[str, Any]]:
     return out
 
 
+def _probe_cell(a: SuiteAudit, name: str) -> str:
+    g = next((g for g in a.guessers if g.name == name), None)
+    if g:
+        return f"{_pct(g.accuracy)} {_ci(g.low, g.high)}"
+    return "n/a (train split)" if name == LEXICAL_PROBE and a.split == "train" else "n/a (too few train episodes)"
+
+
 def summary_markdown(audits: Sequence[SuiteAudit]) -> str:
-    """One row per suite: the worst named guesser, the learned probe, ambiguity, split overlap."""
+    """One row per suite: the worst named guesser, the learned probes, ambiguity, split overlap."""
     twins = twin_failures(audits)
     lines = ["| suite | episodes | chance % | worst named guesser | % [95 % CI] | learned probe % [95 % CI] "
-             "| ambiguous sets | train/test overlap | verdict |", "|---|---:|---:|---|---|---|---:|---|---|"]
+             "| lexical probe % [95 % CI] | ambiguous sets | train/test overlap | verdict |",
+             "|---|---:|---:|---|---|---|---|---:|---|---|"]
     for a in audits:
         named = [g for g in a.guessers if g.kind == "named"]
         worst = max(named, key=lambda g: g.low)
-        probe = next((g for g in a.guessers if g.kind == "learned"), None)
-        probe_cell = f"{_pct(probe.accuracy)} {_ci(probe.low, probe.high)}" if probe else "n/a (too few train episodes)"
         verdict = "pass" if passed(a, twins) else "**FAIL** (twin rule)" if a.passed else "**FAIL**"
         lines.append(f"| {a.suite_id} | {a.episodes:,} | {_pct(a.chance)} | {worst.name} | {_pct(worst.accuracy)} "
-                     f"{_ci(worst.low, worst.high)} | {probe_cell} | {a.ambiguous} | {_split_cell(a)} | {verdict} |")
+                     f"{_ci(worst.low, worst.high)} | {_probe_cell(a, 'learned probe')} | "
+                     f"{_probe_cell(a, LEXICAL_PROBE)} | {a.ambiguous} | {_split_cell(a)} | {verdict} |")
     return "\n".join(lines)
+
+
+def token_lines(a: SuiteAudit) -> list[str]:
+    """The lexical probe's heaviest n-grams, each side: what the words of the options give away."""
+    def fmt(tokens: Sequence[Sequence]) -> str:
+        return ", ".join(f"{t} ({w:+.2f}, {n:,} options)" for t, w, n in tokens) or "none"
+
+    return [f"Lexical probe: n-grams marking the answer: {fmt(a.answer_tokens)}.",
+            f"Lexical probe: n-grams marking a distractor: {fmt(a.distractor_tokens)}."]
 
 
 def suite_markdown(a: SuiteAudit) -> str:
@@ -84,6 +101,8 @@ def suite_markdown(a: SuiteAudit) -> str:
     if a.probe_features:
         feats = ", ".join(f"{name} ({imp:.3f})" for name, imp in a.probe_features)
         out += ["", f"Learned probe leans on: {feats} (permutation importance, log-loss)."]
+    if a.answer_tokens or a.distractor_tokens:
+        out += [""] + token_lines(a)
     if a.ambiguous:
         out += ["", f"{a.ambiguous} option sets hold a second option equal to the answer (normal form), e.g.:"]
         out += [f"- {' / '.join(s)}" for s in a.ambiguous_examples]
@@ -132,12 +151,13 @@ def readers_markdown(audits: Sequence[SuiteAudit]) -> str:
 def markdown(audits: Sequence[SuiteAudit]) -> str:
     margin = audits[0].margin if audits else 0.03
     head = ["# RSB shortcut audit", "",
-            "Answer-blind guessers pick an option without solving the question; the learned probe is trained on "
-            "the train split to pick the answer from the options alone. A suite fails when a guesser's whole 95 % "
-            f"interval lies above chance + {100 * margin:.0f} points (overall, or on the episodes it applies to), "
-            "when an option set holds two answers, or when train and test share a question or fact. Question-aware "
-            "readers are references; a 10-choice suite fails only when a reader lifts it above its 4-choice twin "
-            "(the twin rule).", "",
+            "Answer-blind guessers pick an option without solving the question; the learned probes (surface: "
+            "gradient-boosted trees on each option's shape in its set; lexical: a linear model on its words) are "
+            "trained on the train split to pick the answer from the options alone. A suite fails when a guesser's "
+            f"whole 95 % interval lies above chance + {100 * margin:.0f} points (overall, or on the episodes it "
+            "applies to), when an option set holds two answers, or when train and test share a question or fact. "
+            "Question-aware readers are references; a 10-choice suite fails only when a reader lifts it above its "
+            "4-choice twin (the twin rule).", "",
             summary_markdown(audits), ""]
     readers = readers_markdown(audits)
     head += [readers, ""] if readers else []

@@ -1,5 +1,5 @@
-"""Audit of one suite: named guessers, the learned probe, ambiguous option sets, split overlap,
-and question-aware readers as references (``reference.py``)."""
+"""Audit of one suite: named guessers, the learned probes (surface and lexical), ambiguous option
+sets, split overlap, and question-aware readers as references (``reference.py``)."""
 from __future__ import annotations
 
 import os
@@ -14,6 +14,7 @@ from rsb_maniskill.semantic.sampler import EpisodeSampler
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
 from .guessers import candidate_guessers, credit, named_guessers
+from .lexical import lexical_probe
 from .probe import learned_probe
 from .readers import BoundReader
 from .reference import ReaderResult, read
@@ -23,6 +24,8 @@ from .wording import instruction_guessers
 
 MARGIN = 0.03  # a guesser fails the audit when its whole 95 % interval lies above chance + 3 points
 MIN_SUBSET = 100  # smallest number of episodes a guesser must apply to for its own verdict
+MIN_PROBE_TRAIN = 200  # train-split episodes the learned probes need to be fit at all
+LEXICAL_PROBE = "lexical probe"
 _EXAMPLES = 5
 
 
@@ -56,6 +59,9 @@ class SuiteAudit:
     ambiguous_examples: list[list[str]]
     overlap: SplitOverlap = field(default_factory=SplitOverlap)
     readers: list[ReaderResult] = field(default_factory=list)  # references: never fail the suite alone
+    # the lexical probe's heaviest n-grams: (n-gram, weight, audited options holding it) per side
+    answer_tokens: list[tuple[str, float, int]] = field(default_factory=list)
+    distractor_tokens: list[tuple[str, float, int]] = field(default_factory=list)
 
     @property
     def chance(self) -> float:
@@ -130,15 +136,23 @@ def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[Epis
                 cr[i], ap[i] = credit(s, sp.answer_slot), True
         results.append(_result(g.name, g.description, "named", g.reads_question, cr, ap, chance, margin))
     features: list[tuple[str, float]] = []
-    if len(train) >= 200:
+    tokens: tuple[list, list] = ([], [])
+    if len(train) >= MIN_PROBE_TRAIN:
         probe = learned_probe(train, test, seed=seed, use_prior=split != "train")
         features = probe.top_features
         results.append(_result("learned probe", "gradient-boosted trees on per-option features relative to the set, "
                                f"fit on {probe.train_episodes:,} train-split episodes; never sees the question",
                                "learned", False, probe.credits, np.ones(len(test), dtype=bool), chance, margin))
+    if len(train) >= MIN_PROBE_TRAIN and split != "train":  # memorised answers are no shortcut on the train split
+        lex = lexical_probe(train, test, seed=seed)
+        tokens = (lex.answer_tokens, lex.distractor_tokens)
+        results.append(_result(LEXICAL_PROBE, "logistic regression on each option's word 1-2 grams, character 2-5 "
+                               f"grams and the words it shares with its set, fit on {lex.train_episodes:,} "
+                               "train-split episodes; never sees the question", "learned", False, lex.credits,
+                               np.ones(len(test), dtype=bool), chance, margin))
     amb = ambiguous_sets(test)
     return SuiteAudit(suite_id, split, n, len(test), len(train), margin, results, features, len(amb),
-                      amb[:_EXAMPLES], overlap or SplitOverlap(), [read(r, test) for r in readers])
+                      amb[:_EXAMPLES], overlap or SplitOverlap(), [read(r, test) for r in readers], *tokens)
 
 
 def suite_overlap(train: EpisodeSampler, test: EpisodeSampler) -> SplitOverlap:

@@ -33,6 +33,7 @@ from vla_eval_servers import CountingServer, OracleServer, RandomServer
 
 pytestmark = pytest.mark.timeout(120)
 REPO = Path(__file__).resolve().parents[1]
+EXAMPLES = REPO / "examples" / "vla_eval"
 SUITE = "RSB-Math-4"
 CAMS = ("head", "left_wrist", "right_wrist")
 
@@ -213,6 +214,48 @@ def test_benchmark_tasks_metrics_and_bad_params():
         RSBBenchmark(SUITE, episodes=2).reset({"suite": SUITE, "episode_idx": 2})
 
 
+@pytest.mark.parametrize("config", sorted(p.name for p in EXAMPLES.glob("rsb_*.yaml")))
+def test_example_configs_load_in_vla_eval(config):
+    """vla-eval's own loader and config classes read them; RSBBenchmark takes every entry's params."""
+    from vla_eval.cli.config_loader import load_config
+    from vla_eval.config import EvalConfig
+
+    entries = [EvalConfig.from_dict(e) for e in load_config(str(EXAMPLES / config))["benchmarks"]]
+    for entry in entries:
+        bench = RSBBenchmark(**entry.params)
+        assert len(bench.get_tasks()) == 6 and entry.episodes_per_task == bench.episodes == 500
+    assert len({e.resolved_name() for e in entries}) == len(entries)
+
+
+def test_benchmark_episodes_are_the_protocols(tmp_path):
+    """Episode i is protocol episode i; shuffled instructions are `rsb eval`'s; the record is `rsb eval`'s."""
+    import anyio
+
+    from rsb_maniskill.evaluation.protocol import shuffled_instruction
+
+    bench = RSBBenchmark(SUITE, episodes=3, obs_mode="state_dict", instruction_mode="shuffled", max_steps=3)
+    try:
+        told = []
+        for i in range(3):
+            anyio.run(bench.start_episode, {"name": SUITE, "suite": SUITE, "episode_idx": i})
+            obs = anyio.run(bench.get_observation)
+            assert sorted(obs) == ["state", "task_description"]  # state_dict: no cameras
+            told.append(obs["task_description"])
+        own = [bench._env.unwrapped.episode_spec(s).instruction for s in eval_seeds(SUITE, 3)]
+        assert told == shuffled_instruction(own)
+        hold = bench.layout.wire_actions(bench._env.unwrapped.agent.rest_action().numpy().reshape(-1))
+        for _ in range(3):
+            anyio.run(bench.apply_action, {"actions": hold})
+        assert anyio.run(bench.is_done)
+        record = anyio.run(bench.get_result)
+    finally:
+        bench.cleanup()
+    assert (record["suite_id"], record["seed"], record["steps"], record["instruction"]) == (
+        SUITE, EVAL_SEED_BASE + 2, 3, told[2])
+    assert record["original_instruction"] == own[2] and record["gsr"] is False and record["tsr"] is False
+    assert record["episode"]["question_id"] == record["question_id"]
+
+
 def _rsb_records(n: int) -> list[dict]:
     """Records as RSBBenchmark's metrics hold them: one success, grasps without success, no grasps."""
     out = []
@@ -293,35 +336,35 @@ def test_rsb_eval_remote_with_vla_eval_servers(tmp_path, env_capture):
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_rsb_benchmark_in_vla_eval(tmp_path, env_capture):
-    """vla_eval.evaluate (in-process) with the oracle: TSR 100 %; `vla-eval run --no-docker` (its CLI, in
-    another process) with random chunks on small cameras rendered every 5 steps: GSR 0; `rsb report`
-    reads both results files."""
+    """The example configs in vla-eval: `vla_eval.evaluate` (in-process) with the oracle, TSR 100 %;
+    `vla-eval run --no-docker` (its CLI, in another process) with random chunks on small cameras rendered
+    every 5 steps, RoboTwin keys, GSR 0; `rsb report` reads both results files."""
     import vla_eval
 
-    bench = {"benchmark": "rsb_maniskill.integrations.vla_eval:RSBBenchmark", "episodes_per_task": 2,
-             "params": {"suites": [SUITE], "episodes": 2, "obs_mode": "state_dict", "policy_name": "oracle"}}
     oracle = OracleServer(lambda: env_capture[-1], PRESETS["lerobot"], chunk_size=10_000)
-    results = vla_eval.evaluate(oracle, {"benchmarks": [bench], "output_dir": str(tmp_path / "oracle")},
-                                docker=False)
+    results = vla_eval.evaluate(oracle, EXAMPLES / "rsb_paper.yaml", output_dir=tmp_path / "oracle", docker=False,
+                                benchmark_overrides={"episodes_per_task": 2, "params": {
+                                    "suites": [SUITE], "episodes": 2, "obs_mode": "state_dict", "render_every": 1,
+                                    "policy_name": "oracle"}})
     assert results[0]["mean_tsr"] == 1.0 and results[0]["mean_success"] == 1.0
     episodes = results[0]["tasks"][0]["episodes"]
     assert [e["metrics"]["seed"] for e in episodes] == eval_seeds(SUITE, 2)
     assert all(e["metrics"]["runner"] == "vla-eval" and e["metrics"]["steps"] == e["steps"] for e in episodes)
 
     random = RandomServer(horizon=5)
-    config = tmp_path / "rsb.yaml"
-    config.write_text(json.dumps({"benchmarks": [{**bench, "max_steps": 30, "params": {
-        "suites": [SUITE], "episodes": 2, "camera_size": [64, 48], "render_every": 5, "policy_name": "random"}}]}))
     with serve_background(random) as handle:
         cli = Path(sys.executable).parent / "vla-eval"
-        res = subprocess.run([str(cli), "run", "--no-docker", "-c", str(config), "--server-url", handle.url,
-                              "--output-dir", str(tmp_path / "random")], capture_output=True, text=True, timeout=240,
-                             env={**os.environ, "PYTHONPATH": str(REPO)})
+        res = subprocess.run([str(cli), "run", "--no-docker", "-c", str(EXAMPLES / "rsb_paper_robotwin.yaml"),
+                              "--server-url", handle.url, "--output-dir", str(tmp_path / "random"),
+                              "--benchmark-field", "episodes_per_task=2", "--benchmark-field", "max_steps=30",
+                              "--param", f"suites=[{SUITE}]", "--param", "camera_size=[64,48]",
+                              "--param", "render_every=5", "--param", "policy_name=random"],
+                             capture_output=True, text=True, timeout=240, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert res.returncode == 0, res.stderr[-3000:]
-    steps = [e["steps"] for e in json.loads((tmp_path / "random" / "RSBBenchmark_aggregate.json").read_text())[
+    steps = [e["steps"] for e in json.loads((tmp_path / "random" / "RSB_aggregate.json").read_text())[
         "tasks"][0]["episodes"]]
     assert len(random.seen) == sum(-(-n // 5) for n in steps)  # the server predicted on rendered observations only
-    assert all(o["images"]["cam_high"].shape == (48, 64, 3) for o in random.seen)
+    assert all(o["images"]["head_camera"].shape == (48, 64, 3) and "joint_state" in o for o in random.seen)
     for out, policy, tsr in ((tmp_path / "oracle", "oracle", 100.0), (tmp_path / "random", "random", 0.0)):
         assert main(["report", str(out)]) == 0
         row = json.loads((out / "summary.json").read_text())["rows"][policy]["suites"][SUITE]

@@ -33,6 +33,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from rsb_maniskill.batch import env_row
+
 from ..policy import as_chunk
 from .client import open_websocket
 from .vla_eval_layout import INSTALL_HINT, VlaEvalLayout, check_server_spec, make_layout
@@ -170,7 +172,7 @@ class VlaEvalPolicy:
 
     def act_batch(self, obs: dict, envs: Any) -> list[Any]:
         envs = [int(e) for e in envs]
-        return self._chunks([_row(obs, k) for k in range(len(envs))], envs)
+        return self._chunks([env_row(obs, k) for k in range(len(envs))], envs)
 
     def _chunks(self, observations: list[dict], envs: list[int]) -> list[Any]:
         """Send each env's observation, then the steps' observations a chunking server reads from its
@@ -210,12 +212,6 @@ class VlaEvalPolicy:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _row(obs: Any, i: int) -> Any:
-    if isinstance(obs, Mapping):
-        return {k: _row(v, i) for k, v in obs.items()}
-    return obs[i]
 
 
 def probe_server(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:

@@ -37,24 +37,16 @@ from rsb_maniskill.batch import env_row
 
 from ..policy import as_chunk
 from .client import open_websocket
-from .vla_eval_layout import INSTALL_HINT, VlaEvalLayout, check_server_spec, make_layout
+from .vla_eval_layout import VlaEvalLayout, check_server_spec, make_layout, vla_eval_module
 
 TASK = {"name": "RSB", "suite": "RSB"}  # the episode_start task: the policy is not told the suite or seed
-
-
-def _protocol() -> Any:
-    try:
-        from vla_eval.protocol import messages
-    except ImportError as err:  # pragma: no cover - depends on the install
-        raise ImportError(INSTALL_HINT) from err
-    return messages
 
 
 class _Session:
     """One vla-eval session: a websocket, its sequence numbers and whether an episode is open."""
 
     def __init__(self, uri: str, connect_timeout: float, request_timeout: float | None) -> None:
-        self.m = _protocol()
+        self.m = vla_eval_module("protocol.messages")
         self.uri, self.request_timeout = uri, request_timeout
         # no keepalive pings, as vla-eval's own client: a server warming up holds the GIL for long
         self.ws = open_websocket(uri, connect_timeout, ping_interval=None)
@@ -137,11 +129,9 @@ class VlaEvalPolicy:
                                                  joints=joints)
         if chunk_size is not None and (not isinstance(chunk_size, int) or chunk_size < 1):
             raise ValueError(f"chunk_size must be a positive int (the server's chunk size), got {chunk_size!r}")
-        from vla_eval.protocol.numpy_codec import set_image_format
-
         if image_format not in ("png", "jpeg", "raw"):
             raise ValueError(f"image_format must be png, jpeg or raw, got {image_format!r}")
-        set_image_format(image_format)  # vla-eval's codec keeps the format process-wide
+        vla_eval_module("protocol.numpy_codec").set_image_format(image_format)  # vla-eval keeps it process-wide
         self.uri = host if host.startswith(("ws://", "wss://")) else f"ws://{host}"
         if port is not None and not host.startswith(("ws://", "wss://")):
             self.uri += f":{port}"

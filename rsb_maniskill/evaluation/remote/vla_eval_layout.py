@@ -23,6 +23,7 @@ declares something else.
 """
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
@@ -53,13 +54,12 @@ _JOINT_FORMATS = {"absolute": "absolute_joint_positions_with_grippers", "delta":
 _GRIPPER_FORMATS = {"open": {"continuous_01"}, "closed": {"continuous_01", "binary_close_01"}}
 
 
-def vla_eval_specs() -> Any:
-    """``vla_eval.specs``, or ImportError with the install hint."""
+def vla_eval_module(name: str) -> Any:
+    """``vla_eval.<name>`` (imported on first use), or ImportError with the install hint."""
     try:
-        from vla_eval import specs
+        return importlib.import_module(f"vla_eval.{name}")
     except ImportError as err:  # pragma: no cover - depends on the install
         raise ImportError(INSTALL_HINT) from err
-    return specs
 
 
 @dataclass(frozen=True)
@@ -141,7 +141,7 @@ class VlaEvalLayout:
     def action_spec(self) -> dict[str, Any]:
         """What RSB consumes, as vla-eval's ``{component: DimSpec}``; ``raw`` (servers that leave the
         convention to the checkpoint, e.g. the LeRobot bridge) is accepted."""
-        specs = vla_eval_specs()
+        specs = vla_eval_module("specs")
         fmt = _JOINT_FORMATS[self.joints]
         accepts = {fmt, specs.RAW.format} | ({"joint_positions"} if self.joints == "absolute" else set())
         return {"actions": specs.DimSpec("actions", ACTION_DIM, fmt, accepts=frozenset(accepts),
@@ -149,7 +149,7 @@ class VlaEvalLayout:
 
     def observation_spec(self, images: bool = True) -> dict[str, Any]:
         """What RSB sends, as vla-eval's ``{component: DimSpec}``."""
-        specs = vla_eval_specs()
+        specs = vla_eval_module("specs")
         out = {"image": specs.IMAGE_RGB} if images else {}
         out["language"] = specs.LANGUAGE
         if self.state_key is not None:
@@ -191,7 +191,7 @@ def check_server_spec(server_info: Mapping[str, Any], layout: VlaEvalLayout) -> 
     """Stop (one line naming both) when the HELLO of a server declares an action or state spec that
     ``layout`` cannot meet: actions must be 14 numbers of a joint format (or ``raw``); a declared
     state must be 14 numbers of ``raw`` / ``joint_positions``, and the layout must send one."""
-    specs = vla_eval_specs()
+    specs = vla_eval_module("specs")
     name = server_info.get("model_server", "the server")
     declared = {k: specs.DimSpec.from_dict(v) for k, v in (server_info.get("action_spec") or {}).items()}
     ours = layout.action_spec()

@@ -10,6 +10,7 @@ from vla_eval.specs import RAW
 
 from rsb_maniskill.evaluation.reference_policies import ExpertPolicy
 from rsb_maniskill.evaluation.remote.vla_eval_layout import VlaEvalLayout
+from rsb_maniskill.robot import ACTION_DIM, ALOHA14_GRIPPER_INDEX
 
 
 class Server(PredictModelServer):
@@ -47,7 +48,7 @@ class CountingServer(Server):
         if "fail" in obs.get("task_description", ""):
             raise ValueError("told to fail")
         c = len(self.seen) - 1  # this call, from 0
-        chunk = np.repeat(0.01 * c + 0.001 * np.arange(self.horizon, dtype=np.float32)[:, None], 14, axis=1)
+        chunk = np.repeat(0.01 * c + 0.001 * np.arange(self.horizon, dtype=np.float32)[:, None], ACTION_DIM, axis=1)
         return {"actions": chunk, **({"text": self.text} if self.text else {})}
 
 
@@ -59,8 +60,9 @@ class RandomServer(Server):
         self.horizon, self.rng = horizon, np.random.default_rng(seed)
 
     def reply(self, obs: dict, ctx: Any) -> dict:
-        chunk = self.rng.uniform(-1, 1, (self.horizon, 14)).astype(np.float32)
-        chunk[:, [6, 13]] = (chunk[:, [6, 13]] + 1) / 2
+        chunk = self.rng.uniform(-1, 1, (self.horizon, ACTION_DIM)).astype(np.float32)
+        grippers = list(ALOHA14_GRIPPER_INDEX.values())
+        chunk[:, grippers] = (chunk[:, grippers] + 1) / 2
         return {"actions": chunk}
 
 

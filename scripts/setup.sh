@@ -77,7 +77,7 @@ if ! $VENV/bin/python -c "import torch" 2>/dev/null; then
       || $PIP install -q torch --index-url https://download.pytorch.org/whl/cpu
   fi
 fi
-$PIP install -q -e ".[dev,expert,eval,hub,export,ray,baselines]"
+$PIP install -q -e ".[dev,expert,eval,hub,export,ray,baselines,vla_eval]"
 if have_nvidia; then
   # GPU physics needs SAPIEN's PhysX GPU library, fetched from GitHub: stage it now, while there
   # is network (compute nodes often have none). Prints where it went.

@@ -259,11 +259,11 @@ def _run_eval(args: argparse.Namespace) -> int:
     check_policy_spec(args.policy, args.num_envs)
     check_data(suites, env_kwargs.get("data_dir"))
     if args.policy == "remote":
-        from rsb_maniskill.evaluation.remote.openpi import check_remote_args
+        from rsb_maniskill.evaluation.remote import check_remote_args
 
         try:
             check_remote_args(policy_kwargs, args.obs_mode or "rgb")
-        except ValueError as err:
+        except (ValueError, ConnectionError) as err:
             raise EvalError(str(err)) from err
 
     label = args.name or args.policy

@@ -175,7 +175,8 @@ POLICIES: dict[str, PolicySpec] = {
     "blind": PolicySpec("rsb_maniskill.evaluation.reference_policies:blind", needs_env=True, single_env=True,
                         obs_mode="state"),
     "random": PolicySpec("rsb_maniskill.evaluation.policy:RandomPolicy.for_env", needs_env=True, obs_mode="state"),
-    "remote": PolicySpec("rsb_maniskill.evaluation.remote.client:RemotePolicy"),  # needs the `eval` extra
+    # openpi (default) or vla-eval (-a protocol=vla-eval); needs the `eval` / `vla_eval` extra
+    "remote": PolicySpec("rsb_maniskill.evaluation.remote:remote_policy"),
 }
 _USER_SPEC = PolicySpec("")  # what a "package.module:factory" spec is: no env, rgb observations
 

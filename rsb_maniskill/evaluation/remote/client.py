@@ -122,6 +122,32 @@ def _row(obs: Any, i: int) -> Any:
 
 
 # ---------------------------------------------------------------- client
+def open_websocket(uri: str, timeout: float, headers: dict[str, str] | None = None, **options: Any) -> Any:
+    """A blocking websocket connection to a policy server, retrying a refused connection for ``timeout`` s
+    (servers still loading their weights); ``options`` go to ``websockets.sync.client.connect``."""
+    try:
+        from websockets.sync.client import connect
+    except ImportError as err:  # pragma: no cover - depends on the install
+        raise ImportError(INSTALL_HINT) from err
+    kwargs: dict[str, Any] = {"compression": None, "max_size": None, "open_timeout": max(1.0, min(timeout, 30.0)),
+                              **options}
+    if headers:
+        kwargs["additional_headers"] = headers
+    params = inspect.signature(connect).parameters
+    if "proxy" in params:
+        kwargs["proxy"] = None  # a policy server is reached directly, as with websockets < 15
+    if "legacy" in params:
+        kwargs["legacy"] = True  # websockets >= 17: a plain connection object, as openpi's client uses
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return connect(uri, **kwargs)
+        except (ConnectionRefusedError, OSError) as err:
+            if time.monotonic() >= deadline:
+                raise ConnectionError(f"no policy server at {uri} after {timeout:.0f} s: {err}") from err
+            time.sleep(0.5)
+
+
 class RemotePolicy:
     """A :class:`~rsb_maniskill.evaluation.policy.Policy` whose actions come from a websocket server.
 
@@ -192,27 +218,8 @@ class RemotePolicy:
         self._ws, self.server_metadata = self._connect(connect_timeout)
 
     def _connect(self, timeout: float) -> tuple[Any, dict]:
-        try:
-            from websockets.sync.client import connect
-        except ImportError as err:  # pragma: no cover - depends on the install
-            raise ImportError(INSTALL_HINT) from err
-        kwargs: dict[str, Any] = {"compression": None, "max_size": None, "open_timeout": max(1.0, min(timeout, 30.0))}
-        if self.api_key:
-            kwargs["additional_headers"] = {"Authorization": f"Api-Key {self.api_key}"}
-        params = inspect.signature(connect).parameters
-        if "proxy" in params:
-            kwargs["proxy"] = None  # a policy server is reached directly, as with websockets < 15
-        if "legacy" in params:
-            kwargs["legacy"] = True  # websockets >= 17: a plain connection object, as openpi's client uses
-        deadline = time.monotonic() + timeout
-        while True:
-            try:
-                ws = connect(self.uri, **kwargs)
-                break
-            except (ConnectionRefusedError, OSError) as err:
-                if time.monotonic() >= deadline:
-                    raise ConnectionError(f"no policy server at {self.uri} after {timeout:.0f} s: {err}") from err
-                time.sleep(0.5)
+        headers = {"Authorization": f"Api-Key {self.api_key}"} if self.api_key else None
+        ws = open_websocket(self.uri, timeout, headers)
         metadata = self._recv(ws)
         return ws, metadata
 

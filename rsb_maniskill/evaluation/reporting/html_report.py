@@ -297,7 +297,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "report", help="write report.html: tables, bars, error analysis and a browsable grid of episodes",
         description="Writes RESULTS_DIR/report.html from RESULTS_DIR/episodes.jsonl (an `rsb eval` output "
-                    "directory): a self-contained page that opens from disk.")
+                    "directory): a self-contained page that opens from disk. RESULTS_DIR may also be a "
+                    "`vla-eval run` output directory (or its *_aggregate.json) of RSBBenchmark: then the "
+                    "paper's tables are printed and written to summary.* beside it too.")
     p.add_argument("results_dir", metavar="RESULTS_DIR")
     p.add_argument("-o", "--out", default=None, help="page to write (default: RESULTS_DIR/report.html)")
     p.add_argument("--title", default=None, help="page title (default: the directory's name)")
@@ -305,8 +307,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_report(args: argparse.Namespace) -> int:
+    from .vla_eval_results import is_vla_eval_results, report_vla_eval
+
     try:
-        path = write_html_report(args.results_dir, args.out, title=args.title)
+        if is_vla_eval_results(args.results_dir):  # a `vla-eval run` of RSBBenchmark
+            path = report_vla_eval(args.results_dir, args.out, title=args.title)
+        else:
+            path = write_html_report(args.results_dir, args.out, title=args.title)
     except (ReportError, ValueError, OSError) as err:
         print(f"rsb report: error: {err}", file=sys.stderr)
         return 2

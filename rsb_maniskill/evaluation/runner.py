@@ -27,9 +27,19 @@ from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.perturb import parse_perturb
 
-from .policy import PerEnvPolicies, as_chunk, as_chunks, env_action_space, is_batched, obs_rows
+from .policy import (
+    PerEnvPolicies,
+    as_chunk,
+    as_chunks,
+    env_action_space,
+    is_batched,
+    obs_rows,
+    split_output,
+    split_outputs,
+)
 from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
 from .records import INSTRUCTION_MODES
+from .statements import EpisodeText
 
 # info flags copied into every record, and extra ones kept when the env provides them.
 RECORD_FLAGS = ("grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success")
@@ -199,9 +209,11 @@ class _Episodes:
         return apply_instruction_mode(own, mode, donor[1] if donor else None), extra
 
     def record(self, *, seed: int, spec: Any, given: str, info: Mapping[str, Any], steps: int,
-               extra: dict[str, Any], frames: list | None) -> dict[str, Any]:
-        """The record of a finished episode; writes its video first when it was filmed."""
+               extra: dict[str, Any], frames: list | None, said: EpisodeText) -> dict[str, Any]:
+        """The record of a finished episode (with what the policy said, if it talked); writes its
+        video first when it was filmed."""
         s = self.settings
+        extra.update(said.fields(spec))
         if s.perturb:
             extra.update(perturb_fields(s.perturb))
         if frames is not None:
@@ -303,9 +315,11 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         frames = [_render(env)[0]] if seed in episodes.filmed else None
 
         policy.reset(given, single_env_obs(obs))
-        steps, finished = 0, False
+        steps, finished, said = 0, False, EpisodeText()
         while not finished and steps < settings.max_steps:
-            chunk = as_chunk(policy.act(single_env_obs(observations.current())), episodes.action_dim)
+            actions, text = split_output(policy.act(single_env_obs(observations.current())))
+            said.add(text)
+            chunk = as_chunk(actions, episodes.action_dim)
             for action in chunk:
                 a = action[None] if batched_actions else action
                 _, terminated, truncated, info = observations.step(a)
@@ -316,7 +330,8 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                 if finished or steps >= settings.max_steps:
                     break
         extra["wall_s"] = round(time.monotonic() - t0, 3)
-        write(episodes.record(seed=seed, spec=spec, given=given, info=info, steps=steps, extra=extra, frames=frames))
+        write(episodes.record(seed=seed, spec=spec, given=given, info=info, steps=steps, extra=extra, frames=frames,
+                              said=said))
 
 
 def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:
@@ -360,16 +375,19 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         frames = {i: [] for i, s in enumerate(wave) if s in episodes.filmed}
         _collect_frames(env, frames)
         pending: list[list[np.ndarray]] = [[] for _ in range(b)]
+        said = [EpisodeText() for _ in range(b)]
         last = np.zeros((b, episodes.action_dim), dtype=np.float32)
         steps = [0] * b
         active = [i < n for i in range(b)]
         while any(active):
             need = [i for i in range(b) if active[i] and not pending[i]]
             if need:  # one call for all envs whose chunk ran out (in step when chunks are of equal length)
-                chunks = as_chunks(policy.act_batch(obs_rows(observations.current(), need), need), len(need),
-                                   episodes.action_dim)
-                for i, chunk in zip(need, chunks):
+                actions, texts = split_outputs(policy.act_batch(obs_rows(observations.current(), need), need),
+                                               len(need))
+                chunks = as_chunks(actions, len(need), episodes.action_dim)
+                for i, chunk, text in zip(need, chunks, texts):
                     pending[i] = list(chunk)
+                    said[i].add(text)
             for i in range(b):
                 if active[i]:
                     last[i] = pending[i].pop(0)
@@ -384,7 +402,7 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                         or steps[i] >= settings.max_steps):
                     active[i] = False
                     write(episodes.record(seed=wave[i], spec=specs[i], given=given[i], info=_row_info(info, i),
-                                          steps=steps[i], extra=extras[i], frames=frames.pop(i, None)))
+                                          steps=steps[i], extra=extras[i], frames=frames.pop(i, None), said=said[i]))
 
 
 def _collect_frames(env: Any, frames: dict[int, list], active: Sequence[bool] | None = None) -> None:

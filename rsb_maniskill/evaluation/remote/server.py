@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..policy import as_chunk, as_chunks, is_batched, load_policy
+from ..policy import as_chunk, as_chunks, is_batched, load_policy, split_output, split_outputs
 from .client import INSTALL_HINT, packb, unflatten_obs, unpackb
 from .openpi import PRESETS, make_preset
 
@@ -34,7 +34,8 @@ class PolicyAdapter:
     carries ``episode_start`` (``RemotePolicy(mark_episode_start=True)``), or when the prompt changes.
     With a ``preset`` (``openpi.OpenpiAloha``) the request is in openpi's Aloha layout instead,
     and so is the reply. A batched request (the prompt a list, see ``client.py``) goes to the
-    policy's batched form (``reset_batch`` / ``act_batch``), reset on the same rule.
+    policy's batched form (``reset_batch`` / ``act_batch``), reset on the same rule. A policy that
+    talks (returns ``{"actions": ..., "text": ...}``) gets its text sent as the reply's ``"text"``.
     """
 
     def __init__(self, policy: Any, prompt_key: str = "prompt", obs_prefix: str = "observation",
@@ -58,8 +59,10 @@ class PolicyAdapter:
         if start or prompt != self._prompt:
             self.policy.reset(prompt, obs)
             self._prompt = prompt
-        chunk = as_chunk(self.policy.act(obs))
-        return {"actions": self.preset.aloha_actions(chunk) if self.preset else chunk}
+        actions, text = split_output(self.policy.act(obs))
+        chunk = as_chunk(actions)
+        reply = {"actions": self.preset.aloha_actions(chunk) if self.preset else chunk}
+        return reply if text is None else {**reply, "text": text}
 
     def _infer_batch(self, prompts: list, start: bool, request: dict) -> dict:
         if not is_batched(self.policy):
@@ -71,7 +74,9 @@ class PolicyAdapter:
         if start or any(e >= len(old) or old[e] != p for e, p in zip(envs, prompts)):
             self.policy.reset_batch(prompts, obs)  # the first request of a wave holds every env
             self._prompt = list(prompts)
-        return {"actions": np.stack(as_chunks(self.policy.act_batch(obs, envs), len(envs)))}
+        actions, texts = split_outputs(self.policy.act_batch(obs, envs), len(envs))
+        reply = {"actions": np.stack(as_chunks(actions, len(envs)))}
+        return reply if all(t is None for t in texts) else {**reply, "text": texts}
 
 
 def _health_check(connection: Any, request: Any) -> Any:

@@ -167,3 +167,34 @@ def test_text_over_the_websocket(batch):
     for r in records:
         i = SEEDS.index(r["seed"]) % 3  # env i of its wave
         assert r["stated_letter"] == ("ABCD"[i] if batch else "A") and r["text"].startswith("option")
+
+
+def test_table5_in_the_summaries_and_the_report(tmp_path):
+    import csv
+    import json
+
+    from rsb_maniskill.evaluation.reporting.html_report import write_html_report
+    from rsb_maniskill.evaluation.reporting.summary import results_from_records, write_report
+
+    records = []
+    for label, policy in (("talker", Talker), ("quiet", lambda env: ScriptedPolicy())):
+        env = SpecEnv()
+        episode_loop(env, policy(env), EpisodeSettings(suite_id=SUITE, seeds=SEEDS, label=label), SEEDS,
+                     records.append)
+    paths = write_report(results_from_records(records), tmp_path, records=records)
+    summary = json.loads(paths["json"].read_text())
+    table = summary["reasoning_following"]
+    assert list(table) == ["talker"]  # the quiet policy has no statements to count
+    cell = table["talker"][SUITE]
+    assert cell["failures"]["stated_right"] == 1 and cell["n_grasped_failed"] == 8
+    assert cell["failure_rates"]["not_placed"]["value"] == 0.5 and cell["failure_rates"]["not_placed"]["low"] < 0.5
+    md = paths["markdown"].read_text()
+    assert f"### Reasoning following on {SUITE} (%, paper Table 5)" in md
+    assert "| Stated right, wrong target | 12.5 [" in md and "| Grasped-but-failed episodes (count) | 8 |" in md
+    rows = list(csv.DictReader(open(paths["csv:reasoning"])))
+    assert {r["part"] for r in rows} == {"failures", "crossing", "stated"}
+    got = next(r for r in rows if r["part"] == "failures" and r["cell"] == "no_statement")
+    assert (got["count"], got["n"], float(got["value"])) == ("2", "8", 0.25)
+    page = write_html_report(tmp_path, records=records).read_text()
+    assert 'id="reasoning"' in page and "Stated right, wrong target" in page
+    assert '"said":"It is option' in page and '"said":null' in page  # the cards carry the text

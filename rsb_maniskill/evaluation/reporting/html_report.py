@@ -98,6 +98,8 @@ def episode_cards(records: Iterable[Mapping[str, Any]], results_dir: Path) -> li
             "correct": _candidate(spec, r.get("target_block", -1)),
             "grasped": _candidate(spec, r.get("first_grasped", -1)),
             "steps": r.get("steps"),
+            "said": r.get("text"),  # a talking policy's text, and the option it states
+            "stated": r.get("stated_letter") if "stated_letter" in r else None,
             "video": f"videos/{video}" if thumbs else None,
             "thumbs": list(thumbs) if thumbs else None,
         })
@@ -220,6 +222,20 @@ def _robustness(records: Sequence[Mapping[str, Any]]) -> str:
             + "</section>")
 
 
+def _reasoning(records: Sequence[Mapping[str, Any]]) -> str:
+    """Table 5 (what a talking policy stated against what it grasped), or nothing when no policy talked."""
+    from .reasoning import reasoning_markdown, reasoning_table
+
+    table = reasoning_table(records)
+    if not table:
+        return ""
+    return ('<section id="reasoning"><h2>Reasoning following</h2><p class="note">For policies that return '
+            'text: of the episodes where a block was grasped and the task failed, did the text state the right '
+            'option while the arm took a wrong block (the reasoning-following failure), a wrong option, or '
+            'none? In brackets: Wilson 95% intervals.</p>' + markdown_to_html(reasoning_markdown(table))
+            + "</section>")
+
+
 def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: str | None = None) -> str:
     """The report page for ``records`` (episode files of ``results_dir`` feed the thumbnails)."""
     records = dedupe(records)
@@ -269,7 +285,8 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
         colors=_script_json({"colors": OUTCOME_COLORS, "labels": OUTCOME_LABELS}),
         meta=f"{len(cards)} episodes &middot; {len(rows)} row(s) &middot; {len(suites)} suite(s) &middot; "
              f"{n_videos} with video &middot; rsb_maniskill {__version__} &middot; written {stamp}",
-        summary="".join(summary), tables=markdown_to_html(markdown_tables(results)), robustness=_robustness(records),
+        summary="".join(summary), tables=markdown_to_html(markdown_tables(results)),
+        robustness=_robustness(records) + _reasoning(records),
         errors="".join(err_rows), legend=legend, filters=filter_html,
     )
 
@@ -391,6 +408,7 @@ svg.bars .n, svg.bars .na { fill: #888; }
 .instr { font-size: 12.5px; color: #2b3440; display: -webkit-box; -webkit-line-clamp: 5; -webkit-box-orient: vertical;
          overflow: hidden; cursor: pointer; white-space: pre-wrap; }
 .instr.open { display: block; }
+.instr.said { color: #5b3a8c; font-style: italic; }
 .cand { font-size: 12.5px; }
 .cand b { display: inline-block; width: 62px; color: var(--muted); font-weight: 600; }
 .media { display: flex; gap: 4px; }
@@ -447,6 +465,15 @@ _SCRIPT = r"""
     c.appendChild(instr);
     c.appendChild(candidate("correct", ep.correct));
     c.appendChild(candidate("grasped", ep.grasped));
+    if (ep.said !== null && ep.said !== undefined) {
+      const said = el("div", "instr said", "said: " + (ep.said || "(nothing)"));
+      said.title = "the policy's text; click to expand";
+      said.addEventListener("click", () => said.classList.toggle("open"));
+      c.appendChild(said);
+      const right = ep.correct && ep.stated === ep.correct.letter;
+      c.appendChild(el("div", "cand", "states: " + (ep.stated ? ep.stated + (right ? " (right)" : " (wrong)")
+                                                              : "no option")));
+    }
     if (ep.thumbs) {
       const media = el("div", "media");
       ep.thumbs.forEach((src, i) => {

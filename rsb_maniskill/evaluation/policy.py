@@ -251,30 +251,32 @@ def resolve_factory(spec: str) -> Callable[..., Any]:
         raise ValueError(f"policy spec must be a non-empty string, got {spec!r}")
     if spec in POLICIES:
         factory = POLICIES[spec].factory
-        return factory if callable(factory) else _import_attr(factory)
+        return factory if callable(factory) else import_factory(factory)
     if ":" not in spec:
         raise ValueError(
             f"policy {spec!r} is neither a built-in ({', '.join(builtin_policies())}) nor of the form "
             "'package.module:factory'"
         )
-    return _import_attr(spec)
+    return import_factory(spec)
 
 
-def _import_attr(spec: str) -> Callable[..., Any]:
+def import_factory(spec: str, what: str = "policy") -> Callable[..., Any]:
+    """The callable ``"package.module:attr"`` names (``attr`` may be dotted); errors name the part
+    of the spec that failed and call it a ``what`` spec."""
     module_name, _, attr = spec.partition(":")
     if not module_name or not attr:
-        raise ValueError(f"policy spec {spec!r} must be 'package.module:factory' with both parts non-empty")
+        raise ValueError(f"{what} spec {spec!r} must be 'package.module:factory' with both parts non-empty")
     try:
         factory = importlib.import_module(module_name)
     except ImportError as err:
-        raise ImportError(f"policy spec {spec!r}: cannot import module {module_name!r}: {err}") from err
+        raise ImportError(f"{what} spec {spec!r}: cannot import module {module_name!r}: {err}") from err
     for part in attr.split("."):
         try:
             factory = getattr(factory, part)
         except AttributeError:
-            raise AttributeError(f"policy spec {spec!r}: module {module_name!r} has no attribute {attr!r}") from None
+            raise AttributeError(f"{what} spec {spec!r}: module {module_name!r} has no attribute {attr!r}") from None
     if not callable(factory):
-        raise TypeError(f"policy spec {spec!r}: {attr!r} is not callable")
+        raise TypeError(f"{what} spec {spec!r}: {attr!r} is not callable")
     return factory
 
 

@@ -131,7 +131,7 @@ def build_record(
     return record
 
 
-class _Donors:
+class Donors:
     """Shuffled mode: episode ``seeds[i]`` is told the instruction of ``seeds[donor[i]]``.
 
     Same rule as ``protocol.shuffled_instruction`` on the whole seed list (so resumed and
@@ -157,6 +157,17 @@ class _Donors:
                 break
             j = self.donor[j]
         return self.seeds[j], self.text(self.seeds[j])
+
+
+def ablate(own: str, mode: str, donor: tuple[int, str] | None) -> tuple[str, dict[str, Any]]:
+    """The instruction given in ``mode`` (``donor``: the shuffled mode's (seed, instruction)), and
+    the record fields saying what was done (``donor_seed``, ``original_instruction``)."""
+    extra: dict[str, Any] = {}
+    if donor is not None:
+        extra["donor_seed"] = donor[0]
+    if mode != "normal":
+        extra["original_instruction"] = own
+    return apply_instruction_mode(own, mode, donor[1] if donor else None), extra
 
 
 def default_instruction_lookup(env: Any, reset_options: Mapping[str, Any] | None = None) -> Callable[[int], str]:
@@ -187,7 +198,7 @@ class _Episodes:
                 if not resets_allowed and not callable(getattr(env.unwrapped, "episode_spec", None)):
                     raise ValueError("shuffled mode on parallel envs needs the task's episode_spec(seed)")
                 lookup = default_instruction_lookup(env, settings.reset_options)
-            self.donors = _Donors(settings.seeds, lookup, settings.shuffle_seed)
+            self.donors = Donors(settings.seeds, lookup, settings.shuffle_seed)
 
     def donor(self, seed: int, own: str | None = None) -> tuple[int, str] | None:
         """Shuffled mode: (donor seed, its instruction); ``own`` defaults to the looked-up text.
@@ -200,13 +211,7 @@ class _Episodes:
 
     def instruction(self, own: str, donor: tuple[int, str] | None) -> tuple[str, dict[str, Any]]:
         """The text the policy is given, and the record's ablation fields."""
-        mode = self.settings.instruction_mode
-        extra: dict[str, Any] = {}
-        if donor is not None:
-            extra["donor_seed"] = donor[0]
-        if mode != "normal":
-            extra["original_instruction"] = own
-        return apply_instruction_mode(own, mode, donor[1] if donor else None), extra
+        return ablate(own, self.settings.instruction_mode, donor)
 
     def record(self, *, seed: int, spec: Any, given: str, info: Mapping[str, Any], steps: int,
                extra: dict[str, Any], frames: list | None, said: EpisodeText) -> dict[str, Any]:

@@ -313,3 +313,33 @@ class RemotePolicy:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class RemoteBackbone:
+    """A backbone (``rsb backbone remote``) behind a websocket server of this protocol.
+
+    Each ``answer`` sends ``{"prompt": instruction, "images": {camera: (H, W, 3) uint8}}`` (images
+    only with ``rsb backbone --images``) and returns the reply's ``"text"``; ``server.py`` serves
+    any object with ``answer(instruction, images)`` that way. Arguments as :class:`RemotePolicy`.
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int | None = 8000, api_key: str | None = None,
+                 prompt_key: str = "prompt", connect_timeout: float = 60.0, request_timeout: float | None = 300.0,
+                 name: str = "remote") -> None:
+        self.client = RemotePolicy(host, port, api_key=api_key, prompt_key=prompt_key,
+                                   connect_timeout=connect_timeout, request_timeout=request_timeout, name=name)
+        self.name = name
+
+    def answer(self, instruction: str, images: Mapping[str, np.ndarray]) -> str:
+        payload: dict[str, Any] = {self.client.prompt_key: instruction}
+        if images:
+            payload["images"] = {k: np.ascontiguousarray(v) for k, v in images.items()}
+        reply = self.client.infer(payload)
+        text = _text(reply.get("text"), self.client.uri)
+        if text is None:
+            raise RuntimeError(f"backbone server {self.client.uri} reply has no 'text' "
+                               f"(keys: {sorted(map(str, reply))})")
+        return text
+
+    def close(self) -> None:
+        self.client.close()

@@ -79,6 +79,19 @@ class PolicyAdapter:
         return reply if all(t is None for t in texts) else {**reply, "text": texts}
 
 
+class BackboneAdapter:
+    """openpi ``infer`` on top of a backbone (``answer(instruction, images) -> str``): the request's
+    ``prompt`` and ``images`` in, ``{"text": answer}`` out (``client.RemoteBackbone``'s protocol)."""
+
+    def __init__(self, backbone: Any, prompt_key: str = "prompt") -> None:
+        self.backbone = backbone
+        self.prompt_key = prompt_key
+
+    def infer(self, request: dict) -> dict:
+        images = request.get("images") or {}
+        return {"text": str(self.backbone.answer(str(request.get(self.prompt_key, "")), dict(images)))}
+
+
 def _health_check(connection: Any, request: Any) -> Any:
     # `GET /healthz` -> 200, as openpi's server does; everything else goes on to the handshake.
     if getattr(request, "path", None) == "/healthz":
@@ -123,6 +136,8 @@ class PolicyServer:
     def _infer_fn(self) -> Any:
         if self.preset is None and callable(getattr(self.policy, "infer", None)):
             return self.policy.infer
+        if callable(getattr(self.policy, "answer", None)) and not callable(getattr(self.policy, "act", None)):
+            return BackboneAdapter(self.policy, self.prompt_key).infer
         # One adapter per connection: a new client starts a new episode.
         return PolicyAdapter(self.policy, self.prompt_key, self.obs_prefix, self.preset).infer
 
@@ -185,8 +200,10 @@ def serve_policy(policy: Any, host: str = "0.0.0.0", port: int = 8000, metadata:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description="Serve an RSB policy (module:factory) over openpi's websocket protocol")
-    p.add_argument("policy", help="'package.module:factory' returning an object with reset/act (or infer)")
+    p = argparse.ArgumentParser(description="Serve an RSB policy or backbone (module:factory) over openpi's "
+                                            "websocket protocol")
+    p.add_argument("policy", help="'package.module:factory' returning an object with reset/act (or infer), or a "
+                                  "backbone with answer(instruction, images)")
     p.add_argument("--host", default="0.0.0.0")
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--preset", choices=sorted(PRESETS), default=None,
@@ -198,8 +215,10 @@ def main(argv: list[str] | None = None) -> int:
     built = f"{args.policy} built a {type(policy).__name__}"
     if args.preset and not has_act:
         p.error(f"{built}, which has no reset()/act(): --preset adapts requests and replies for those")
-    if not has_act and not is_batched(policy) and not callable(getattr(policy, "infer", None)):
-        p.error(f"{built}, which has neither infer() nor reset()/act() (nor reset_batch()/act_batch())")
+    if not has_act and not is_batched(policy) and not any(callable(getattr(policy, m, None))
+                                                          for m in ("infer", "answer")):
+        p.error(f"{built}, which has neither infer() nor reset()/act() (nor reset_batch()/act_batch(), "
+                "nor answer())")
     serve_policy(policy, args.host, args.port, preset=make_preset(args.preset) if args.preset else None)
     return 0
 

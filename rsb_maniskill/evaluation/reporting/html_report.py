@@ -236,6 +236,24 @@ def _reasoning(records: Sequence[Mapping[str, Any]]) -> str:
             + "</section>")
 
 
+def _gap(records: Sequence[Mapping[str, Any]], results_dir: Path) -> str:
+    """The semantic gap section (a backbone's answers beside the policy's actions, ``rsb backbone``),
+    or nothing when the directory holds no answers."""
+    from ..backbone import BACKBONE_FILE, read_backbone_records
+    from .gap import backbone_markdown, gap_markdown, gap_table, plot_gap_uri
+
+    if not (results_dir / BACKBONE_FILE).exists():
+        return ""
+    answers = read_backbone_records(results_dir / BACKBONE_FILE)
+    table = gap_table(records, answers)
+    plot = (f'<p><img class="plot" src="{plot_gap_uri(table[0])}" alt="the semantic gap per suite"></p>'
+            if table[0] else "")
+    return ('<section id="gap"><h2>The semantic gap</h2><p class="note">What the policy\'s backbone answers '
+            '(<code>rsb backbone</code>, the same episodes asked as the policy gets them) beside what its arm does. '
+            'In brackets: Wilson 95% intervals.</p>' + plot
+            + markdown_to_html(backbone_markdown(answers) + "\n" + gap_markdown(table)) + "</section>")
+
+
 def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: str | None = None) -> str:
     """The report page for ``records`` (episode files of ``results_dir`` feed the thumbnails)."""
     records = dedupe(records)
@@ -286,7 +304,7 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
         meta=f"{len(cards)} episodes &middot; {len(rows)} row(s) &middot; {len(suites)} suite(s) &middot; "
              f"{n_videos} with video &middot; rsb_maniskill {__version__} &middot; written {stamp}",
         summary="".join(summary), tables=markdown_to_html(markdown_tables(results)),
-        robustness=_robustness(records) + _reasoning(records),
+        robustness=_robustness(records) + _reasoning(records) + _gap(records, results_dir),
         errors="".join(err_rows), legend=legend, filters=filter_html,
     )
 
@@ -409,6 +427,7 @@ svg.bars .n, svg.bars .na { fill: #888; }
          overflow: hidden; cursor: pointer; white-space: pre-wrap; }
 .instr.open { display: block; }
 .instr.said { color: #5b3a8c; font-style: italic; }
+img.plot { max-width: 100%; background: #fff; border: 1px solid var(--line); border-radius: 6px; }
 .cand { font-size: 12.5px; }
 .cand b { display: inline-block; width: 62px; color: var(--muted); font-weight: 600; }
 .media { display: flex; gap: 4px; }

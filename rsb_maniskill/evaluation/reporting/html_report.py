@@ -490,8 +490,11 @@ _SCRIPT = r"""
       said.addEventListener("click", () => said.classList.toggle("open"));
       c.appendChild(said);
       const right = ep.correct && ep.stated === ep.correct.letter;
-      c.appendChild(el("div", "cand", "states: " + (ep.stated ? ep.stated + (right ? " (right)" : " (wrong)")
-                                                              : "no option")));
+      const states = el("div", "cand");
+      states.appendChild(el("b", "", "states"));
+      states.appendChild(document.createTextNode(ep.stated ? ep.stated + (right ? " (right)" : " (wrong)")
+                                                           : "no option"));
+      c.appendChild(states);
     }
     if (ep.thumbs) {
       const media = el("div", "media");

@@ -20,7 +20,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from ..metrics import Rate, outcome, suite_metrics, suite_order
 from ..records import dedupe, perturb_label
-from .summary import row_label
+from .reasoning import rate_cell
+from .summary import _table, row_label
 
 CROSSING = ("right/right", "right/wrong", "wrong/right", "wrong/wrong")  # backbone / arm, over grasped episodes
 
@@ -129,17 +130,6 @@ def _gap(backbone: str, policy: str, suite: str, episodes: Mapping[int, Mapping[
 
 
 # ---------------------------------------------------------------- tables
-def _cell(rate: Rate) -> str:
-    if rate.value is None:
-        return "n/a"
-    return f"{100 * rate.value:.1f} [{100 * rate.low:.1f}, {100 * rate.high:.1f}]"
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
-    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
-
-
 def backbone_markdown(answers: Iterable[Mapping[str, Any]]) -> str:
     """The backbone rows' accuracy per suite: right, and no option stated, with intervals."""
     rows = []
@@ -147,8 +137,8 @@ def backbone_markdown(answers: Iterable[Mapping[str, Any]]) -> str:
         for suite in suite_order(suites):
             recs = list(suites[suite].values())
             n = len(recs)
-            rows.append([label, suite, str(n), _cell(Rate.of(sum(bool(r["correct"]) for r in recs), n)),
-                         _cell(Rate.of(sum(r.get("stated_letter") is None for r in recs), n))])
+            rows.append([label, suite, str(n), rate_cell(Rate.of(sum(bool(r["correct"]) for r in recs), n)),
+                         rate_cell(Rate.of(sum(r.get("stated_letter") is None for r in recs), n))])
     return ("### Backbone accuracy (%, Wilson 95% intervals)\n\n"
             "Right: the answer states the correct option; no option: it states none, or several.\n\n"
             + _table(["Backbone", "Suite", "Episodes", "Right", "No option"], rows) + "\n")
@@ -158,8 +148,9 @@ def gap_markdown(table: tuple[Sequence[Gap], Sequence[NotJoined]]) -> str:
     gaps, skipped = table
     parts = []
     if gaps:
-        rows = [[g.backbone, g.policy, g.suite_id, str(g.n_episodes), _cell(g.accuracy), _cell(g.tsr),
-                 _cell(g.tsr_gsr), _cell(g.nsg), _cell(g.gap), _cell(g.shortcut), str(g.n_grasped)] for g in gaps]
+        rows = [[g.backbone, g.policy, g.suite_id, str(g.n_episodes)]
+                + [rate_cell(r) for r in (g.accuracy, g.tsr, g.tsr_gsr, g.nsg, g.gap, g.shortcut)] + [str(g.n_grasped)]
+                for g in gaps]
         parts.append("### The semantic gap (%, Wilson 95% intervals)\n\n"
                      "The backbone's answers beside the policy's actions on the same episodes. Over the grasped "
                      "episodes: backbone right, arm wrong (a wrong block grasped) is the semantic gap; backbone "

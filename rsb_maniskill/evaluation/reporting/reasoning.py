@@ -13,7 +13,7 @@ from typing import Any, Iterable, Mapping
 from ..metrics import Rate, group_by_suite, suite_order
 from ..records import dedupe, perturb_label
 from ..statements import FAILURE_LABELS, FAILURES, STATEMENTS, ReasoningFollowing, reasoning_following, talks
-from .summary import row_label
+from .summary import _ci, _table, row_label
 
 Table = Mapping[str, Mapping[str, ReasoningFollowing]]
 STATED = {"right": "Stated right", "wrong": "Stated wrong", "none": "No statement"}
@@ -33,15 +33,9 @@ def reasoning_table(records: Iterable[Mapping[str, Any]]) -> dict[str, dict[str,
     return out
 
 
-def _cell(rate: Rate) -> str:
-    if rate.value is None:
-        return "n/a"
-    return f"{100 * rate.value:.1f} [{100 * rate.low:.1f}, {100 * rate.high:.1f}]"
-
-
-def _table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
-    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+def rate_cell(rate: Rate) -> str:
+    """"12.5 [3.5, 36.0]": a share and its interval in percent, as the summary tables write them."""
+    return _ci(rate.value, rate.low, rate.high)
 
 
 def reasoning_markdown(table: Table) -> str:
@@ -53,7 +47,7 @@ def reasoning_markdown(table: Table) -> str:
     parts = []
     for s in suites:
         present = [label for label in labels if s in table[label]]
-        rows = [[FAILURE_LABELS[k]] + [_cell(table[label][s].failure_rates()[k]) for label in present]
+        rows = [[FAILURE_LABELS[k]] + [rate_cell(table[label][s].failure_rates()[k]) for label in present]
                 for k in FAILURES]
         rows.append(["Grasped-but-failed episodes (count)"] + [str(table[label][s].n_grasped_failed)
                                                                  for label in present])
@@ -63,8 +57,9 @@ def reasoning_markdown(table: Table) -> str:
     cells = [(said, grasp) for said in STATEMENTS for grasp in ("right", "wrong")]
     header = ["Policy", "Suite"] + [f"{STATED[said]} · grasped {grasp}" for said, grasp in cells] + [
         "Grasped episodes", "Stated right (% of episodes)"]
-    rows = [[label, s] + [_cell(t.crossing_rates()[f"{said}/{grasp}"]) for said, grasp in cells]
-            + [str(t.n_grasped), _cell(t.stated_right_rate())] for label in labels for s, t in table[label].items()]
+    rows = [[label, s] + [rate_cell(t.crossing_rates()[f"{said}/{grasp}"]) for said, grasp in cells]
+            + [str(t.n_grasped), rate_cell(t.stated_right_rate())]
+            for label in labels for s, t in table[label].items()]
     parts.append("### Statement and grasp (% of grasped episodes)\n\n"
                  "Grasped right: the correct block was grasped (placed or not); grasped wrong: only wrong blocks.\n\n"
                  + _table(header, rows))

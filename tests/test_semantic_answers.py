@@ -28,7 +28,9 @@ def statements(spec, sampler, slot: int) -> dict[str, str]:
     out = {f"entry {e!r}": e.format(L=letter, O=option, B=name) for e in entries}
     out.update({"option": f"option {letter}", "Option (x)": f"Option ({letter})", "parens": f"({letter})",
                 "answer is": f"The answer is {letter}.", "answer colon": f"Answer: {letter}", "bare": letter,
-                "lower": f"I choose option {letter.lower()}.", "name": f"Put the {name} in the zone."})
+                "lower": f"I choose option {letter.lower()}.", "name": f"Put the {name} in the zone.",
+                "quoted": f'The correct answer is "{letter}"', "answer letter": f"The answer is letter {letter}.",
+                "llm": f"The correct answer is [{letter}] {option} goes with the {name}."})
     for level in (1, 2, 3):
         ref = reference_names([name], [key], level)[0]
         if key.startswith("block:") or " " in ref:  # one-word object synonyms ("ball") are not read

@@ -5,7 +5,8 @@ question (``rsb backbone``) both answer in words. :func:`read_statement` finds t
 text names, against the episode's :class:`~rsb_maniskill.semantic.spec.EpisodeSpec`, in the forms
 RSB's instructions use:
 
-- *the option itself*: "option B", "choice B", "the answer is B", "answer: B";
+- *the option itself*: "option B", "choice B", "the answer is B", 'answer: "B"', "the answer is
+  letter B";
 - *other references*: the letter in every entry form of ``templates.py`` ("(B)", "B)", "B: ...",
   "[B]", "marked B", "10 is B") and the candidate bound to the option ("the green block", "block
   F", "the mug", and the ``lang_reference`` names of ``wording.py``: "the crimson cube");
@@ -124,7 +125,8 @@ def _phrase(words: str) -> re.Pattern:
 
 
 # A single letter names an option after these words ("option B", "answer is B") ...
-_OPTION_PATTERNS = (rf"\b(?:option|choice|answer)\s*(?:is\s+|:\s*|=\s*|#\s*)?[(\[]?(?P<L>[{_LETTERS}])(?![\w'])",)
+_OPTION_PATTERNS = (rf"\b(?:option|choice|answer)\s*(?:is\s+|:\s*|=\s*|#\s*)?(?:(?:option|choice|letter)\s+)?"
+                    rf"[(\[\"'“‘]?(?P<L>[{_LETTERS}])(?![\w'])",)
 # ... and in the entry forms of the templates and the names of the lettered blocks.
 _REFERENCE_PATTERNS = (
     rf"\b(?:letter|block|cube|marked|carries|labell?ed)\s+(?P<L>[{_LETTERS}])(?![\w'])",
@@ -156,7 +158,7 @@ def _letter_mentions(t: str, letters: Sequence[str], patterns: Sequence[str]) ->
 def _keyword_case_ok(m: re.Match) -> bool:
     """A lower-case letter counts only right after "option" or "choice" ("option b"): elsewhere
     "a" and "i" are words."""
-    return re.match(r"(?i)(?:option|choice)\s*[(\[]?[a-z]$", m.group(0)) is not None
+    return re.fullmatch(r"(?i)(?:option|choice)\s*[(\[\"'“‘]?[a-z]", m.group(0)) is not None
 
 
 def _names(spec: Any) -> list[tuple[str, int]]:

@@ -91,6 +91,12 @@ def test_user_backbone_module_factory(tmp_path, monkeypatch):
                 return f"The answer is ({self.letter})." if instruction else ""
         def broken():
             return object()
+        class Mute:
+            def answer(self, instruction, images):
+                return None
+        class Number:
+            def answer(self, instruction, images):
+                return 10
     """))
     monkeypatch.syspath_prepend(str(tmp_path))
     out = tmp_path / "res"
@@ -101,6 +107,12 @@ def test_user_backbone_module_factory(tmp_path, monkeypatch):
     assert [r["correct"] for r in records] == [s.correct_letter == "C" for s in specs("RSB-Math-4", 8)]
     with pytest.raises(TypeError, match="lacks answer"):
         load_backbone("my_backbones:broken")
+    mute = ask_episodes(load_backbone("my_backbones:Mute"), "RSB-Math-4", eval_seeds("RSB-Math-4", 2),
+                        tmp_path / "m.jsonl", label="mute", progress=False)
+    assert [(r["text"], r["stated_letter"], r["correct"]) for r in mute] == [("", None, False)] * 2
+    with pytest.raises(TypeError, match="must return a str, got int"):
+        ask_episodes(load_backbone("my_backbones:Number"), "RSB-Math-4", eval_seeds("RSB-Math-4", 2),
+                     tmp_path / "n.jsonl", label="n", progress=False)
     sys.modules.pop("my_backbones", None)
 
 

@@ -147,6 +147,15 @@ class _Questions:
             self.env.close()
 
 
+def _answer_text(answer: Any) -> str:
+    """A backbone's reply as text: None is no answer; anything but a str is a mistake to report."""
+    if answer is None:
+        return ""
+    if not isinstance(answer, str):
+        raise TypeError(f"backbone.answer must return a str, got {type(answer).__name__}")
+    return answer
+
+
 def record_key(record: Mapping[str, Any]) -> tuple:
     """A backbone record's identity: the same question of the same backbone row."""
     return record.get("backbone"), record.get("suite_id"), record.get("instruction_mode"), int(record["seed"])
@@ -197,7 +206,7 @@ def ask_episodes(backbone: Backbone, suite_id: str, seeds: Sequence[int], out_pa
                 donor = donors(seed, spec.instruction) if donors is not None else None
                 given, extra = ablate(spec.instruction, instruction_mode, donor)
                 said = EpisodeText()
-                said.add(str(backbone.answer(given, frames)))
+                said.add(_answer_text(backbone.answer(given, frames)))
                 fields = said.fields(spec)
                 record = {"backbone": label, "suite_id": suite_id, "seed": seed, "question_id": int(spec.question_id),
                           "instruction_mode": instruction_mode, "instruction": given,

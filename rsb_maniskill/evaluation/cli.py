@@ -314,6 +314,9 @@ def _run_eval(args: argparse.Namespace) -> int:
         robust = robustness_table(all_records)
         if robust:
             print(robustness_markdown(robust))
+        from rsb_maniskill.evaluation.reporting.reasoning import reasoning_markdown, reasoning_table
+
+        print(reasoning_markdown(reasoning_table(all_records)), end="")  # nothing unless a policy talked
         print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\nreport: {page}")
     if interrupted:
         print(f"rsb eval: interrupted; finished episodes are in {records_path}. "

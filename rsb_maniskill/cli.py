@@ -17,6 +17,7 @@ _COMMAND_MODULES = (
     "rsb_maniskill.audit.cli",
     "rsb_maniskill.motionplan.cli",
     "rsb_maniskill.evaluation.cli",
+    "rsb_maniskill.evaluation.backbone",
     "rsb_maniskill.evaluation.reporting.html_report",
     "rsb_maniskill.export.cli",
 )

@@ -54,6 +54,10 @@ def test_dataset_contents_and_card(one_proc):
     assert data["index"] == list(range(len(data["index"])))  # renumbered across the two shards
     assert sorted(set(data["episode_index"])) == [0, 1, 2, 3]
     assert [e["rsb/seed"] for e in eps] == [0, 1, 2, 3]  # question q is seed q (Math-4's pool is larger)
+    for e in eps:  # the CoT target of a policy that talks, through the merge of the shards
+        assert isinstance(e["rsb/options"], list) and all(isinstance(o, str) for o in e["rsb/options"])
+        assert e["rsb/correct_option"] == e["rsb/options"]["ABCD".index(e["rsb/correct_letter"])]
+        assert f"Option {e['rsb/correct_letter']} is" in e["rsb/rationale"]
     assert len(sorted((one_proc / "data").glob("chunk-000/file-*.parquet"))) == 2
     for e in eps:  # each episode's frames point at its own task and its own video
         rows = range(e["dataset_from_index"], e["dataset_to_index"])

@@ -87,6 +87,10 @@ def test_v3_layout_and_contents(demos, exported):
         assert ep["tasks"] == [s["instruction"]] and ep["length"] == s["elapsed_steps"]
         assert ep["rsb/correct_letter"] == s["correct_letter"] and ep["rsb/seed"] == s["episode_seed"]
         assert ep["rsb/suite_id"] == "RSB-Math-4" and ep["rsb/split"] == "train"
+        # a CoT target: the rationale, ending on the correct option, and that option's text
+        assert ep["rsb/options"] == s["options"] and all(isinstance(o, str) for o in ep["rsb/options"])
+        assert ep["rsb/rationale"] == s["rationale"] and ep["rsb/correct_option"] in ep["rsb/options"]
+        assert ep["rsb/correct_option"] == ep["rsb/options"]["ABCD".index(s["correct_letter"])]
         # every frame of the episode points at its task
         rows = range(ep["dataset_from_index"], ep["dataset_to_index"])
         assert {data["task_index"][r] for r in rows} == {tasks["task_index"][tasks["task"].index(s["instruction"])]}
@@ -176,6 +180,8 @@ def test_lerobot_loads_the_export(demos, exported, tmp_path):
         eps = ds.meta.episodes
         print(json.dumps(dict(frames=len(ds), episodes=ds.num_episodes, task=item["task"],
                               tasks=sorted(ds.meta.tasks.index), letter=eps[0]["rsb/correct_letter"],
+                              options=eps[0]["rsb/options"], rationale=eps[0]["rsb/rationale"],
+                              correct_option=eps[0]["rsb/correct_option"],
                               err=float(np.abs(img - np.load({str(tmp_path / "frame.npy")!r})).mean()),
                               keys=sorted(item))))
     """)
@@ -187,6 +193,8 @@ def test_lerobot_loads_the_export(demos, exported, tmp_path):
     assert got["task"] == src["episodes"][0]["instruction"]
     assert got["tasks"] == sorted({e["instruction"] for e in src["episodes"]})
     assert got["letter"] == src["episodes"][0]["correct_letter"]
+    assert got["options"] == src["episodes"][0]["options"]  # a list of strings, as LeRobot reads it
+    assert got["rationale"] == src["episodes"][0]["rationale"] and got["correct_option"] in got["options"]
     assert got["err"] < 6, got["err"]
     assert {"observation.state", "action", "observation.images.cam_left_wrist", "task_index"} <= set(got["keys"])
 

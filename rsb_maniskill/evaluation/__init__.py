@@ -5,6 +5,7 @@ Simulator-independent: these modules see the env only through the task contract 
 """
 from __future__ import annotations
 
+from .backbone import Backbone, ask_episodes, load_backbone
 from .jobs import EvalJob, drive, run_episodes, run_job
 from .metrics import (
     PAPER_SUITES,
@@ -42,6 +43,7 @@ from .protocol import (
 from .records import INSTRUCTION_MODES, RECORD_FIELDS, RecordWriter, completed_seeds, read_records
 from .reporting.summary import markdown_tables, plot_summary, results_from_records, summary_dict, write_report
 from .runner import EpisodeSettings, batched_loop, build_record, episode_loop
+from .statements import MAX_TEXT_CHARS, reasoning_following
 
 __all__ = [
     "Average", "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "EpisodeSettings", "ErrorAnalysis",
@@ -52,4 +54,5 @@ __all__ = [
     "markdown_tables", "nsg", "num_choices", "plot_summary", "policy_name", "read_records", "register_policy",
     "results_from_records", "run_episodes", "run_job", "shuffled_instruction", "summarize", "suite_metrics",
     "summary_dict", "wilson_interval", "write_report",
+    "Backbone", "MAX_TEXT_CHARS", "ask_episodes", "load_backbone", "reasoning_following",
 ]

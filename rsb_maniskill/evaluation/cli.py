@@ -158,21 +158,23 @@ def check_data(suites: list[str], data_dir: str | None) -> None:
             raise EvalError(f"{suite}: {err}") from err
 
 
-def check_manifest(out: Path, label: str, settings: dict[str, Any]) -> None:
-    """Record this row's settings in run.json, or check they match those it was started with."""
+def check_manifest(out: Path, label: str, settings: dict[str, Any], section: str = "runs",
+                   keys: tuple[str, ...] = MANIFEST_KEYS) -> None:
+    """Record this row's settings in run.json (under ``section``: ``runs`` for policies,
+    ``backbones`` for ``rsb backbone``), or check that ``keys`` match those it was started with."""
     from rsb_maniskill import __version__
 
     path = out / MANIFEST_FILE
     manifest = json.loads(path.read_text()) if path.exists() else {"runs": {}}
-    old = manifest["runs"].get(label)
+    old = manifest.setdefault(section, {}).get(label)
     if old is not None:
-        diff = [k for k in MANIFEST_KEYS if old.get(k) != settings.get(k)]
+        diff = [k for k in keys if old.get(k) != settings.get(k)]
         if diff:
             shown = ", ".join(f"{k}: {old.get(k)!r} before, {settings.get(k)!r} now" for k in diff)
             raise EvalError(f"{out} already holds episodes of {label!r} run with other settings ({shown}). "
                             "Use the same settings to resume, or another --out / --name for a new run.")
         return
-    manifest["runs"][label] = {**settings, "rsb_version": __version__}
+    manifest[section][label] = {**settings, "rsb_version": __version__}
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(manifest, indent=2) + "\n")
     os.replace(tmp, path)
@@ -312,6 +314,9 @@ def _run_eval(args: argparse.Namespace) -> int:
         robust = robustness_table(all_records)
         if robust:
             print(robustness_markdown(robust))
+        from rsb_maniskill.evaluation.reporting.reasoning import reasoning_markdown, reasoning_table
+
+        print(reasoning_markdown(reasoning_table(all_records)), end="")  # nothing unless a policy talked
         print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\nreport: {page}")
     if interrupted:
         print(f"rsb eval: interrupted; finished episodes are in {records_path}. "

@@ -7,6 +7,10 @@ ablation) and the first observation, then ``act``; it executes the T actions of 
 order and calls ``act`` again with the newest observation. Observations are the single-env
 observation as numpy arrays in the env's nested dict layout (leading env dim removed).
 
+A policy that talks returns ``{"actions": chunk, "text": str}`` instead of the bare chunk (its
+chain of thought, say): the record keeps the episode's text and the option it states
+(``statements.py``). The batched form's mapping holds one text per env (None where it has none).
+
 The optional batched form (:class:`BatchedPolicy`) drives the B parallel envs of ``--num-envs``
 with one object: ``reset_batch(instructions, obs)`` and ``act_batch(obs, envs) -> (len(envs), T,
 action_dim)``, observations keeping their leading env dim. A policy that has it (the remote
@@ -17,7 +21,7 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -29,8 +33,9 @@ class Policy(Protocol):
     def reset(self, instruction: str, obs: dict) -> None:
         """Start an episode: ``instruction`` is the text the policy may use ("" in blank mode)."""
 
-    def act(self, obs: dict) -> np.ndarray:
-        """Action chunk of shape (T, action_dim), T >= 1, executed in order before the next call."""
+    def act(self, obs: dict) -> Any:
+        """Action chunk of shape (T, action_dim), T >= 1, executed in order before the next call;
+        or ``{"actions": chunk, "text": str}``."""
 
 
 @runtime_checkable
@@ -42,7 +47,8 @@ class BatchedPolicy(Protocol):
 
     def act_batch(self, obs: dict, envs: Sequence[int]) -> Any:
         """Chunks for the envs ``envs`` (indices into the reset's B), ``obs`` holding their rows in that
-        order: a (len(envs), T, action_dim) array, or a list of (T_i, action_dim) chunks."""
+        order: a (len(envs), T, action_dim) array, or a list of (T_i, action_dim) chunks; or
+        ``{"actions": chunks, "text": [one str or None per env]}``."""
 
 
 def is_batched(policy: Any) -> bool:
@@ -71,8 +77,8 @@ class PerEnvPolicies:
         for i, text in enumerate(instructions):
             self.policies[i].reset(text, _row(obs, i))
 
-    def act_batch(self, obs: dict, envs: Sequence[int]) -> list[np.ndarray]:
-        return [self.policies[e].act(_row(obs, k)) for k, e in enumerate(envs)]
+    def act_batch(self, obs: dict, envs: Sequence[int]) -> Any:
+        return join_outputs([self.policies[e].act(_row(obs, k)) for k, e in enumerate(envs)])
 
 
 def _row(obs: Any, i: int) -> Any:
@@ -89,6 +95,45 @@ def as_chunks(actions: Any, n: int, action_dim: int | None = None) -> list[np.nd
     if len(chunks) != n:
         raise ValueError(f"policy.act_batch returned {len(chunks)} chunks for {n} envs")
     return [as_chunk(c, action_dim) for c in chunks]
+
+
+def _actions(out: Mapping, method: str) -> Any:
+    if "actions" not in out:
+        raise ValueError(f"policy.{method} returned a mapping without 'actions' (keys: {sorted(map(str, out))}); "
+                         "return the actions, or {'actions': ..., 'text': ...}")
+    return out["actions"]
+
+
+def split_output(out: Any) -> tuple[Any, str | None]:
+    """A policy's ``act`` output as (actions, text): the bare actions give no text (None)."""
+    if not isinstance(out, Mapping):
+        return out, None
+    text = out.get("text")
+    if text is not None and not isinstance(text, str):
+        raise ValueError(f"policy.act returned 'text' of type {type(text).__name__}; it must be a str")
+    return _actions(out, "act"), text
+
+
+def split_outputs(out: Any, n: int) -> tuple[Any, list[str | None]]:
+    """A batched policy's output as (actions, one text or None per env)."""
+    if not isinstance(out, Mapping):
+        return out, [None] * n
+    texts = out.get("text")
+    if texts is None:
+        return _actions(out, "act_batch"), [None] * n
+    if isinstance(texts, str) or not isinstance(texts, Sequence) or len(texts) != n \
+            or not all(t is None or isinstance(t, str) for t in texts):
+        raise ValueError(f"policy.act_batch must return 'text' as a list of {n} str (or None), one per env; "
+                         f"got {type(texts).__name__}")
+    return _actions(out, "act_batch"), list(texts)
+
+
+def join_outputs(outs: Sequence[Any]) -> Any:
+    """Single-env outputs of several envs as one batched output (a mapping when any has text)."""
+    pairs = [split_output(o) for o in outs]
+    if all(text is None for _, text in pairs):
+        return [a for a, _ in pairs]
+    return {"actions": [a for a, _ in pairs], "text": [t for _, t in pairs]}
 
 
 def env_action_space(env: Any) -> Any:
@@ -207,30 +252,32 @@ def resolve_factory(spec: str) -> Callable[..., Any]:
         raise ValueError(f"policy spec must be a non-empty string, got {spec!r}")
     if spec in POLICIES:
         factory = POLICIES[spec].factory
-        return factory if callable(factory) else _import_attr(factory)
+        return factory if callable(factory) else import_factory(factory)
     if ":" not in spec:
         raise ValueError(
             f"policy {spec!r} is neither a built-in ({', '.join(builtin_policies())}) nor of the form "
             "'package.module:factory'"
         )
-    return _import_attr(spec)
+    return import_factory(spec)
 
 
-def _import_attr(spec: str) -> Callable[..., Any]:
+def import_factory(spec: str, what: str = "policy") -> Callable[..., Any]:
+    """The callable ``"package.module:attr"`` names (``attr`` may be dotted); errors name the part
+    of the spec that failed and call it a ``what`` spec."""
     module_name, _, attr = spec.partition(":")
     if not module_name or not attr:
-        raise ValueError(f"policy spec {spec!r} must be 'package.module:factory' with both parts non-empty")
+        raise ValueError(f"{what} spec {spec!r} must be 'package.module:factory' with both parts non-empty")
     try:
         factory = importlib.import_module(module_name)
     except ImportError as err:
-        raise ImportError(f"policy spec {spec!r}: cannot import module {module_name!r}: {err}") from err
+        raise ImportError(f"{what} spec {spec!r}: cannot import module {module_name!r}: {err}") from err
     for part in attr.split("."):
         try:
             factory = getattr(factory, part)
         except AttributeError:
-            raise AttributeError(f"policy spec {spec!r}: module {module_name!r} has no attribute {attr!r}") from None
+            raise AttributeError(f"{what} spec {spec!r}: module {module_name!r} has no attribute {attr!r}") from None
     if not callable(factory):
-        raise TypeError(f"policy spec {spec!r}: {attr!r} is not callable")
+        raise TypeError(f"{what} spec {spec!r}: {attr!r} is not callable")
     return factory
 
 

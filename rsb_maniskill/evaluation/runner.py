@@ -27,9 +27,19 @@ from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.perturb import parse_perturb
 
-from .policy import PerEnvPolicies, as_chunk, as_chunks, env_action_space, is_batched, obs_rows
+from .policy import (
+    PerEnvPolicies,
+    as_chunk,
+    as_chunks,
+    env_action_space,
+    is_batched,
+    obs_rows,
+    split_output,
+    split_outputs,
+)
 from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
 from .records import INSTRUCTION_MODES
+from .statements import EpisodeText
 
 # info flags copied into every record, and extra ones kept when the env provides them.
 RECORD_FLAGS = ("grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success")
@@ -121,7 +131,7 @@ def build_record(
     return record
 
 
-class _Donors:
+class Donors:
     """Shuffled mode: episode ``seeds[i]`` is told the instruction of ``seeds[donor[i]]``.
 
     Same rule as ``protocol.shuffled_instruction`` on the whole seed list (so resumed and
@@ -147,6 +157,17 @@ class _Donors:
                 break
             j = self.donor[j]
         return self.seeds[j], self.text(self.seeds[j])
+
+
+def ablate(own: str, mode: str, donor: tuple[int, str] | None) -> tuple[str, dict[str, Any]]:
+    """The instruction given in ``mode`` (``donor``: the shuffled mode's (seed, instruction)), and
+    the record fields saying what was done (``donor_seed``, ``original_instruction``)."""
+    extra: dict[str, Any] = {}
+    if donor is not None:
+        extra["donor_seed"] = donor[0]
+    if mode != "normal":
+        extra["original_instruction"] = own
+    return apply_instruction_mode(own, mode, donor[1] if donor else None), extra
 
 
 def default_instruction_lookup(env: Any, reset_options: Mapping[str, Any] | None = None) -> Callable[[int], str]:
@@ -177,7 +198,7 @@ class _Episodes:
                 if not resets_allowed and not callable(getattr(env.unwrapped, "episode_spec", None)):
                     raise ValueError("shuffled mode on parallel envs needs the task's episode_spec(seed)")
                 lookup = default_instruction_lookup(env, settings.reset_options)
-            self.donors = _Donors(settings.seeds, lookup, settings.shuffle_seed)
+            self.donors = Donors(settings.seeds, lookup, settings.shuffle_seed)
 
     def donor(self, seed: int, own: str | None = None) -> tuple[int, str] | None:
         """Shuffled mode: (donor seed, its instruction); ``own`` defaults to the looked-up text.
@@ -190,18 +211,14 @@ class _Episodes:
 
     def instruction(self, own: str, donor: tuple[int, str] | None) -> tuple[str, dict[str, Any]]:
         """The text the policy is given, and the record's ablation fields."""
-        mode = self.settings.instruction_mode
-        extra: dict[str, Any] = {}
-        if donor is not None:
-            extra["donor_seed"] = donor[0]
-        if mode != "normal":
-            extra["original_instruction"] = own
-        return apply_instruction_mode(own, mode, donor[1] if donor else None), extra
+        return ablate(own, self.settings.instruction_mode, donor)
 
     def record(self, *, seed: int, spec: Any, given: str, info: Mapping[str, Any], steps: int,
-               extra: dict[str, Any], frames: list | None) -> dict[str, Any]:
-        """The record of a finished episode; writes its video first when it was filmed."""
+               extra: dict[str, Any], frames: list | None, said: EpisodeText) -> dict[str, Any]:
+        """The record of a finished episode (with what the policy said, if it talked); writes its
+        video first when it was filmed."""
         s = self.settings
+        extra.update(said.fields(spec))
         if s.perturb:
             extra.update(perturb_fields(s.perturb))
         if frames is not None:
@@ -303,9 +320,11 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         frames = [_render(env)[0]] if seed in episodes.filmed else None
 
         policy.reset(given, single_env_obs(obs))
-        steps, finished = 0, False
+        steps, finished, said = 0, False, EpisodeText()
         while not finished and steps < settings.max_steps:
-            chunk = as_chunk(policy.act(single_env_obs(observations.current())), episodes.action_dim)
+            actions, text = split_output(policy.act(single_env_obs(observations.current())))
+            said.add(text)
+            chunk = as_chunk(actions, episodes.action_dim)
             for action in chunk:
                 a = action[None] if batched_actions else action
                 _, terminated, truncated, info = observations.step(a)
@@ -316,7 +335,8 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                 if finished or steps >= settings.max_steps:
                     break
         extra["wall_s"] = round(time.monotonic() - t0, 3)
-        write(episodes.record(seed=seed, spec=spec, given=given, info=info, steps=steps, extra=extra, frames=frames))
+        write(episodes.record(seed=seed, spec=spec, given=given, info=info, steps=steps, extra=extra, frames=frames,
+                              said=said))
 
 
 def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:
@@ -360,16 +380,19 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         frames = {i: [] for i, s in enumerate(wave) if s in episodes.filmed}
         _collect_frames(env, frames)
         pending: list[list[np.ndarray]] = [[] for _ in range(b)]
+        said = [EpisodeText() for _ in range(b)]
         last = np.zeros((b, episodes.action_dim), dtype=np.float32)
         steps = [0] * b
         active = [i < n for i in range(b)]
         while any(active):
             need = [i for i in range(b) if active[i] and not pending[i]]
             if need:  # one call for all envs whose chunk ran out (in step when chunks are of equal length)
-                chunks = as_chunks(policy.act_batch(obs_rows(observations.current(), need), need), len(need),
-                                   episodes.action_dim)
-                for i, chunk in zip(need, chunks):
+                actions, texts = split_outputs(policy.act_batch(obs_rows(observations.current(), need), need),
+                                               len(need))
+                chunks = as_chunks(actions, len(need), episodes.action_dim)
+                for i, chunk, text in zip(need, chunks, texts):
                     pending[i] = list(chunk)
+                    said[i].add(text)
             for i in range(b):
                 if active[i]:
                     last[i] = pending[i].pop(0)
@@ -384,7 +407,7 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                         or steps[i] >= settings.max_steps):
                     active[i] = False
                     write(episodes.record(seed=wave[i], spec=specs[i], given=given[i], info=_row_info(info, i),
-                                          steps=steps[i], extra=extras[i], frames=frames.pop(i, None)))
+                                          steps=steps[i], extra=extras[i], frames=frames.pop(i, None), said=said[i]))
 
 
 def _collect_frames(env: Any, frames: dict[int, list], active: Sequence[bool] | None = None) -> None:

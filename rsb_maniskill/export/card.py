@@ -106,8 +106,10 @@ episode's instruction is its task string.
 right gripper], grippers in [0, 1] (absolute joint targets) |
 | seeds | question q is episode seed q (+ k x pool size after k failed attempts); `rsb/seed` per episode |
 
-Per-episode RSB metadata is in `meta/episodes` (`rsb/question`, `rsb/options`, `rsb/correct_letter`,
-`rsb/target_block`, `rsb/seed`, ...); `meta/rsb_build.json` holds the build settings.
+Per-episode RSB metadata is in `meta/episodes` (`rsb/question`, `rsb/options` (a list of strings),
+`rsb/correct_letter`, `rsb/correct_option`, `rsb/target_block`, `rsb/seed`, ...), with `rsb/rationale`: a
+short worked solution ending on the option and its block, ready as a chain-of-thought target;
+`meta/rsb_build.json` holds the build settings.
 
 ## How it was made
 

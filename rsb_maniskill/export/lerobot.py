@@ -179,8 +179,10 @@ def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int,
                         frames[c].append(obs["sensor_data"][sensor_uid(c)]["rgb"][0].cpu().numpy())
                 meta = {
                     "suite_id": spec.suite_id, "split": spec.split, "seed": int(ep["episode_seed"]),
-                    "question_id": spec.question_id, "question": spec.question, "options": list(spec.options),
-                    "correct_letter": spec.correct_letter, "target_block": spec.target_block,
+                    "question_id": spec.question_id, "question": spec.question,
+                    "options": [str(o) for o in spec.options], "correct_letter": spec.correct_letter,
+                    "correct_option": str(spec.correct_option), "rationale": spec.rationale,  # a CoT target
+                    "target_block": spec.target_block,
                     "template_id": spec.template_id, "source_file": h5_path.name,
                     "source_episode_id": int(ep["episode_id"]),
                 }

@@ -143,11 +143,11 @@ class RSBLeRobotEnv(gym.Env):
             return ""
         if self._donors is None:
             from rsb_maniskill.evaluation.protocol import SHUFFLE_SEED, eval_seeds
-            from rsb_maniskill.evaluation.runner import _Donors
+            from rsb_maniskill.evaluation.runner import Donors
 
             base = self._env.unwrapped
-            self._donors = _Donors(eval_seeds(self.env_id, self.episodes),
-                                   lambda s: base.episode_spec(s).instruction, SHUFFLE_SEED)
+            self._donors = Donors(eval_seeds(self.env_id, self.episodes),
+                                  lambda s: base.episode_spec(s).instruction, SHUFFLE_SEED)
         return self._donors(seed, own)[1]
 
     # ------------------------------------------------------------------ gym.Env

@@ -13,6 +13,8 @@ no commuted copy of a training question.
 """
 from __future__ import annotations
 
+import operator
+import re
 from functools import lru_cache
 
 from .records import Question
@@ -20,11 +22,21 @@ from .stable import stable_key
 
 TRAIN_SIZE = 500
 TEST_SIZE = 1000
-_OPS = ("plus", "minus", "times")
+_OPS = {"plus": operator.add, "minus": operator.sub, "times": operator.mul}
+QUESTION = re.compile(r"What is (\d+) (plus|minus|times) (\d+)\?")  # the form _question writes
+
+
+def solve(text: str) -> tuple[int, str, int, int] | None:
+    """(a, op, b, value) of the first RSB-Math question in ``text``, else None."""
+    m = QUESTION.search(text)
+    if m is None:
+        return None
+    a, op, b = int(m.group(1)), m.group(2), int(m.group(3))
+    return a, op, b, _OPS[op](a, b)
 
 
 def _question(op: str, a: int, b: int) -> Question:
-    v = {"plus": a + b, "minus": a - b, "times": a * b}[op]
+    v = _OPS[op](a, b)
     word = op
     return Question(
         text=f"What is {a} {word} {b}?",

@@ -5,11 +5,14 @@ packed with msgpack + the msgpack-numpy scheme below:
 
 1. on connect the server sends its metadata dict;
 2. the client sends an observation dict, the server replies a dict holding ``"actions"`` (an
-   action chunk, shape (T, D)); repeat. A text frame instead of a reply is a server traceback.
+   action chunk, shape (T, D)) and, from a policy that talks, ``"text"`` (a str: the client's
+   ``act`` then returns ``{"actions": chunk, "text": text}``); repeat. A text frame instead of a
+   reply is a server traceback.
 
 Batched requests (``--num-envs``: one request per step for all envs that need a chunk) carry
 the same keys with a leading env dim on every array, the prompts as a list of strings and
-``"env_ids"``; the reply's ``"actions"`` is (B, T, D). ``server.py`` answers them with a policy's
+``"env_ids"``; the reply's ``"actions"`` is (B, T, D), its ``"text"`` (if any) a list of B strings
+or nils. ``server.py`` answers them with a policy's
 batched form; a server that takes one observation at a time needs ``RemotePolicy(batch=False)``.
 
 Arrays travel as ``{"__ndarray__": True, "data": raw bytes, "dtype": dtype.str, "shape": shape}``
@@ -24,7 +27,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from ..policy import as_chunk
+from ..policy import as_chunk, join_outputs
 
 INSTALL_HINT = "the remote policy client needs `pip install websockets msgpack` (extra: rsb_maniskill[eval])"
 
@@ -121,6 +124,15 @@ def _row(obs: Any, i: int) -> Any:
     return np.asarray(obs)[i]
 
 
+def _text(value: Any, uri: str) -> str | None:
+    """A reply's ``text`` (msgpack may hand back bytes)."""
+    if value is None or isinstance(value, str):
+        return value
+    if isinstance(value, bytes):
+        return value.decode("utf-8", errors="replace")
+    raise RuntimeError(f"policy server {uri} replied 'text' of type {type(value).__name__}; expected a str")
+
+
 # ---------------------------------------------------------------- client
 def open_websocket(uri: str, timeout: float, headers: dict[str, str] | None = None, **options: Any) -> Any:
     """A blocking websocket connection to a policy server, retrying a refused connection for ``timeout`` s
@@ -153,7 +165,8 @@ class RemotePolicy:
 
     Each ``act`` sends ``flatten_obs(obs) | {"prompt": instruction}`` (or ``obs_transform(obs,
     instruction)`` when given, to match a server that expects other keys) and returns the reply's
-    ``"actions"`` as a (T, D) array, cut to ``action_horizon`` steps when set.
+    ``"actions"`` as a (T, D) array, cut to ``action_horizon`` steps when set, with the reply's
+    ``"text"`` as ``{"actions": chunk, "text": text}`` when the server sends one.
 
     Args:
         host: server host, or a full ``ws://`` / ``wss://`` URI.
@@ -241,7 +254,7 @@ class RemotePolicy:
         self.instruction = instruction
         self._episode_start = True
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: dict) -> Any:
         if self.obs_transform is not None:
             payload = dict(self.obs_transform(obs, self.instruction))
         else:
@@ -256,22 +269,24 @@ class RemotePolicy:
         chunk = as_chunk(np.array(reply["actions"]))
         if self.preset is not None:
             chunk = self.preset.env_actions(chunk)
-        return chunk[: self.action_horizon] if self.action_horizon else chunk
+        chunk = chunk[: self.action_horizon] if self.action_horizon else chunk
+        text = _text(reply.get("text"), self.uri)
+        return chunk if text is None else {"actions": chunk, "text": text}
 
     # ------------------------------------------------------------ batched form (parallel envs)
     def reset_batch(self, instructions: Any, obs: dict) -> None:
         self.instructions = list(instructions)
         self._episode_start = True
 
-    def act_batch(self, obs: dict, envs: Any) -> np.ndarray | list[np.ndarray]:
+    def act_batch(self, obs: dict, envs: Any) -> Any:
         """Chunks for ``envs``: one batched request, or (``batch=False``) one request per env."""
         envs = [int(e) for e in envs]
         if not self.batch:
-            chunks = []
+            outs = []
             for k, e in enumerate(envs):
                 self.instruction = self.instructions[e]
-                chunks.append(self.act(_row(obs, k)))
-            return chunks
+                outs.append(self.act(_row(obs, k)))
+            return join_outputs(outs)
         prompts = [self.instructions[e] for e in envs]
         if self.obs_transform is not None:
             payload = dict(self.obs_transform(obs, prompts))
@@ -289,7 +304,13 @@ class RemotePolicy:
             raise RuntimeError(f"policy server {self.uri} replied {got} to a batched request for {len(envs)} envs; "
                                "a server that takes one observation at a time needs RemotePolicy(batch=False) "
                                "(-a batch=false)")
-        return [as_chunk(c)[: self.action_horizon] if self.action_horizon else as_chunk(c) for c in actions]
+        chunks = [as_chunk(c)[: self.action_horizon] if self.action_horizon else as_chunk(c) for c in actions]
+        texts = reply.get("text")
+        if texts is None:
+            return chunks
+        if isinstance(texts, (str, bytes)) or len(texts) != len(envs):
+            raise RuntimeError(f"policy server {self.uri} replied 'text' that is not a list of {len(envs)} texts")
+        return {"actions": chunks, "text": [_text(t, self.uri) for t in texts]}
 
     def close(self) -> None:
         self._ws.close()
@@ -299,3 +320,33 @@ class RemotePolicy:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class RemoteBackbone:
+    """A backbone (``rsb backbone remote``) behind a websocket server of this protocol.
+
+    Each ``answer`` sends ``{"prompt": instruction, "images": {camera: (H, W, 3) uint8}}`` (images
+    only with ``rsb backbone --images``) and returns the reply's ``"text"``; ``server.py`` serves
+    any object with ``answer(instruction, images)`` that way. Arguments as :class:`RemotePolicy`.
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int | None = 8000, api_key: str | None = None,
+                 prompt_key: str = "prompt", connect_timeout: float = 60.0, request_timeout: float | None = 300.0,
+                 name: str = "remote") -> None:
+        self.client = RemotePolicy(host, port, api_key=api_key, prompt_key=prompt_key,
+                                   connect_timeout=connect_timeout, request_timeout=request_timeout, name=name)
+        self.name = name
+
+    def answer(self, instruction: str, images: Mapping[str, np.ndarray]) -> str:
+        payload: dict[str, Any] = {self.client.prompt_key: instruction}
+        if images:
+            payload["images"] = {k: np.ascontiguousarray(v) for k, v in images.items()}
+        reply = self.client.infer(payload)
+        text = _text(reply.get("text"), self.client.uri)
+        if text is None:
+            raise RuntimeError(f"backbone server {self.client.uri} reply has no 'text' "
+                               f"(keys: {sorted(map(str, reply))})")
+        return text
+
+    def close(self) -> None:
+        self.client.close()

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..policy import as_chunk, as_chunks, is_batched, load_policy
+from ..policy import as_chunk, as_chunks, is_batched, load_policy, split_output, split_outputs
 from .client import INSTALL_HINT, packb, unflatten_obs, unpackb
 from .openpi import PRESETS, make_preset
 
@@ -34,7 +34,8 @@ class PolicyAdapter:
     carries ``episode_start`` (``RemotePolicy(mark_episode_start=True)``), or when the prompt changes.
     With a ``preset`` (``openpi.OpenpiAloha``) the request is in openpi's Aloha layout instead,
     and so is the reply. A batched request (the prompt a list, see ``client.py``) goes to the
-    policy's batched form (``reset_batch`` / ``act_batch``), reset on the same rule.
+    policy's batched form (``reset_batch`` / ``act_batch``), reset on the same rule. A policy that
+    talks (returns ``{"actions": ..., "text": ...}``) gets its text sent as the reply's ``"text"``.
     """
 
     def __init__(self, policy: Any, prompt_key: str = "prompt", obs_prefix: str = "observation",
@@ -58,8 +59,10 @@ class PolicyAdapter:
         if start or prompt != self._prompt:
             self.policy.reset(prompt, obs)
             self._prompt = prompt
-        chunk = as_chunk(self.policy.act(obs))
-        return {"actions": self.preset.aloha_actions(chunk) if self.preset else chunk}
+        actions, text = split_output(self.policy.act(obs))
+        chunk = as_chunk(actions)
+        reply = {"actions": self.preset.aloha_actions(chunk) if self.preset else chunk}
+        return reply if text is None else {**reply, "text": text}
 
     def _infer_batch(self, prompts: list, start: bool, request: dict) -> dict:
         if not is_batched(self.policy):
@@ -71,7 +74,22 @@ class PolicyAdapter:
         if start or any(e >= len(old) or old[e] != p for e, p in zip(envs, prompts)):
             self.policy.reset_batch(prompts, obs)  # the first request of a wave holds every env
             self._prompt = list(prompts)
-        return {"actions": np.stack(as_chunks(self.policy.act_batch(obs, envs), len(envs)))}
+        actions, texts = split_outputs(self.policy.act_batch(obs, envs), len(envs))
+        reply = {"actions": np.stack(as_chunks(actions, len(envs)))}
+        return reply if all(t is None for t in texts) else {**reply, "text": texts}
+
+
+class BackboneAdapter:
+    """openpi ``infer`` on top of a backbone (``answer(instruction, images) -> str``): the request's
+    ``prompt`` and ``images`` in, ``{"text": answer}`` out (``client.RemoteBackbone``'s protocol)."""
+
+    def __init__(self, backbone: Any, prompt_key: str = "prompt") -> None:
+        self.backbone = backbone
+        self.prompt_key = prompt_key
+
+    def infer(self, request: dict) -> dict:
+        images = request.get("images") or {}
+        return {"text": str(self.backbone.answer(str(request.get(self.prompt_key, "")), dict(images)))}
 
 
 def _health_check(connection: Any, request: Any) -> Any:
@@ -118,6 +136,8 @@ class PolicyServer:
     def _infer_fn(self) -> Any:
         if self.preset is None and callable(getattr(self.policy, "infer", None)):
             return self.policy.infer
+        if callable(getattr(self.policy, "answer", None)) and not callable(getattr(self.policy, "act", None)):
+            return BackboneAdapter(self.policy, self.prompt_key).infer
         # One adapter per connection: a new client starts a new episode.
         return PolicyAdapter(self.policy, self.prompt_key, self.obs_prefix, self.preset).infer
 
@@ -180,8 +200,10 @@ def serve_policy(policy: Any, host: str = "0.0.0.0", port: int = 8000, metadata:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description="Serve an RSB policy (module:factory) over openpi's websocket protocol")
-    p.add_argument("policy", help="'package.module:factory' returning an object with reset/act (or infer)")
+    p = argparse.ArgumentParser(description="Serve an RSB policy or backbone (module:factory) over openpi's "
+                                            "websocket protocol")
+    p.add_argument("policy", help="'package.module:factory' returning an object with reset/act (or infer), or a "
+                                  "backbone with answer(instruction, images)")
     p.add_argument("--host", default="0.0.0.0")
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--preset", choices=sorted(PRESETS), default=None,
@@ -193,8 +215,10 @@ def main(argv: list[str] | None = None) -> int:
     built = f"{args.policy} built a {type(policy).__name__}"
     if args.preset and not has_act:
         p.error(f"{built}, which has no reset()/act(): --preset adapts requests and replies for those")
-    if not has_act and not is_batched(policy) and not callable(getattr(policy, "infer", None)):
-        p.error(f"{built}, which has neither infer() nor reset()/act() (nor reset_batch()/act_batch())")
+    if not has_act and not is_batched(policy) and not any(callable(getattr(policy, m, None))
+                                                          for m in ("infer", "answer")):
+        p.error(f"{built}, which has neither infer() nor reset()/act() (nor reset_batch()/act_batch(), "
+                "nor answer())")
     serve_policy(policy, args.host, args.port, preset=make_preset(args.preset) if args.preset else None)
     return 0
 

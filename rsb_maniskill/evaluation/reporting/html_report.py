@@ -98,6 +98,8 @@ def episode_cards(records: Iterable[Mapping[str, Any]], results_dir: Path) -> li
             "correct": _candidate(spec, r.get("target_block", -1)),
             "grasped": _candidate(spec, r.get("first_grasped", -1)),
             "steps": r.get("steps"),
+            "said": r.get("text"),  # a talking policy's text, and the option it states
+            "stated": r.get("stated_letter") if "stated_letter" in r else None,
             "video": f"videos/{video}" if thumbs else None,
             "thumbs": list(thumbs) if thumbs else None,
         })
@@ -220,6 +222,38 @@ def _robustness(records: Sequence[Mapping[str, Any]]) -> str:
             + "</section>")
 
 
+def _reasoning(records: Sequence[Mapping[str, Any]]) -> str:
+    """Table 5 (what a talking policy stated against what it grasped), or nothing when no policy talked."""
+    from .reasoning import reasoning_markdown, reasoning_table
+
+    table = reasoning_table(records)
+    if not table:
+        return ""
+    return ('<section id="reasoning"><h2>Reasoning following</h2><p class="note">For policies that return '
+            'text: of the episodes where a block was grasped and the task failed, did the text state the right '
+            'option while the arm took a wrong block (the reasoning-following failure), a wrong option, or '
+            'none? In brackets: Wilson 95% intervals.</p>' + markdown_to_html(reasoning_markdown(table))
+            + "</section>")
+
+
+def _gap(records: Sequence[Mapping[str, Any]], results_dir: Path) -> str:
+    """The semantic gap section (a backbone's answers beside the policy's actions, ``rsb backbone``),
+    or nothing when the directory holds no answers."""
+    from ..backbone import BACKBONE_FILE, read_backbone_records
+    from .gap import backbone_markdown, gap_markdown, gap_table, plot_gap_uri
+
+    if not (results_dir / BACKBONE_FILE).exists():
+        return ""
+    answers = read_backbone_records(results_dir / BACKBONE_FILE)
+    table = gap_table(records, answers)
+    plot = (f'<p><img class="plot" src="{plot_gap_uri(table[0])}" alt="the semantic gap per suite"></p>'
+            if table[0] else "")
+    return ('<section id="gap"><h2>The semantic gap</h2><p class="note">What the policy\'s backbone answers '
+            '(<code>rsb backbone</code>, the same episodes asked as the policy gets them) beside what its arm does. '
+            'In brackets: Wilson 95% intervals.</p>' + plot
+            + markdown_to_html(backbone_markdown(answers) + "\n" + gap_markdown(table)) + "</section>")
+
+
 def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: str | None = None) -> str:
     """The report page for ``records`` (episode files of ``results_dir`` feed the thumbnails)."""
     records = dedupe(records)
@@ -269,7 +303,8 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
         colors=_script_json({"colors": OUTCOME_COLORS, "labels": OUTCOME_LABELS}),
         meta=f"{len(cards)} episodes &middot; {len(rows)} row(s) &middot; {len(suites)} suite(s) &middot; "
              f"{n_videos} with video &middot; rsb_maniskill {__version__} &middot; written {stamp}",
-        summary="".join(summary), tables=markdown_to_html(markdown_tables(results)), robustness=_robustness(records),
+        summary="".join(summary), tables=markdown_to_html(markdown_tables(results)),
+        robustness=_robustness(records) + _reasoning(records) + _gap(records, results_dir),
         errors="".join(err_rows), legend=legend, filters=filter_html,
     )
 
@@ -398,6 +433,8 @@ svg.bars .n, svg.bars .na { fill: #888; }
 .instr { font-size: 12.5px; color: #2b3440; display: -webkit-box; -webkit-line-clamp: 5; -webkit-box-orient: vertical;
          overflow: hidden; cursor: pointer; white-space: pre-wrap; }
 .instr.open { display: block; }
+.instr.said { color: #5b3a8c; font-style: italic; }
+img.plot { max-width: 100%; background: #fff; border: 1px solid var(--line); border-radius: 6px; }
 .cand { font-size: 12.5px; }
 .cand b { display: inline-block; width: 62px; color: var(--muted); font-weight: 600; }
 .media { display: flex; gap: 4px; }
@@ -454,6 +491,18 @@ _SCRIPT = r"""
     c.appendChild(instr);
     c.appendChild(candidate("correct", ep.correct));
     c.appendChild(candidate("grasped", ep.grasped));
+    if (ep.said !== null && ep.said !== undefined) {
+      const said = el("div", "instr said", "said: " + (ep.said || "(nothing)"));
+      said.title = "the policy's text; click to expand";
+      said.addEventListener("click", () => said.classList.toggle("open"));
+      c.appendChild(said);
+      const right = ep.correct && ep.stated === ep.correct.letter;
+      const states = el("div", "cand");
+      states.appendChild(el("b", "", "states"));
+      states.appendChild(document.createTextNode(ep.stated ? ep.stated + (right ? " (right)" : " (wrong)")
+                                                           : "no option"));
+      c.appendChild(states);
+    }
     if (ep.thumbs) {
       const media = el("div", "media");
       ep.thumbs.forEach((src, i) => {

@@ -249,6 +249,44 @@ def plot_summary(metrics: Mapping[str, SuiteMetrics], path: str | os.PathLike, t
     return path
 
 
+def _write_gap(paths: Mapping[str, Path], out: Path, stem: str, records: Sequence[Mapping[str, Any]]
+               ) -> dict[str, Path]:
+    """The backbone section when ``out`` holds ``rsb backbone`` answers; the gap's CSV and plot."""
+    from ..backbone import BACKBONE_FILE, read_backbone_records
+    from .gap import backbone_markdown, gap_json, gap_markdown, gap_rows, gap_table, plot_gap
+
+    if not (out / BACKBONE_FILE).exists():
+        return {}
+    answers = read_backbone_records(out / BACKBONE_FILE)
+    table = gap_table(records, answers)
+    append_section(paths, "backbone", gap_json(answers, table), backbone_markdown(answers) + "\n" + gap_markdown(table))
+    if not table[0]:
+        return {}
+    png = out / f"{stem}_gap.png"
+    png.write_bytes(plot_gap(table[0]))
+    return {"csv:gap": write_rows(gap_rows(table[0]), out / f"{stem}_gap.csv"), "png:gap": png}
+
+
+def append_section(paths: Mapping[str, Path], key: str, data: Any, markdown: str) -> None:
+    """Add ``data`` under ``key`` to the summary JSON and ``markdown`` to the end of its Markdown."""
+    summary = json.loads(paths["json"].read_text(encoding="utf-8"))
+    summary[key] = data
+    paths["json"].write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    with open(paths["markdown"], "a", encoding="utf-8") as f:
+        f.write("\n" + markdown)
+
+
+def write_rows(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> Path:
+    """Rows of plain values as a CSV file, columns in the first row's order (None as empty)."""
+    path = Path(path)
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else [])
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: "" if v is None else v for k, v in r.items()})
+    return path
+
+
 def _nan(x: float | None) -> float:
     return float("nan") if x is None else float(x)
 
@@ -261,7 +299,11 @@ def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summ
                  records: Iterable[Mapping[str, Any]] | None = None) -> dict[str, Path]:
     """Write ``<stem>.json``, ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<row>.png`` per row;
     with ``records`` that hold perturbed episodes, the robustness tables go into the JSON
-    (``robustness``) and the Markdown too."""
+    (``robustness``) and the Markdown too; with records of a policy that talks, Table 5 goes into
+    them (``reasoning_following``) and into ``<stem>_reasoning.csv``; with ``rsb backbone`` answers in
+    ``out_dir``, the backbone's accuracy and the semantic gap (``backbone``, ``<stem>_gap.csv``,
+    ``<stem>_gap.png``)."""
+    from .reasoning import reasoning_json, reasoning_markdown, reasoning_rows, reasoning_table
     from .robustness import robustness_markdown, robustness_rows, robustness_table
 
     out = Path(out_dir)
@@ -271,13 +313,15 @@ def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summ
         "csv": write_csv(results, out / f"{stem}.csv"),
         "markdown": write_markdown(results, out / f"{stem}.md"),
     }
-    table = robustness_table(records) if records is not None else {}
+    records = list(records) if records is not None else []
+    table = robustness_table(records)
     if table:
-        summary = json.loads(paths["json"].read_text(encoding="utf-8"))
-        summary["robustness"] = robustness_rows(table)
-        paths["json"].write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-        with open(paths["markdown"], "a", encoding="utf-8") as f:
-            f.write("\n" + robustness_markdown(table))
+        append_section(paths, "robustness", robustness_rows(table), robustness_markdown(table))
+    reasoning = reasoning_table(records)
+    if reasoning:
+        append_section(paths, "reasoning_following", reasoning_json(reasoning), reasoning_markdown(reasoning))
+        paths["csv:reasoning"] = write_rows(reasoning_rows(reasoning), out / f"{stem}_reasoning.csv")
+    paths.update(_write_gap(paths, out, stem, records))
     for label, row in results.items():
         if row:
             paths[f"png:{label}"] = plot_summary(row, out / f"{stem}_{_slug(label)}.png", title=f"{label}: GSR and TSR")

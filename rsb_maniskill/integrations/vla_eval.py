@@ -106,10 +106,10 @@ class RSBBenchmark(StepBenchmark):
         donor = None
         if self.instruction_mode == "shuffled":
             if self._donors is None:
-                from rsb_maniskill.evaluation.runner import _Donors
+                from rsb_maniskill.evaluation.runner import Donors
 
                 base = self._env.unwrapped
-                self._donors = _Donors(eval_seeds(self._suite, self.episodes),
+                self._donors = Donors(eval_seeds(self._suite, self.episodes),
                                        lambda s: base.episode_spec(s).instruction, SHUFFLE_SEED)
             donor = self._donors(seed, own)[1]
         return apply_instruction_mode(own, self.instruction_mode, donor)

@@ -208,6 +208,41 @@ def test_ten_own_options_and_four_without_a_twin_of_the_answer():
         mmlu_pro.options(mmlu_pro.to_question(_pro(1, "Q?", TEN[:4])), 10, rng)
 
 
+def test_four_of_a_question_from_mmlu_are_mmlus_own(monkeypatch):
+    """A question MMLU-Pro took from MMLU shows MMLU's own four in General-4 (the six MMLU-Pro
+    added carry words that mark them); General-10 still shows all ten."""
+    row = {**_pro(0, "What is the capital of France?", TEN), "src": "ori_mmlu-geography"}
+    own = [TEN[3], TEN[6], TEN[8]]  # MMLU's three distractors, found by scripts/mmlu_options.py
+    monkeypatch.setattr(mmlu_pro, "mmlu_distractors",
+                        lambda: {mmlu_pro.content_key(row): frozenset(mmlu_pro.option_hash(o) for o in own)})
+    q = mmlu_pro.to_question(row)
+    assert q.core == (TEN[0], TEN[3], TEN[6], TEN[8])
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        four = mmlu_pro.options(q, 4, rng)
+        assert four[0] == TEN[0] and sorted(four) == sorted(q.core)
+        assert sorted(mmlu_pro.options(q, 10, rng)) == sorted(TEN)
+    # MMLU's four must hold the answer (MMLU-Pro corrected some answers): else no core
+    monkeypatch.setattr(mmlu_pro, "mmlu_distractors",
+                        lambda: {mmlu_pro.content_key(row): frozenset(mmlu_pro.option_hash(o) for o in own[:2])})
+    assert mmlu_pro.to_question(row).core is None
+
+
+@pytest.mark.data
+def test_general_4_shows_mmlus_own_options_for_mmlu_questions():
+    """With the real data, most of General's MMLU-Pro questions that came from MMLU carry MMLU's
+    four, and General-4 episodes of them show exactly those."""
+    d = _real_data_dir()
+    clear_cache()
+    s = EpisodeSampler("RSB-General-4", "test", data_dir=d)
+    pro = [i for i, q in enumerate(s.pool.questions) if q.source == "mmlu_pro"]
+    cored = [i for i in pro if s.pool.questions[i].core]
+    assert len(cored) > 0.4 * len(pro)
+    for i in cored[:200]:
+        sp = s.sample(10_000_000 + i, question_index=i)
+        assert sorted(sp.options) == sorted(s.pool.questions[i].core)
+
+
 def test_questions_sharing_an_option_land_in_one_split():
     rows = [_pro(i, f"Which of these words is listed in toy question number {i}?",
                  [f"word{i}x{k}" for k in range(10)]) for i in range(60)]
@@ -218,11 +253,11 @@ def test_questions_sharing_an_option_land_in_one_split():
     assert len(side) == 60 and {len(by_split["train"]), len(by_split["test"])} != {0}
     for i in range(0, 60, 2):
         assert side[rows[i]["question"]] == side[rows[i + 1]["question"]]
-    # the shipped surface filter leaves questions out by content, whatever their ids
+    # the shipped adversarial filter leaves questions out by content, whatever their ids
     drop = {mmlu_pro.content_key(rows[0])}
     kept, excluded = mmlu_pro.split_questions(rows, filtered=drop)
     assert rows[0]["question"] not in {q.text for qs in kept.values() for q in qs}
-    assert excluded["answer found from the options alone (surface filter)"] == 1
+    assert excluded["answer found from the options alone (adversarial filter)"] == 1
 
 
 def test_balance_keeps_the_answers_rank_near_uniform():

@@ -1,8 +1,10 @@
-"""MMLU-Pro questions for RSB-General: filtering, the train/evaluation split, length balance.
+"""MMLU-Pro questions for RSB-General: filtering, the train/evaluation split, answer-rank balance.
 
 RSB-General-10 shows a question's own ten options, written for it by the MMLU-Pro authors, so
-every option is about the question; RSB-General-4 shows its answer and three of its other nine.
-Both suites draw on one pool. Only questions with ten distinct options enter it.
+every option is about the question. RSB-General-4 shows, for a question MMLU-Pro took from MMLU,
+MMLU's own four options (written by people; MMLU-Pro's six added options carry words that mark
+them as distractors), and otherwise the answer and three of its other nine. Both suites draw on
+one pool. Only questions with ten distinct options enter it.
 
 The split is by *question*, up to wording: questions whose normal forms are equal or
 near-duplicates (normalize.py, duplicates.py) form one group, and a group lands in one split.
@@ -30,7 +32,8 @@ MAX_QUESTION_CHARS = 1000  # longer passages (e.g. professional law) make unusab
 MAX_OPTION_CHARS = 200
 SHARED_OPTION_LIMIT = 5  # an option text in this many questions or more marks a formula option set
 SPREAD_TOLERANCE = 0.05  # General-4 draws among the distractor triples this close to the least alike
-RANK_SLACK = 0.01  # how far above 1/10 the share of one answer rank may go (balanced_selection)
+RANK_SLACK = 0.01  # how far above 1/N the share of one answer rank may go (balanced_selection)
+SHOWN = (N_OPTIONS, 4)  # options shown by RSB-General-10 and RSB-General-4
 # Options that refer to other options ("All of the above", "A and B") break once options are
 # reordered or cut to four, so their questions are left out.
 _REFERENTIAL = re.compile(r"of the (?:above|following|these|options)\b", re.IGNORECASE)
@@ -41,22 +44,50 @@ _LETTER_REF = re.compile(r"(?:\b(?:[Bb]oth|[Nn]either|[Oo]nly|[Oo]ptions?|[Cc]ho
 _BLOCK_COLOR = re.compile(r"\b(?:" + "|".join(BLOCK_COLORS) + r")\b", re.IGNORECASE)
 
 
-SURFACE_FILTERED = Path(__file__).with_name("mmlu_pro_surface_filtered.txt")  # scripts/filter_general.py
+FILTERED = Path(__file__).with_name("mmlu_pro_filtered.txt")  # scripts/filter_general.py
+MMLU_OPTIONS = Path(__file__).with_name("mmlu_pro_mmlu_options.txt")  # scripts/mmlu_options.py
 
 
 def content_key(row: dict) -> str:
     """A question's identity by content (its normal form and its answer's), stable across releases
-    and ids: the key the shipped filter list uses."""
+    and ids: the key the shipped lists use."""
     q = question_key(normalize_text(row["question"]))
     a = option_key(normalize_text(row["choices"][row["answer"]]))
     return stable_key("rsb-mmlu-pro-question", q, a).hex()[:16]
 
 
+def option_hash(text: str) -> str:
+    """An option's identity by its normal form (the shipped MMLU-options list names options so)."""
+    return stable_key("rsb-mmlu-pro-option", option_key(normalize_text(text))).hex()[:12]
+
+
+def _shipped_lines(path: Path) -> list[list[str]]:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return [x.split() for x in lines if x.strip() and not x.startswith("#")]
+
+
 @lru_cache(maxsize=1)
-def surface_filtered() -> frozenset[str]:
-    """Content keys of the questions the adversarial surface filter leaves out (shipped data)."""
-    lines = SURFACE_FILTERED.read_text(encoding="utf-8").splitlines()
-    return frozenset(x.strip() for x in lines if x.strip() and not x.startswith("#"))
+def filtered_out() -> frozenset[str]:
+    """Content keys of the questions the adversarial filter leaves out (shipped data)."""
+    return frozenset(x[0] for x in _shipped_lines(FILTERED))
+
+
+@lru_cache(maxsize=1)
+def mmlu_distractors() -> dict[str, frozenset[str]]:
+    """Content key -> option hashes of MMLU's own three distractors, for the questions MMLU-Pro
+    took from MMLU (shipped data: which of the ten options MMLU wrote)."""
+    return {x[0]: frozenset(x[1:]) for x in _shipped_lines(MMLU_OPTIONS)}
+
+
+def core_options(row: dict) -> tuple[str, ...] | None:
+    """MMLU's own four options of a row (answer included, in MMLU-Pro's order), or None when the
+    question is not MMLU's or its options are not all among the ten."""
+    own = mmlu_distractors().get(content_key(row))
+    if own is None:
+        return None
+    opts = [normalize_text(o) for o in row["choices"]]
+    core = tuple(o for i, o in enumerate(opts) if i == row["answer"] or option_hash(o) in own)
+    return core if len(core) == 4 else None
 
 
 def exclusion_reason(row: dict) -> str | None:
@@ -115,7 +146,7 @@ def area(row: dict) -> str:
 def to_question(row: dict, fact: str = "") -> Question:
     opts = tuple(normalize_text(o) for o in row["choices"])
     return Question(text=normalize_text(row["question"]), answer=opts[row["answer"]], source="mmlu_pro",
-                    group=area(row), choices=opts, origin=row.get("origin", ""), fact=fact)
+                    group=area(row), choices=opts, core=core_options(row), origin=row.get("origin", ""), fact=fact)
 
 
 def _facts(rows: list[dict]) -> list[str]:
@@ -165,15 +196,15 @@ def split_questions(rows: Iterable[dict], filtered: Collection[str] | None = Non
     """Kept questions per split ("train"/"test") in stable hash order, plus exclusion counts.
 
     ``filtered``: content keys of eligible questions to leave out (default: the shipped
-    :func:`surface_filtered`). A question's ``fact`` names its group (``_facts``); the split
+    :func:`filtered_out`). A question's ``fact`` names its group (``_facts``); the split
     hashes the fact, so the two splits share no question, near-duplicate or option text.
     """
     kept, excluded = eligible(rows)
-    drop = surface_filtered() if filtered is None else filtered
+    drop = filtered_out() if filtered is None else filtered
     n = len(kept)
     kept = [r for r in kept if content_key(r) not in drop]
     if n > len(kept):
-        excluded["answer found from the options alone (surface filter)"] += n - len(kept)
+        excluded["answer found from the options alone (adversarial filter)"] += n - len(kept)
     out: dict[str, list[tuple[bytes, Question]]] = {"train": [], "test": []}
     for row, fact in zip(kept, _facts(kept)):
         q = to_question(row, fact)
@@ -182,23 +213,32 @@ def split_questions(rows: Iterable[dict], filtered: Collection[str] | None = Non
     return {s: [q for _, q in sorted(v, key=lambda kv: kv[0])] for s, v in out.items()}, excluded
 
 
-def balanced_selection(questions: list[Question], limit: int | None = None) -> tuple[list[Question], int]:
-    """Take questions in order while the answer's rank among its ten, by length and by similarity
-    to the other options, stays near uniform (each rank within 1 point + 2 questions of 1/10).
+def shown_profile(q: Question, n: int) -> np.ndarray:
+    """The answer's rank profiles (:func:`surface_ranks`) among the options RSB-General-N shows,
+    averaged over the option sets it may show."""
+    rest = [c for c in q.choices if c != q.answer]
+    sets = [[q.answer, *(rest[k] for k in sub)] for sub in shown_subsets(q, n)]
+    return np.mean([surface_ranks(Question(q.text, q.answer, q.source, choices=tuple(o))) for o in sets], axis=0)
 
-    A random four of a balanced ten inherit the balance (RSB-General-4). Returns the kept
-    questions and how many were left out.
+
+def balanced_selection(questions: list[Question], limit: int | None = None) -> tuple[list[Question], int]:
+    """Take questions in order while the answer's rank among the options each suite shows, by
+    length and by similarity to the other options, stays near uniform (each rank within 1 point
+    + 2 questions of 1/N, for the ten of RSB-General-10 and the four of RSB-General-4).
+
+    Returns the kept questions and how many were left out.
     """
     chosen: list[Question] = []
-    counts = np.zeros((4, N_OPTIONS))
+    counts = {n: np.zeros((4, n)) for n in SHOWN}
     dropped = 0
     for q in questions:
         if limit is not None and len(chosen) >= limit:
             break
-        prof = surface_ranks(q)
-        if np.all(counts + prof <= (len(chosen) + 1) * (1 / N_OPTIONS + RANK_SLACK) + 2):
+        prof = {n: shown_profile(q, n) for n in SHOWN}
+        if all(np.all(counts[n] + prof[n] <= (len(chosen) + 1) * (1 / n + RANK_SLACK) + 2) for n in SHOWN):
             chosen.append(q)
-            counts += prof
+            for n in SHOWN:
+                counts[n] += prof[n]
         else:
             dropped += 1
     return chosen, dropped
@@ -215,20 +255,28 @@ def _spread_subsets(choices: tuple[str, ...], answer: str, n: int) -> tuple[tupl
     return tuple(tuple(k - 1 for k in c) for c, w in zip(subsets, worst) if w <= worst.min() + SPREAD_TOLERANCE)
 
 
-def options(q: Question, n: int, rng: np.random.Generator) -> list[str]:
-    """N options of a pool question, its answer first: all ten, or the answer and N - 1 of its
-    other nine.
+def shown_subsets(q: Question, n: int) -> tuple[tuple[int, ...], ...]:
+    """The sets of N - 1 distractors (indices into the answer's other options, in order) that
+    RSB-General-N may show with the answer.
 
-    A four drawn at random would show the answer's near twin (MMLU-Pro writes distractors as
-    variants of the answer) far more often than two twin distractors, and "the option with a twin"
-    would point at the answer. So the N - 1 are drawn among the subsets that make the shown options
-    most unlike each other: no shown option has a twin.
+    N = 10: all nine. N = 4: MMLU's own three for a question taken from MMLU. Otherwise the
+    subsets that make the shown options most unlike each other: a four drawn at random would show
+    the answer's near twin (MMLU-Pro writes distractors as variants of the answer) far more often
+    than two twin distractors, and "the option with a twin" would point at the answer.
     """
     if q.choices is None or len(q.choices) < n:
         raise ValueError(f"question {q.origin or q.text[:40]!r} has {0 if q.choices is None else len(q.choices)} "
                          f"options, fewer than {n}")
     rest = [c for c in q.choices if c != q.answer]
     if n == len(q.choices):
-        return [q.answer, *rest]
-    subsets = _spread_subsets(q.choices, q.answer, n)
+        return (tuple(range(n - 1)),)
+    if q.core is not None and len(q.core) == n:
+        return (tuple(k for k, c in enumerate(rest) if c in q.core),)
+    return _spread_subsets(q.choices, q.answer, n)
+
+
+def options(q: Question, n: int, rng: np.random.Generator) -> list[str]:
+    """N options of a pool question, its answer first: one of its :func:`shown_subsets`, drawn."""
+    rest = [c for c in q.choices if c != q.answer] if q.choices else []
+    subsets = shown_subsets(q, n)
     return [q.answer, *(rest[k] for k in subsets[int(rng.integers(len(subsets)))])]

@@ -21,6 +21,9 @@ class Question:
     value: int | None = None
     decimals: int = 0
     choices: tuple[str, ...] | None = None
+    # MMLU-Pro questions taken from MMLU: MMLU's own four options (answer included), written by
+    # people before MMLU-Pro added six; RSB-General-4 shows these
+    core: tuple[str, ...] | None = None
     solution: str = ""
     origin: str = ""  # "file, line N" or generator description, for error reports
     fact: str = ""  # what the question asks about; train and test never share one (rsb audit checks)

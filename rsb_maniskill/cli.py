@@ -13,6 +13,7 @@ import sys
 _COMMAND_MODULES = (
     "rsb_maniskill.demo",
     "rsb_maniskill.doctor",
+    "rsb_maniskill.golden",
     "rsb_maniskill.semantic.cli",
     "rsb_maniskill.audit.cli",
     "rsb_maniskill.motionplan.cli",
@@ -23,7 +24,11 @@ _COMMAND_MODULES = (
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from rsb_maniskill.version import version_line
+
     parser = argparse.ArgumentParser(prog="rsb", description="RoboSemanticBench on ManiSkill3")
+    parser.add_argument("--version", action="version", version=version_line(),
+                        help="print the package and benchmark versions and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
         importlib.import_module(name).register(sub)

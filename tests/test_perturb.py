@@ -17,10 +17,10 @@ import rsb_maniskill  # noqa: F401
 from rsb_maniskill import perturb as P
 from rsb_maniskill.audit.run import audit_suite
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+from rsb_maniskill.objects import layout
 from rsb_maniskill.semantic import EpisodeSampler, wording
 from rsb_maniskill.semantic.records import normalize_text
 from rsb_maniskill.semantic.templates import get_template
-from rsb_maniskill.tasks import layout
 from rsb_maniskill.tasks.perturb_scene import CLUTTER_ITEMS, clutter_layout
 
 SMALL = (64, 48)  # camera size of the image checks: enough pixels to tell levels apart, fast to render

@@ -232,7 +232,7 @@ class Observations:
 
     def __init__(self, env: Any, every_step: bool = False) -> None:
         self.env, self.base = env, env.unwrapped
-        self.mode = getattr(self.base, "_obs_mode", None)
+        self.mode = getattr(self.base, "obs_mode", None)
         self.lazy = (not every_step and isinstance(self.mode, str)
                      and self.mode not in ("none", "state", "state_dict")
                      and callable(getattr(self.base, "get_obs", None)))

@@ -1,6 +1,6 @@
 """Which benchmark and which code: the benchmark version, the package version, the code commit.
 
-The **benchmark version** (``RSB-MS 1.0``) names the episodes: any change to what a suite's
+The **benchmark version** (``RSB-MS X.Y``) names the episodes: any change to what a suite's
 episodes are (question, options, letters, option -> candidate map, instruction, candidates,
 layout) bumps it, and nothing else does. Results of two benchmark versions are not comparable,
 so every output carries it (records, summaries, results.json, report.html, demo files, datasets)
@@ -27,7 +27,7 @@ _ROOT = Path(__file__).resolve().parent.parent  # the source checkout, when the 
 
 
 def benchmark_label(version: str = BENCHMARK_VERSION) -> str:
-    """``"1.0"`` -> ``"RSB-MS 1.0"``; outputs without a version -> ``"unversioned"``."""
+    """``"1.0"`` -> ``"RSB-MS 1.0"``; outputs written before versions existed -> ``"unversioned"``."""
     return version if version == UNVERSIONED else f"{BENCHMARK} {version}"
 
 

@@ -13,15 +13,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-# Where each suite's questions come from, with their licences (our code and the generated
-# questions: MIT, as the package).
-QUESTION_SOURCES = {
-    "Math": ("procedural two-operand arithmetic written by rsb_maniskill", "MIT"),
-    "HardMath": ("GSM8K word problems (openai/gsm8k, MIT)", "MIT"),
-    "General": ("a commonsense knowledge table written by rsb_maniskill and MMLU-Pro (TIGER-Lab/MMLU-Pro, MIT)", "MIT"),
-    "Direct": ("none: the instruction names the target", "MIT"),
-}
-
 
 def _size_category(n: int) -> str:
     for limit, name in ((1_000, "n<1K"), (10_000, "1K<n<10K"), (100_000, "10K<n<100K"), (1_000_000, "100K<n<1M")):
@@ -61,14 +52,14 @@ def _header(meta: dict[str, Any]) -> str:
 def dataset_card(dataset: str | Path, settings: dict[str, Any]) -> str:
     """The card of the dataset at ``dataset`` (its meta/ is read), built with ``settings``."""
     from rsb_maniskill.objects.family import split_env_id
-    from rsb_maniskill.semantic.suites import parse_suite_id
+    from rsb_maniskill.semantic.suites import parse_suite_id, suite_source
 
     dataset = Path(dataset)
     info = json.loads((dataset / "meta/info.json").read_text())
     env_id = settings["env_id"]
     suite_id, targets = split_env_id(env_id)
     family, n_choices = parse_suite_id(suite_id)
-    source, licence = QUESTION_SOURCES[family]
+    source, licence = suite_source(family).card, suite_source(family).licence
     repo = f"<your-hf-user>/{env_id.lower()}"
     cameras = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
     skipped = settings.get("skipped_questions") or []

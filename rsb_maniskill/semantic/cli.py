@@ -73,7 +73,7 @@ def cmd_stats(args: argparse.Namespace) -> int:
     from .data import data_source_label
     from .errors import DataNotFoundError
     from .pools import get_pool
-    from .suites import SUITE_IDS, SUITE_SOURCES, parse_suite_id
+    from .suites import SUITE_IDS, parse_suite_id, suite_source
 
     print(f"data: {data_source_label(args.data_dir)}")
     print(f"{'suite':<18}{'source':<32}{'choices':>8}{'train':>9}{'test':>9}")
@@ -81,9 +81,10 @@ def cmd_stats(args: argparse.Namespace) -> int:
     status = 0
     for sid in SUITE_IDS:
         suite, n = parse_suite_id(sid)
+        source = suite_source(suite)
         sizes = []
         for split in ("train", "test"):
-            if suite == "Direct":
+            if source.direct:
                 sizes.append(f"{n:,}")
                 continue
             try:
@@ -98,7 +99,7 @@ def cmd_stats(args: argparse.Namespace) -> int:
             if suite == "General" and n == 4:
                 mix = ", ".join(f"{k} {v:,}" for k, v in pool.source_counts.items())
                 notes.append(f"General {split} mix: {mix}")
-        print(f"{sid:<18}{SUITE_SOURCES[suite]:<32}{n:>8}{sizes[0]:>9}{sizes[1]:>9}")
+        print(f"{sid:<18}{source.summary:<32}{n:>8}{sizes[0]:>9}{sizes[1]:>9}")
     for note in notes:
         print(f"note: {note}")
     return status

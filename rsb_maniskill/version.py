@@ -20,7 +20,7 @@ from importlib import metadata
 from pathlib import Path
 
 BENCHMARK = "RSB-MS"  # RoboSemanticBench on ManiSkill: not the RoboTwin release's episodes
-BENCHMARK_VERSION = "1.0"
+BENCHMARK_VERSION = "1.1"
 UNVERSIONED = "unversioned"  # what outputs written before benchmark versions existed are
 DISTRIBUTION = "rsb_maniskill"
 _ROOT = Path(__file__).resolve().parent.parent  # the source checkout, when the package runs from one

@@ -7,7 +7,6 @@ import json
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -29,34 +28,6 @@ def home(tmp_path, monkeypatch):
         monkeypatch.delenv(var, raising=False)
     assert not physx_gpu.library_path().exists()
     return tmp_path
-
-
-@pytest.fixture
-def silent_proxy(monkeypatch):
-    """A proxy on 127.0.0.1 that accepts connections and never answers (a firewall that drops)."""
-    srv = socket.socket()
-    srv.bind(("127.0.0.1", 0))
-    srv.listen(8)
-    held, stop = [], threading.Event()
-
-    def accept():
-        srv.settimeout(0.2)
-        while not stop.is_set():
-            try:
-                held.append(srv.accept()[0])
-            except OSError:
-                continue
-    t = threading.Thread(target=accept, daemon=True)
-    t.start()
-    url = f"http://127.0.0.1:{srv.getsockname()[1]}"
-    monkeypatch.setenv("HTTPS_PROXY", url)
-    monkeypatch.setenv("https_proxy", url)
-    yield url
-    stop.set()
-    t.join()
-    for c in held:
-        c.close()
-    srv.close()
 
 
 def _assert_clear(err: Exception, home: Path) -> None:

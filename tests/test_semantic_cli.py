@@ -8,6 +8,7 @@ from pathlib import Path
 import huggingface_hub
 import pytest
 
+from rsb_maniskill import network
 from rsb_maniskill.cli import main
 from rsb_maniskill.semantic import EpisodeSampler, clear_cache
 
@@ -57,13 +58,17 @@ def test_stats_with_fixtures(capsys):
 
 
 def test_stats_without_data_says_how(capsys, monkeypatch):
-    monkeypatch.setattr(huggingface_hub, "hf_hub_download", lambda *a, **k: (_ for _ in ()).throw(OSError("offline")))
+    monkeypatch.setattr(huggingface_hub, "try_to_load_from_cache", lambda *a, **k: None)
+    monkeypatch.setenv("RSB_OFFLINE", "1")
     assert main(["stats"]) == 1
     out = capsys.readouterr().out
     assert "RSB-Math-4" in out and "n/a" in out and "RSB_DATA_DIR" in out and "rsb data download" in out
+    assert out.count("note: ") == 1 and "offline (RSB_OFFLINE" in out  # one message, not one per pool
 
 
 def test_data_download_reports_failure(capsys, monkeypatch):
+    monkeypatch.setattr(huggingface_hub, "try_to_load_from_cache", lambda *a, **k: None)
+    monkeypatch.setattr(network, "unreachable", lambda url: None)  # the hub answers, the download fails
     monkeypatch.setattr(huggingface_hub, "hf_hub_download", lambda *a, **k: (_ for _ in ()).throw(OSError("offline")))
     assert main(["data", "download"]) == 1
     assert "hub download" in capsys.readouterr().err

@@ -91,7 +91,7 @@ def cmd_stats(args: argparse.Namespace) -> int:
                 pool = get_pool(suite, split, args.data_dir)
             except DataNotFoundError as err:
                 sizes.append("n/a")
-                if str(err) not in notes:
+                if not status:  # one message: every source it lacks is found the same ways
                     notes.append(str(err))
                 status = 1
                 continue

@@ -39,10 +39,22 @@ def test_questions_json(capsys):
 
 
 def test_questions_errors(capsys):
-    assert main(["questions", "RSB-Poetry-4"]) == 1
-    assert "valid ids" in capsys.readouterr().err
+    assert main(["questions", "RSB-Poetry-4"]) == 2  # a usage error, as in every command naming suites
+    assert "unknown suite 'RSB-Poetry-4'; valid: a suite id (RSB-Math-4" in capsys.readouterr().err
+    assert main(["questions"]) == 1
+    assert "name at least one SUITE" in capsys.readouterr().err
     assert main(["questions", "RSB-Math-4", "--split", "validation"]) == 1
     assert "unknown split" in capsys.readouterr().err
+
+
+def test_suites_by_spaces_commas_and_release_names(capsys):
+    """One suite list form everywhere: space- or comma-separated ids, groups, release task names."""
+    assert main(["questions", "rsb_math_10blocks,RSB-Direct-4", "RSB-Math-4-Objects", "-n", "1"]) == 0
+    heads = [ln.split()[1] for ln in capsys.readouterr().out.splitlines() if ln.startswith("=== ")]
+    assert heads == ["RSB-Math-10", "RSB-Direct-4", "RSB-Math-4-Objects"]
+    assert main(["stats", "--suites", "RSB-Math-4,", "RSB-Direct-10-Objects"]) == 0
+    rows = [ln.split()[0] for ln in capsys.readouterr().out.splitlines() if ln.startswith("RSB-")]
+    assert rows == ["RSB-Math-4", "RSB-Direct-10"]
 
 
 def test_stats_with_fixtures(capsys):

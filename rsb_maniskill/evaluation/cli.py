@@ -35,7 +35,7 @@ class EvalError(RuntimeError):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
+    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS, add_suites_argument
     from rsb_maniskill.evaluation.policy import POLICIES
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
     from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
@@ -52,10 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("policy", help=f"built-in ({', '.join(POLICIES)}) or package.module:factory")
     p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="keyword argument of the policy factory (VALUE parsed as JSON, else a string); repeatable")
-    p.add_argument("--suites", nargs="+", default=["paper"], metavar="SUITE",
-                   help="suite ids (RSB-Math-4, RSB-Math-4-Objects, ...), 'paper' (the six of the paper, default), "
-                        "'all' (with the Direct controls), 'paper-objects' / 'all-objects' (the same with everyday "
-                        "objects: the Beyond Blocks table)")
+    add_suites_argument(p)
     p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
                    help=f"episodes per suite (default {EPISODES_PER_SUITE}); "
                         "the first n are a prefix of any longer run")
@@ -119,15 +116,6 @@ def perturbations(perturb: list[str], sweep: list[str]) -> list[dict[str, int]]:
         return [parse_perturb(",".join(perturb))]
     except PerturbError as err:
         raise EvalError(f"{err} (--perturb AXIS=LEVEL, --sweep AXIS)") from None
-
-
-def resolve_suites(names: list[str]) -> list[str]:
-    from rsb_maniskill.env_ids import resolve_env_ids
-
-    try:
-        return resolve_env_ids(names)
-    except ValueError as err:
-        raise EvalError(str(err)) from None
 
 
 def check_policy_spec(spec: str, num_envs: int = 1) -> None:
@@ -221,7 +209,7 @@ def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records, write_report
     from rsb_maniskill.workers import executor_from_args
 
-    suites = resolve_suites(args.suites)
+    suites = args.suites
     for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-procs", args.num_procs or 1, 1),
                              ("--num-envs", args.num_envs, 1), ("--videos", args.videos, 0)):
         if value < low:

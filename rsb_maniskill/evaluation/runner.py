@@ -26,10 +26,11 @@ from rsb_maniskill.batch import env_row, first_value, single_env_obs
 from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.perturb import parse_perturb
+from rsb_maniskill.version import BENCHMARK_VERSION
 
 from .policy import PerEnvPolicies, as_chunk, as_chunks, env_action_space, is_batched, obs_rows
 from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
-from .records import INSTRUCTION_MODES
+from .records import INSTRUCTION_MODES, VERSION_FIELD
 
 # info flags copied into every record, and extra ones kept when the env provides them.
 RECORD_FLAGS = ("grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success")
@@ -101,7 +102,8 @@ def build_record(
     policy: str,
     extra: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The episode record (``records.RECORD_FIELDS``) from the episode spec and the last ``info``."""
+    """The episode record (``records.RECORD_FIELDS``, and the benchmark version) from the episode
+    spec and the last ``info``."""
     record: dict[str, Any] = {
         "suite_id": suite_id,
         "seed": int(seed),
@@ -114,6 +116,7 @@ def build_record(
         **{k: bool(info_flag(info, k)) for k in RECORD_FLAGS},
         "steps": int(steps),
         "policy": policy,
+        VERSION_FIELD: BENCHMARK_VERSION,
     }
     record.update({k: bool(info_flag(info, k)) for k in EXTRA_FLAGS if k in info})
     if extra:

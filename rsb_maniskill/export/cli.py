@@ -74,7 +74,8 @@ def _cameras(text: str) -> list[str]:
 
 
 def cmd_lerobot(args: argparse.Namespace) -> int:
-    from .lerobot import ExportError, export_lerobot
+    from .build import export_lerobot
+    from .lerobot import ExportError
 
     try:
         executor, num_procs = _executor(args)

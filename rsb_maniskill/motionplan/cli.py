@@ -123,7 +123,7 @@ def run_merge(args: argparse.Namespace) -> int:
         header = {"rsb": combine_rsb_blocks([b["rsb"] for b in blocks]), "rsb_merged_from": blocks}
         key = (lambda ep: ep["episode_seed"]) if args.sort_by_seed else None
         n = merge_pairs(args.inputs, args.out, overwrite=args.overwrite, sort_key=key, header=header)
-    except DatasetError as err:
+    except (DatasetError, ValueError) as err:
         print(f"rsb merge: error: {err}", file=sys.stderr)
         return 2
     print(f"wrote {n} episodes to {args.out}")

@@ -21,6 +21,7 @@ from mani_skill.utils.structs.pose import Pose
 
 from rsb_maniskill import perturb as P
 from rsb_maniskill.compat import entities, episode_seeds, forget_camera_pose, physx_bodies, render_cameras
+from rsb_maniskill.semantic.stable import axis_rng
 
 HEAD_CAMERA = "head_camera"
 # Lights of the default scene (ManiSkill's BaseEnv._load_lighting), perturbed around.
@@ -131,7 +132,7 @@ class SceneAxes:
 
     def rng(self, env: int, axis: str) -> np.random.Generator:
         e = self.env
-        return P.axis_rng(e.suite_id, e.split, int(episode_seeds(e)[env]), axis, self.level(axis))
+        return axis_rng(e.suite_id, e.split, int(episode_seeds(e)[env]), axis, self.level(axis))
 
     # ------------------------------------------------------------------ load
     def load_lighting(self, shadow: bool) -> None:
@@ -276,7 +277,7 @@ class SceneAxes:
                 if img is None:
                     continue
                 noise = np.stack([
-                    P.axis_rng(e.suite_id, e.split, int(episode_seeds(e)[i]), f"noise:{name}:{key}:{int(steps[i])}",
+                    axis_rng(e.suite_id, e.split, int(episode_seeds(e)[i]), f"noise:{name}:{key}:{int(steps[i])}",
                                level).normal(0.0, sigma, tuple(img.shape[1:]))
                     for i in range(img.shape[0])])
                 noisy = img.to(torch.float32) + torch.as_tensor(noise, dtype=torch.float32, device=img.device)

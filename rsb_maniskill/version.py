@@ -68,8 +68,9 @@ def code_commit() -> str | None:
 def requirements(extras: tuple[str, ...] = ()) -> dict[str, str]:
     """The package's dependency pins, ``{"mani-skill": "==3.0.1", ...}`` (core, plus ``extras``),
     from its metadata; empty when the package is not installed. A distribution pinned by the
-    core and by an extra (numpy) gets both specifiers, comma-joined."""
+    core and by an extra (numpy) gets both."""
     from packaging.requirements import Requirement
+    from packaging.specifiers import SpecifierSet
 
     try:
         reqs = metadata.requires(DISTRIBUTION) or []
@@ -81,9 +82,8 @@ def requirements(extras: tuple[str, ...] = ()) -> dict[str, str]:
         if req.marker is not None and not any(req.marker.evaluate({"extra": e}) for e in extras):
             continue
         name = req.name.lower().replace("_", "-")
-        spec = str(req.specifier)
-        if spec:
-            out[name] = ",".join(filter(None, (out.get(name, ""), spec)))
+        if req.specifier:
+            out[name] = str(SpecifierSet(out.get(name, "")) & req.specifier)
     return out
 
 

@@ -15,6 +15,7 @@ import requests
 
 from rsb_maniskill import physx_gpu
 from rsb_maniskill.cli import main
+from rsb_maniskill.version import benchmark_label
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -111,8 +112,11 @@ def test_doctor_reports_every_area(capsys, monkeypatch, home):
     rc = main(["doctor", "--json"])
     report = json.loads(capsys.readouterr().out)
     areas = {c["area"] for c in report["checks"]}
-    assert {"python", "packages", "render", "gpu", "data", "optional"} <= areas
+    assert {"python", "packages", "render", "gpu", "data", "episodes", "optional"} <= areas
     by_name = {c["name"]: c for c in report["checks"]}
+    assert {"mani-skill", "mplib", "numpy", "sapien", "torch"} <= set(by_name)  # the pins of pyproject.toml
+    assert by_name["numpy"]["status"] == "ok" and "<2" in by_name["numpy"]["detail"]
+    assert by_name[benchmark_label()]["status"] == "ok" and "8 suites" in by_name[benchmark_label()]["detail"]
     assert by_name["one-frame render"]["status"] == "ok"  # lavapipe or a GPU: the tests render elsewhere too
     assert "libPhysXGpu_64.so" in by_name["PhysX GPU library"]["detail"]
     assert report["demo_can_run"] is True and rc == 0

@@ -29,7 +29,7 @@ from rsb_maniskill.perturb import parse_perturb
 from rsb_maniskill.version import BENCHMARK_VERSION
 
 from .policy import PerEnvPolicies, as_chunk, as_chunks, env_action_space, is_batched, obs_rows
-from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
+from .protocol import SHUFFLE_SEED, ShuffledDonors, apply_instruction_mode
 from .records import INSTRUCTION_MODES, VERSION_FIELD
 
 # info flags copied into every record, and extra ones kept when the env provides them.
@@ -124,34 +124,6 @@ def build_record(
     return record
 
 
-class _Donors:
-    """Shuffled mode: episode ``seeds[i]`` is told the instruction of ``seeds[donor[i]]``.
-
-    Same rule as ``protocol.shuffled_instruction`` on the whole seed list (so resumed and
-    uninterrupted runs agree), with the instructions looked up lazily, one donor at a time.
-    """
-
-    def __init__(self, seeds: Sequence[int], lookup: Callable[[int], str], shuffle_seed: int) -> None:
-        self.seeds = list(seeds)
-        self.index = {s: i for i, s in enumerate(self.seeds)}
-        self.donor = derangement(len(self.seeds), shuffle_seed)
-        self.lookup = lookup
-        self.cache: dict[int, str] = {}
-
-    def text(self, seed: int) -> str:
-        if seed not in self.cache:
-            self.cache[seed] = self.lookup(seed)
-        return self.cache[seed]
-
-    def __call__(self, seed: int, own: str) -> tuple[int, str]:
-        j = self.donor[self.index[seed]]
-        for _ in range(len(self.seeds) - 1):
-            if self.text(self.seeds[j]) != own:
-                break
-            j = self.donor[j]
-        return self.seeds[j], self.text(self.seeds[j])
-
-
 def default_instruction_lookup(env: Any, reset_options: Mapping[str, Any] | None = None) -> Callable[[int], str]:
     """seed -> instruction: from the task's ``episode_spec(seed)`` if it has one, else by a reset."""
     base = env.unwrapped
@@ -180,7 +152,7 @@ class _Episodes:
                 if not resets_allowed and not callable(getattr(env.unwrapped, "episode_spec", None)):
                     raise ValueError("shuffled mode on parallel envs needs the task's episode_spec(seed)")
                 lookup = default_instruction_lookup(env, settings.reset_options)
-            self.donors = _Donors(settings.seeds, lookup, settings.shuffle_seed)
+            self.donors = ShuffledDonors(settings.seeds, lookup, settings.shuffle_seed)
 
     def donor(self, seed: int, own: str | None = None) -> tuple[int, str] | None:
         """Shuffled mode: (donor seed, its instruction); ``own`` defaults to the looked-up text.

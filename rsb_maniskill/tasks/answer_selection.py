@@ -62,7 +62,7 @@ class AnswerSelectionEnv(RSBEnv):
         instructions: ``"seen"`` or ``"unseen"`` templates; default seen for train, unseen for test.
         color_map: 4-choice only: ``"fixed"`` (A=red, B=green, C=blue, D=yellow) or ``"shuffle"``.
         data_dir: directory with GSM8K / MMLU-Pro files (else ``$RSB_DATA_DIR``, else the HF hub cache).
-        camera_size: (width, height) of the head and wrist cameras; default 320x240.
+        camera_size: (width, height) of the head and wrist cameras; default ``robot.CAMERA_SIZE`` (320x240).
         targets: ``"blocks"`` or ``"objects"`` (everyday objects; the ``-Objects`` ids set it).
         perturb: robustness axes and their levels 0-3, e.g. ``{"camera": 2, "lang_layout": 1}``
             (``rsb_maniskill.perturb.AXES``; level 0 is today's episode). See docs/robustness.md.

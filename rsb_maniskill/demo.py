@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     records.unlink(missing_ok=True)  # a fresh table each time
     for policy in ("oracle", "blind"):
         job = EvalJob(suite_id=args.suite, seeds=tuple(eval_seeds(args.suite, args.episodes)), policy=policy,
-                      label=policy, obs_mode="state", video_dir=str(out / "eval" / "videos" / policy), num_videos=1)
+                      label=policy, obs_mode="state", video_dir=str(out / "eval" / "videos"), num_videos=1)
         run_job(job, records, progress=True)
     recs = read_records(records)
     results = results_from_records(recs)

@@ -81,14 +81,14 @@ SUITES_HELP = ("suite ids (RSB-Math-4, RSB-Math-4-Objects, ...), groups (paper: 
 
 
 class _SuitesAction(argparse.Action):
-    """Resolves the names as they are parsed: a bad one is a usage error naming the valid ones."""
+    """Resolves the names as they are parsed: a bad one is one line naming the valid ones (exit 2)."""
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
         try:
             setattr(namespace, self.dest, resolve_env_ids(values))
         except ValueError as err:
-            parser.error(str(err))
+            parser.exit(2, f"{parser.prog}: error: {err}\n")
 
 
 def add_suites_argument(parser: argparse.ArgumentParser, default: Sequence[str] = ("paper",),

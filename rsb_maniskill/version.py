@@ -93,8 +93,13 @@ def version_fields() -> dict[str, str | None]:
             "code_commit": code_commit()}
 
 
+def code_label() -> str:
+    """``"rsb_maniskill 0.2.0 (0123abcd4567-dirty)"``: the package and its short commit, when known."""
+    commit = code_commit()
+    short = f" ({commit[:12]}{'-dirty' if commit.endswith('-dirty') else ''})" if commit else ""
+    return f"rsb_maniskill {package_version()}{short}"
+
+
 def version_line() -> str:
     """``rsb --version``: the package and the benchmark."""
-    commit = code_commit()
-    return (f"rsb_maniskill {package_version()}, benchmark {benchmark_label()}"
-            + (f", commit {commit[:12]}{'-dirty' if commit.endswith('-dirty') else ''}" if commit else ""))
+    return f"{code_label()}, benchmark {benchmark_label()}"

@@ -35,6 +35,7 @@ from rsb_maniskill.export.naming import DEFAULT_NAMING
 WORK_DIR = ".work"
 SETTINGS_FILE = "settings.json"
 BUILD_META = "meta/rsb_build.json"  # the settings a dataset was built with, inside the dataset
+PROVENANCE = ("code_commit", "skipped_questions")  # also in BUILD_META; they decide no episode or file
 EXPORT_META = "meta/rsb_export.json"  # what an exported dataset's demos are (benchmark version, ...)
 SHARD_META = "meta/rsb_shard.json"
 DEFAULT_SHARD_SIZE = 25  # questions a shard: a kill loses at most this many demos per worker
@@ -134,7 +135,7 @@ def _check_settings(work: Path, dataset: Path | None, settings: dict) -> bool:
         if not path.is_file():
             return None
         old = json.loads(path.read_text())
-        diff = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
+        diff = sorted(k for k in (set(old) | set(settings)) - set(PROVENANCE) if old.get(k) != settings.get(k))
         return ", ".join(f"{k}={old.get(k)!r} there, {settings.get(k)!r} now" for k in diff) or None
 
     for path, holder in ((work / SETTINGS_FILE, work), *(((dataset / BUILD_META, dataset),) if dataset else ())):

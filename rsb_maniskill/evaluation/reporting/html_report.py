@@ -260,10 +260,9 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
                           f'{_options(vals, labels)}</select></label>' for key, name, vals, labels in filters)
     n_videos = sum(1 for c in cards if c["video"])
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    from rsb_maniskill.version import benchmark_label, code_commit, package_version
+    from rsb_maniskill.version import benchmark_label, code_label
 
-    commit = code_commit()
-    code = f"rsb_maniskill {package_version()}" + (f" ({commit[:12]})" if commit else "")
+    code = code_label()
     version = benchmark_label(one_version(records) or "")
     return _PAGE.format(
         title=html.escape(title), css=_CSS, script=_SCRIPT, data=_script_json(cards),

@@ -129,3 +129,23 @@ def test_compare_two_runs(tmp_path, capsys):
     assert main(["report", "--compare", str(a), str(old)]) == 2
     err = capsys.readouterr().err
     assert "cannot compare" in err and "RSB-MS 0.9" in err and len(err.strip().splitlines()) == 1
+
+
+def test_eval_records_the_checkpoint_and_keeps_one_version_a_directory(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["eval", "random", "--suites", "RSB-Math-4", "-n", "1", "--max-steps", "2", "-q", "--out", str(out)]
+    assert main([*args, "--checkpoint", "ckpt-7"]) == 0
+    doc = json.loads((out / "results.json").read_text())
+    jsonschema.validate(doc, SCHEMA)
+    assert doc["rows"][0]["checkpoint"] == "ckpt-7" and doc["rows"][0]["rsb_maniskill_version"]
+    run = json.loads((out / "run.json").read_text())["runs"]["random"]
+    assert run["benchmark_version"] == BENCHMARK_VERSION and "code_commit" in run
+    assert f"Benchmark: RSB-MS {BENCHMARK_VERSION}" in capsys.readouterr().out
+    assert main([*args, "--checkpoint", "ckpt-8"]) == 2  # another checkpoint is another row
+    assert "checkpoint: 'ckpt-7' before, 'ckpt-8' now" in capsys.readouterr().err
+    old = write_dir(tmp_path / "old", records("random", "RSB-Math-4", 1, 0, 0, version=None))
+    before = (old / "episodes.jsonl").read_bytes()
+    assert main([*args[:-1], str(old)]) == 2
+    err = capsys.readouterr().err
+    assert "unversioned records" in err and "Use another --out" in err and len(err.strip().splitlines()) == 1
+    assert (old / "episodes.jsonl").read_bytes() == before and not (old / "run.json").exists()

@@ -6,7 +6,10 @@ suite, instruction mode, outcome) whose cards show the instruction, the correct 
 candidate, and the first and last frames of the episode's video when one was recorded (click to
 play it from ``videos/``). Styles, script, data and thumbnails are inline: it opens from disk,
 with no server and no network. Everything is computed from ``episodes.jsonl`` with the functions
-of ``metrics.py`` and ``summary.py``, so the page and the summary files always agree.
+of ``metrics.py`` and ``summary.py``, so the page and the summary files always agree; the line under
+the title names the benchmark version (records of two never share a page) and the code. The
+command also writes ``results.json`` and, with ``--compare A B``, prints two runs side by side
+(``results.py``).
 """
 from __future__ import annotations
 

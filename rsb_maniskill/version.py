@@ -7,9 +7,9 @@ so every output carries it (records, summaries, results.json, report.html, demo 
 and ``rsb report`` refuses to pool them. docs/versions.md lists what each version changed;
 ``rsb_maniskill/golden_episodes.json`` pins the episodes of this one (``rsb verify``).
 
-The **package version** (``rsb_maniskill`` on pip) follows the code: a release that changes no
-episode keeps the benchmark version. It and its dependency pins are read from the installed
-package's metadata, i.e. from ``pyproject.toml``, their one owner.
+The **package version** (``rsb_maniskill``) follows the code: a release that changes no episode
+keeps the benchmark version. It and the dependency pins have one owner, ``pyproject.toml``: read
+from the source checkout the package runs from, else from the installed package's metadata.
 """
 from __future__ import annotations
 

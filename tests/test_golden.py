@@ -93,7 +93,7 @@ def test_rsb_verify_names_the_suite_that_differs(tmp_path, monkeypatch, capsys):
     assert main(["verify", "RSB-Math-4,RSB-Direct-10"]) == 0
     out = capsys.readouterr().out
     assert "RSB-Math-4 " in out and "RSB-Direct-10 " in out and out.count(" ok\n") == 2
-    assert f"the same episodes as {BENCHMARK} {BENCHMARK_VERSION}" in out
+    assert f"this install gives the episodes of {BENCHMARK} {BENCHMARK_VERSION}" in out
     tampered = golden.load()
     tampered["suites"]["RSB-Direct-10"]["train"] = "0" * 64
     path = tmp_path / "golden.json"
@@ -102,4 +102,4 @@ def test_rsb_verify_names_the_suite_that_differs(tmp_path, monkeypatch, capsys):
     assert main(["verify", "RSB-Math-4", "rsb_math_10blocks", "RSB-Direct-10"]) == 1
     out = capsys.readouterr().out
     assert re.search(r"RSB-Direct-10 +DIFFERS from RSB-MS [\d.]+ \(train episodes\)", out)
-    assert re.search(r"RSB-Math-10 +ok", out) and "NOT the episodes of" in out
+    assert re.search(r"RSB-Math-10 +ok", out) and "does NOT give the episodes of RSB-MS" in out

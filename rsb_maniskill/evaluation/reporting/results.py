@@ -33,8 +33,9 @@ def _rate(rate: Rate) -> dict[str, float | None]:
 def _suite(m: SuiteMetrics, seeds: set[int]) -> dict[str, Any]:
     from ..protocol import eval_seeds
 
-    return {"n_choices": m.n_choices, "n": m.n_episodes, "protocol_seeds": seeds == set(eval_seeds(m.suite_id,
-            max(1, m.n_episodes))), "gsr": _rate(m.gsr), "tsr": _rate(m.tsr), "nsg": _rate(m.nsg)}
+    protocol = seeds == set(eval_seeds(m.suite_id, max(1, m.n_episodes)))  # the protocol's first n episodes
+    return {"n_choices": m.n_choices, "n": m.n_episodes, "protocol_seeds": protocol,
+            "gsr": _rate(m.gsr), "tsr": _rate(m.tsr), "nsg": _rate(m.nsg)}
 
 
 def results_document(records: Iterable[Mapping[str, Any]], runs: Mapping[str, Mapping[str, Any]] | None = None

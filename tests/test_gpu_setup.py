@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import requests
 
-from rsb_maniskill import physx_gpu
+from rsb_maniskill import network, physx_gpu
 from rsb_maniskill.cli import main
 from rsb_maniskill.version import benchmark_label
 
@@ -25,7 +25,7 @@ def home(tmp_path, monkeypatch):
     """A home without the library; no offline switch; no proxy unless a test sets one."""
     monkeypatch.setenv("HOME", str(tmp_path))
     proxies = ("HTTPS_PROXY", "https_proxy", "HTTP_PROXY", "http_proxy", "NO_PROXY", "no_proxy")
-    for var in (*physx_gpu.OFFLINE_VARS, *proxies):
+    for var in (*network.OFFLINE_VARS, *proxies):
         monkeypatch.delenv(var, raising=False)
     assert not physx_gpu.library_path().exists()
     return tmp_path
@@ -38,7 +38,7 @@ def _assert_clear(err: Exception, home: Path) -> None:
     assert physx_gpu.SETUP_COMMAND in msg and "rsb doctor" in msg
 
 
-@pytest.mark.parametrize("var", physx_gpu.OFFLINE_VARS)
+@pytest.mark.parametrize("var", network.OFFLINE_VARS)
 def test_offline_switch_gives_the_clear_error_without_network(home, var, monkeypatch):
     monkeypatch.setenv(var, "1")
     monkeypatch.setattr(requests, "get", lambda *a, **k: pytest.fail("no network call when offline"))

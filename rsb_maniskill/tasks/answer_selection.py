@@ -33,7 +33,7 @@ from rsb_maniskill.tasks.contacts import PairContacts
 from rsb_maniskill.tasks.perturb_scene import CLUTTER_ITEMS, SceneAxes, build_clutter
 from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
 
-# Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0); cells: tasks/layout.py.
+# Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0); cells: objects/layout.py.
 # Parked pool members: one layout cell apart (no two touch, so they stay asleep), in layers
 # under the part of the table top that hides the floor from every camera (the human camera
 # looks under the far and right edges), clear of the robot's base.

@@ -12,8 +12,9 @@ version, so the digests of a version are written once:
 
 ``--bump`` sets ``BENCHMARK_VERSION`` in rsb_maniskill/version.py, adds the version's section to
 docs/versions.md (the note and the suites whose episodes changed) and writes both digest files.
-``--amend`` is for a version not yet released (merged, not tagged): it re-pins the current version
-and adds the note to its section. See docs/versions.md.
+``--amend`` is for a version not yet released (merged, not tagged): it re-pins the current version,
+adds the note to its section and lists again the suites that changed since the previous version
+(each digest file keeps the previous version's digests under ``previous``). See docs/versions.md.
 """
 from __future__ import annotations
 
@@ -53,21 +54,29 @@ def set_version(new: str) -> None:
                                    flags=re.M))
 
 
+CHANGED = "- Episodes changed (pinned digests): "
+
+
 def add_doc_section(version: str, note: str, diff: dict[str, list[str]]) -> None:
     doc = VERSIONS_DOC.read_text()
     if VERSIONS_ANCHOR not in doc:
         raise SystemExit(f"pin_episodes: {VERSIONS_DOC} has no '{VERSIONS_ANCHOR.strip()}' heading")
-    section = (f"{VERSIONS_ANCHOR}\n### {BENCHMARK} {version}\n\n- {note}\n"
-               f"- Episodes changed (pinned digests): {changed_suites(diff)}.\n")
+    section = f"{VERSIONS_ANCHOR}\n### {BENCHMARK} {version}\n\n- {note}\n{CHANGED}{changed_suites(diff)}.\n"
     VERSIONS_DOC.write_text(doc.replace(VERSIONS_ANCHOR, section, 1))
 
 
-def amend_doc_section(version: str, note: str) -> None:
+def amend_doc_section(version: str, note: str, diff: dict[str, list[str]]) -> None:
+    """The note first in the version's section; its list of changed suites, from the previous version."""
     doc = VERSIONS_DOC.read_text()
     head = f"### {BENCHMARK} {version}\n\n"
     if head not in doc:
         raise SystemExit(f"pin_episodes: {VERSIONS_DOC} has no section '{head.strip()}' to amend")
-    VERSIONS_DOC.write_text(doc.replace(head, f"{head}- {note}\n", 1))
+    start = doc.index(head)
+    end = doc.find("\n### ", start + len(head))
+    end = end if end >= 0 else len(doc)
+    section = re.sub(f"^{re.escape(CHANGED)}.*$", lambda _: f"{CHANGED}{changed_suites(diff)}.", doc[start:end],
+                     flags=re.M)
+    VERSIONS_DOC.write_text(doc[:start] + section.replace(head, f"{head}- {note}\n", 1) + doc[end:])
 
 
 def main() -> int:
@@ -87,13 +96,23 @@ def main() -> int:
         raise SystemExit("pin_episodes: --bump and --amend need --note 'what changed' for docs/versions.md")
 
     t0 = time.perf_counter()
-    real, fixture = golden.compute(data_dir=data), golden.compute(data_dir=FIXTURE_DATA)
-    print(f"pin_episodes: {len(real)} suites x 2 digests, real and fixture data, in {time.perf_counter() - t0:.1f} s")
-    pinned = golden.load() if golden.GOLDEN_FILE.is_file() else {"suites": {}, "benchmark_version": None}
-    diff = golden.differences(real, pinned)
-    if FIXTURE_GOLDEN.is_file():
-        for eid, which in golden.differences(fixture, golden.load(FIXTURE_GOLDEN)).items():
-            diff.setdefault(eid, which)
+    digests = {golden.GOLDEN_FILE: golden.compute(data_dir=data), FIXTURE_GOLDEN: golden.compute(data_dir=FIXTURE_DATA)}
+    print(f"pin_episodes: {len(digests[FIXTURE_GOLDEN])} suites x 2 digests, real and fixture data, in "
+          f"{time.perf_counter() - t0:.1f} s")
+    files = {path: golden.load(path) if path.is_file() else {"suites": {}, "benchmark_version": None}
+             for path in digests}
+    pinned = files[golden.GOLDEN_FILE]
+
+    def diff_from(previous: bool) -> dict[str, list[str]]:
+        """Suites whose digests differ from the pinned ones, or from the previous version's."""
+        out: dict[str, list[str]] = {}
+        for path, doc in files.items():
+            ref = (doc.get("previous") or {"suites": {}}) if previous else doc
+            for eid, parts in golden.differences(digests[path], ref).items():
+                out.setdefault(eid, parts)
+        return out
+
+    diff = diff_from(previous=False)
     same_version = pinned["benchmark_version"] == BENCHMARK_VERSION
 
     if not (args.bump or args.amend or args.write):
@@ -116,13 +135,16 @@ def main() -> int:
         set_version(args.bump)
         add_doc_section(args.bump, args.note, diff)
         version = args.bump
+        previous = {path: {"benchmark_version": doc["benchmark_version"], "suites": doc["suites"]}
+                    for path, doc in files.items()}
     else:
         version = BENCHMARK_VERSION
+        previous = {path: doc.get("previous") for path, doc in files.items()}
         if args.amend:
-            amend_doc_section(version, args.note)
-    for path, digests in ((golden.GOLDEN_FILE, real), (FIXTURE_GOLDEN, fixture)):
-        golden.write(path, {**golden.document(digests), "benchmark": f"{BENCHMARK} {version}",
-                            "benchmark_version": version})
+            amend_doc_section(version, args.note, diff_from(previous=True))
+    for path, ds in digests.items():
+        doc = {**golden.document(ds), "benchmark": f"{BENCHMARK} {version}", "benchmark_version": version}
+        golden.write(path, {**doc, "previous": previous[path]} if previous[path] else doc)
         print(f"wrote {path.relative_to(ROOT)} ({BENCHMARK} {version})")
     if args.bump:
         print(f"set BENCHMARK_VERSION = {version!r} in {VERSION_FILE.relative_to(ROOT)}; added its section to "

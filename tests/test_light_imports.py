@@ -36,8 +36,8 @@ def test_imports_are_light(stmt):
     assert got == [], f"{stmt} loaded {got}"
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["questions", "RSB-Math-4", "-n", "2"], ["stats"],
-                                  ["audit", "RSB-Direct-4", "-n", "300"]])
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["questions", "RSB-Math-4", "-n", "2"], ["stats"],
+                                  ["audit", "RSB-Direct-4", "-n", "300"], ["verify", "RSB-Math-4"]])
 def test_light_commands_load_no_simulator(argv):
     got = _run(f"""
         import contextlib, io, json, sys

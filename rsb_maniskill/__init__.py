@@ -8,8 +8,9 @@ ManiSkill at ``import rsb_maniskill.agents``, or here when ManiSkill is imported
 """
 from rsb_maniskill import _render  # noqa: F401  (selects a Vulkan device before SAPIEN starts)
 from rsb_maniskill.registration import register_agent_if_maniskill_loaded, register_envs
+from rsb_maniskill.version import package_version as _package_version
 
 register_envs()
 register_agent_if_maniskill_loaded()
 
-__version__ = "0.1.0"
+__version__ = _package_version()  # the package's (pyproject.toml); BENCHMARK_VERSION names the episodes

@@ -13,6 +13,7 @@ import sys
 _COMMAND_MODULES = (
     "rsb_maniskill.demo",
     "rsb_maniskill.doctor",
+    "rsb_maniskill.golden",
     "rsb_maniskill.semantic.cli",
     "rsb_maniskill.audit.cli",
     "rsb_maniskill.motionplan.cli",
@@ -24,7 +25,11 @@ _COMMAND_MODULES = (
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from rsb_maniskill.version import version_line
+
     parser = argparse.ArgumentParser(prog="rsb", description="RoboSemanticBench on ManiSkill3")
+    parser.add_argument("--version", action="version", version=version_line(),
+                        help="print the package and benchmark versions and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
         importlib.import_module(name).register(sub)
@@ -32,8 +37,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Runs one command; returns its exit status (2 for a usage error, which argparse has printed)."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as stop:  # --help, --version, a usage error: argparse printed it
+        return stop.code if isinstance(stop.code, int) else 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -1,17 +1,14 @@
 """The ManiSkill and SAPIEN internals this pack reads or sets, in one place.
 
-ManiSkill 3.0.1 and SAPIEN 3.0.x (the pinned versions, pyproject.toml) have no public API for
-these; each accessor names what it touches, so a version bump is checked here and in
-``tests/test_compat.py`` rather than across the package. Modules outside this one never touch a
-private ManiSkill or SAPIEN attribute.
+ManiSkill and SAPIEN at the versions pyproject.toml pins have no public API for these; each
+accessor names what it touches, so a version bump is checked here and in ``tests/test_compat.py``
+rather than across the package. Modules outside this one never touch a private ManiSkill or
+SAPIEN attribute (the test lists the attributes this module reads and looks for them elsewhere).
 """
 from __future__ import annotations
 
 from contextlib import contextmanager
 from typing import Any, Iterator
-
-MANISKILL_VERSION = "3.0.1"  # what these accessors are written against
-SAPIEN_VERSION_PREFIX = "3.0."
 
 
 def physx_bodies(entity: Any) -> list[Any]:
@@ -40,6 +37,23 @@ def forget_camera_pose(camera: Any) -> None:
     camera._cached_local_pose = None
 
 
+def episode_seeds(env: Any) -> Any:
+    """Each parallel env's episode seed, (B,) int64 (``BaseEnv._episode_seed``)."""
+    return env._episode_seed
+
+
+def batched_episode_rng(env: Any) -> Any:
+    """The per-env episode RNGs, ``RandomState(seed)`` each at a seeded reset; index it by env
+    (``BaseEnv._batched_episode_rng``, a ``BatchedRNG``; ``objects.layout.SeededRNG`` is the same
+    without ManiSkill)."""
+    return env._batched_episode_rng
+
+
+def render_device(env: Any) -> Any:
+    """The SAPIEN device the env renders with (``BaseEnv._render_device``)."""
+    return env._render_device
+
+
 @contextmanager
 def obs_mode(env: Any, mode: str) -> Iterator[None]:
     """Steps inside the block compute the observation of ``mode`` (``BaseEnv._obs_mode``); the
@@ -53,14 +67,19 @@ def obs_mode(env: Any, mode: str) -> Iterator[None]:
 
 
 def check_versions() -> list[str]:
-    """What differs from the versions the accessors are written against (empty when all match)."""
+    """What differs from the ManiSkill and SAPIEN versions pyproject.toml pins, the ones these
+    accessors are written against (empty when all match, or when the package is not installed)."""
     import sapien
+    from packaging.specifiers import SpecifierSet
 
     import mani_skill
 
+    from rsb_maniskill.version import requirements
+
+    pins = requirements()
     out = []
-    if mani_skill.__version__ != MANISKILL_VERSION:
-        out.append(f"mani_skill {mani_skill.__version__} (written against {MANISKILL_VERSION})")
-    if not sapien.__version__.startswith(SAPIEN_VERSION_PREFIX):
-        out.append(f"sapien {sapien.__version__} (written against {SAPIEN_VERSION_PREFIX}x)")
+    for dist, module in (("mani-skill", mani_skill), ("sapien", sapien)):
+        spec = pins.get(dist)
+        if spec and module.__version__.split("+")[0] not in SpecifierSet(spec):
+            out.append(f"{dist} {module.__version__} (written against {spec})")
     return out

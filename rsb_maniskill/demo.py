@@ -5,13 +5,15 @@ On RSB-Math-4 (procedural questions: no dataset needed) it writes, under ``--out
 - ``cameras/``: what the head and wrist cameras and an outside camera see at the first step;
 - ``demos/``: scripted-expert demonstrations in ManiSkill's trajectory format, one with a video;
 - ``eval/``: the oracle and the blind baseline on the first evaluation episodes, with the
-  GSR / TSR / nSG summary (Markdown, JSON, CSV, PNG) and a video of the first episode.
+  GSR / TSR / nSG summary (Markdown, JSON, CSV, PNG), ``results.json``, a video of the first
+  episode and ``report.html``, the page to open first (the last line printed names it).
 
 About a minute on two CPU cores.
 """
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 DEFAULT_OUT = "outputs/demo"
@@ -49,12 +51,20 @@ def run(args: argparse.Namespace) -> int:
 
     import rsb_maniskill  # noqa: F401  (registers the envs)
     from rsb_maniskill._render import ensure_renderer
+    from rsb_maniskill.env_ids import resolve_env_ids
     from rsb_maniskill.evaluation.jobs import EvalJob, run_job
     from rsb_maniskill.evaluation.protocol import eval_seeds
-    from rsb_maniskill.evaluation.records import read_records
+    from rsb_maniskill.evaluation.records import RECORDS_FILE, read_records
+    from rsb_maniskill.evaluation.reporting.html_report import write_html_report
     from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records, write_report
     from rsb_maniskill.motionplan.generate import GenerateConfig, describe, generate
+    from rsb_maniskill.version import BENCHMARK_VERSION
 
+    try:
+        (args.suite,) = resolve_env_ids([args.suite])
+    except ValueError as err:
+        print(f"rsb demo: error: --suite takes one suite: {err}", file=sys.stderr)
+        return 2
     ensure_renderer()
     out = Path(args.out)
 
@@ -75,14 +85,17 @@ def run(args: argparse.Namespace) -> int:
     print("      " + describe(summary).replace("\n", "\n      "))
 
     print(f"[3/3] oracle and blind baselines, first {args.episodes} evaluation episodes")
-    records = out / "eval" / "episodes.jsonl"
+    records = out / "eval" / RECORDS_FILE
     records.unlink(missing_ok=True)  # a fresh table each time
     for policy in ("oracle", "blind"):
         job = EvalJob(suite_id=args.suite, seeds=tuple(eval_seeds(args.suite, args.episodes)), policy=policy,
-                      label=policy, obs_mode="state", video_dir=str(out / "eval" / "videos" / policy), num_videos=1)
+                      label=policy, obs_mode="state", video_dir=str(out / "eval" / "videos"), num_videos=1)
         run_job(job, records, progress=True)
-    results = results_from_records(read_records(records))
-    paths = write_report(results, out / "eval")
-    print(markdown_tables(results))
+    recs = read_records(records)
+    results = results_from_records(recs)
+    paths = write_report(results, out / "eval", records=recs)
+    page = write_html_report(out / "eval", records=recs)
+    print(markdown_tables(results, BENCHMARK_VERSION))
     print(f"wrote {', '.join(str(p) for p in paths.values())}")
+    print(f"report: {page} (open it in a browser: tables, bars and every episode with its video)")
     return 0 if summary.completed == args.demos else 1

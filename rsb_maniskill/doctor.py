@@ -15,14 +15,15 @@ from dataclasses import asdict, dataclass
 from importlib import metadata, util
 from pathlib import Path
 
-# (distribution, requirement, why): the pins of pyproject.toml that break things when violated
-PINS = (
-    ("mani-skill", "==3.0.1", "the task pack is written against ManiSkill 3.0.1"),
-    ("mplib", "==0.1.1", "the expert's planner API"),
-    ("numpy", "<2", "mplib 0.1.1 segfaults in Planner() under numpy 2"),
-    ("sapien", ">=3.0.0,<3.1", "the render / physics API the tasks use"),
-    ("torch", ">=2.1", "batched task code"),
-)
+# The pins that break things when violated, and why; the versions themselves are pyproject.toml's
+# (read from the installed package's metadata: rsb_maniskill.version.requirements).
+PINNED = {
+    "mani-skill": "the task pack is written against it (compat.py)",
+    "mplib": "the expert's planner API",
+    "numpy": "mplib 0.1.1 segfaults in Planner() under numpy 2 (the expert extra)",
+    "sapien": "the render / physics API the tasks use",
+    "torch": "batched task code",
+}
 OPTIONAL = (  # (what, modules, install hint)
     ("rsb audit (learned probe)", ("sklearn",), "pip install scikit-learn"),
     ("question data from the hub", ("pyarrow",), "pip install 'rsb_maniskill[hub]'"),
@@ -81,10 +82,19 @@ def _version(dist: str) -> str | None:
 def check_packages() -> list[Check]:
     from packaging.specifiers import SpecifierSet
 
+    from rsb_maniskill.version import requirements
+
     out = [Check("python", "python", "ok" if sys.version_info >= (3, 10) else "fail",
                  f"{platform.python_version()} ({sys.executable})", "" if sys.version_info >= (3, 10) else
                  "Python 3.10 or newer")]
-    for dist, spec, why in PINS:
+    pins = requirements(extras=("expert",))
+    if not pins:
+        out.append(Check("packages", "rsb_maniskill", "warn", "not installed: its pins are unknown here",
+                         "pip install -e . (or bash scripts/setup.sh) in the checkout"))
+    for dist, why in PINNED.items():
+        spec = pins.get(dist)
+        if spec is None:
+            continue
         v = _version(dist)
         if v is None:
             out.append(Check("packages", dist, "fail", "not installed", f"pip install '{dist}{spec}' ({why})"))
@@ -93,9 +103,10 @@ def check_packages() -> list[Check]:
         else:
             out.append(Check("packages", dist, "ok", f"{v} ({spec})"))
     cv = _version("opencv-python-headless") or _version("opencv-python")
-    out.append(Check("packages", "opencv", "ok" if cv and int(cv.split(".")[1]) < 12 else "warn",
-                     cv or "not installed", "" if cv and int(cv.split(".")[1]) < 12 else
-                     "pip install 'opencv-python-headless<4.12' (newer wheels need numpy 2)"))
+    cv_spec = SpecifierSet(pins.get("opencv-python-headless", ""))
+    cv_ok = cv is not None and cv.split("+")[0] in cv_spec
+    out.append(Check("packages", "opencv", "ok" if cv_ok else "warn", f"{cv or 'not installed'} ({cv_spec})",
+                     "" if cv_ok else f"pip install 'opencv-python-headless{cv_spec}' (newer wheels need numpy 2)"))
     return out
 
 
@@ -179,6 +190,24 @@ def check_gpu() -> list[Check]:
     return out
 
 
+def check_episodes() -> list[Check]:
+    """The pinned episodes of the suites that need no question data (``rsb verify`` does them all)."""
+    from rsb_maniskill import golden
+    from rsb_maniskill.objects.family import split_env_id
+    from rsb_maniskill.semantic.suites import parse_suite_id, suite_source
+    from rsb_maniskill.version import benchmark_label
+
+    suites = [e for e in golden.all_env_ids() if not suite_source(parse_suite_id(split_env_id(e)[0])[0]).reads_data]
+    diff = golden.differences(golden.compute(suites), golden.load())
+    label = benchmark_label()
+    if diff:
+        return [Check("episodes", label, "fail", f"{', '.join(diff)} differ from the pinned episodes",
+                      "a modified checkout or another numpy: `rsb verify` names every suite; reinstall with "
+                      "bash scripts/setup.sh")]
+    return [Check("episodes", label, "ok", f"{len(suites)} suites without question data as pinned; "
+                  "`rsb verify` checks the others")]
+
+
 def check_data() -> list[Check]:
     from rsb_maniskill.semantic import data
 
@@ -219,7 +248,7 @@ def check_optional() -> list[Check]:
 def run_checks() -> list[Check]:
     probe = start_render_probe()
     checks = check_packages()
-    for fn in (lambda: check_render(probe), check_gpu, check_data, check_optional):
+    for fn in (lambda: check_render(probe), check_gpu, check_data, check_episodes, check_optional):
         try:
             checks += fn()
         except Exception as err:  # a broken check is reported, never fatal
@@ -235,8 +264,9 @@ def demo_can_run(checks: list[Check]) -> bool:
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("doctor", help="what this machine can run, and how to fix what it can't",
                               description="Versions and pins, Vulkan devices and a one-frame render, CUDA and the "
-                                          "PhysX GPU library, question data, optional extras. Exit status 1 when "
-                                          "`make demo` cannot run here.")
+                                          "PhysX GPU library, question data, the pinned episodes of the suites "
+                                          "that need no data, optional extras. Exit status 1 when `make demo` "
+                                          "cannot run here.")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_doctor)
 

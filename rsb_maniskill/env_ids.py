@@ -2,12 +2,14 @@
 
 Every module that needs one of these facts imports it from here: the registry entries
 (``registration.py``), the tasks, the expert, the evaluator, the audit, the dataset builder and the
-LeRobot env. :func:`resolve_env_ids` is the one reader of suite names on command lines (``paper``,
-``all``, ``paper-objects``, ids). Nothing here imports torch, SAPIEN or ManiSkill.
+LeRobot env. :func:`resolve_env_ids` is the one reader of suite names (ids, groups such as
+``paper``, the paper release's task names), and :func:`add_suites_argument` the one way a command
+takes a list of them. Nothing here imports torch, SAPIEN or ManiSkill.
 """
 from __future__ import annotations
 
-from typing import Any
+import argparse
+from typing import Any, Sequence
 
 from rsb_maniskill.objects.family import DEFAULT_TARGETS, FAMILIES, OBJECTS_SUFFIX, split_env_id
 from rsb_maniskill.semantic.suites import SUITE_IDS
@@ -27,6 +29,13 @@ PAPER_OBJECT_SUITES: tuple[str, ...] = tuple(s + OBJECTS_SUFFIX for s in PAPER_S
 SUITE_GROUPS: dict[str, tuple[str, ...]] = {
     "paper": PAPER_SUITES, "all": SUITE_IDS, "paper-objects": PAPER_OBJECT_SUITES, "all-objects": OBJECT_ENV_IDS,
 }
+# The task names of the paper's own release (a RoboTwin 2.0 fork) name the same suites here; the
+# episodes are this pack's (questions, seeds, layout), not the release's.
+RELEASE_TASK_NAMES: dict[str, str] = {
+    "rsb_math": "RSB-Math-4", "rsb_math_10blocks": "RSB-Math-10",
+    "rsb_hardmath": "RSB-HardMath-4", "rsb_hardmath_10blocks": "RSB-HardMath-10",
+    "rsb_general": "RSB-General-4", "rsb_general_10blocks": "RSB-General-10",
+}
 # answer-selection id -> default kwargs of its task class: every suite with every candidate family
 # (the default family's ids carry no suffix and no ``targets``)
 TASK_ENVS: dict[str, dict[str, Any]] = {
@@ -45,18 +54,51 @@ def qualified_id(env_id: str) -> str:
     return env_id if ":" in env_id else f"{MODULE}:{env_id}"
 
 
-def resolve_env_ids(names: str | list[str] | tuple[str, ...]) -> list[str]:
-    """Suite env ids named by ids and groups (a list, or one comma-separated string), in order,
-    each once: ``"paper"`` -> the six paper suites. ValueError names what is valid."""
-    if isinstance(names, str):
-        names = [n for n in names.split(",")]
+def resolve_env_ids(names: str | Sequence[str]) -> list[str]:
+    """Suite env ids named by ids, groups and the paper release's task names, in order, each once:
+    ``"paper"`` -> the six paper suites, ``"rsb_math_10blocks"`` -> ``"RSB-Math-10"``. ``names`` is
+    a list whose items may hold several names separated by commas (``["RSB-Math-4,RSB-Math-10"]``),
+    or one such string. ValueError names what is valid."""
     out: list[str] = []
-    for name in (n.strip() for n in names):
+    for name in (n.strip() for item in ([names] if isinstance(names, str) else names) for n in item.split(",")):
+        if not name:
+            continue
+        name = RELEASE_TASK_NAMES.get(name, name)
         for eid in SUITE_GROUPS.get(name, (name.split(":", 1)[-1],)):
             if split_env_id(eid)[0] not in SUITE_IDS:
                 sfx = " or ".join(repr(f.suffix) for f in FAMILIES.values() if f.suffix)
                 raise ValueError(f"unknown suite {name!r}; valid: a suite id ({', '.join(SUITE_IDS)}), the same with "
-                                 f"{sfx}, or a group ({', '.join(SUITE_GROUPS)})")
+                                 f"{sfx}, a group ({', '.join(SUITE_GROUPS)}) or a task name of the paper's release "
+                                 f"({', '.join(RELEASE_TASK_NAMES)})")
             if eid not in out:
                 out.append(eid)
     return out
+
+
+SUITES_HELP = ("suite ids (RSB-Math-4, RSB-Math-4-Objects, ...), groups (paper: the six of the paper; all: with the "
+               "Direct controls; paper-objects, all-objects: the same with everyday objects) or the paper release's "
+               "task names (rsb_math, rsb_math_10blocks, ...); separated by spaces or commas")
+
+
+class _SuitesAction(argparse.Action):
+    """Resolves the names as they are parsed: a bad one is one line naming the valid ones (exit 2)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        try:
+            setattr(namespace, self.dest, resolve_env_ids(values))
+        except ValueError as err:
+            parser.exit(2, f"{parser.prog}: error: {err}\n")
+
+
+def add_suites_argument(parser: argparse.ArgumentParser, default: Sequence[str] = ("paper",),
+                        positional: bool = False, help: str | None = None) -> None:
+    """The one way a command takes suites: ``--suites`` (or a positional ``SUITE ...`` list), names
+    separated by spaces or commas; ``args.suites`` holds the resolved env ids (``default``, resolved,
+    when none is given)."""
+    kwargs: dict[str, Any] = dict(nargs="*" if positional else "+", action=_SuitesAction, metavar="SUITE",
+                                  default=resolve_env_ids(default), help=help or SUITES_HELP)
+    if positional:
+        parser.add_argument("suites", **kwargs)
+    else:
+        parser.add_argument("--suites", **kwargs)

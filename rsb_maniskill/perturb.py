@@ -3,9 +3,9 @@
 One owner for the env (``perturb={"camera": 2}``), the semantic sampler (the language axes), the
 evaluator (``rsb eval --perturb camera=2``, ``--sweep camera``) and the audit. Level 0 is today's
 episode, byte for byte; levels 1-3 perturb more and more. Every value an axis draws is a function
-of (suite, split, seed, axis, level) only (:func:`axis_rng`), never of the layout's RNG, so the
-same seed keeps its question, answer and layout at every level and the levels compare like with
-like. See docs/robustness.md.
+of (suite, split, seed, axis, level) only (``semantic.stable.axis_rng``, the generators these
+draw functions are given), never of the layout's RNG, so the same seed keeps its question, answer
+and layout at every level and the levels compare like with like. See docs/robustness.md.
 """
 from __future__ import annotations
 
@@ -104,13 +104,6 @@ def language(perturb: Mapping[str, int]) -> dict[str, int]:
 def label(perturb: Mapping[str, int]) -> str:
     """``{"camera": 2}`` -> ``"camera=2"``; no perturbation -> ``"none"`` (a record's ``perturb`` key)."""
     return ",".join(f"{a}={lv}" for a, lv in sorted(perturb.items())) or "none"
-
-
-def axis_rng(suite_id: str, split: str, seed: int, axis: str, level: int) -> np.random.Generator:
-    """The draws of one axis at one level for one episode: independent of every other stream."""
-    from rsb_maniskill.semantic.stable import episode_rng
-
-    return episode_rng(suite_id, split, seed, f"perturb:{axis}:{level}")
 
 
 # ---------------------------------------------------------------------------------- visual draws

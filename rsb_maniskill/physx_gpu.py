@@ -17,7 +17,8 @@ import platform
 import sys
 from pathlib import Path
 
-OFFLINE_VARS = ("RSB_OFFLINE", "HF_HUB_OFFLINE")  # either set to 1: never touch the network
+from rsb_maniskill.network import OFFLINE_VARS, offline
+
 CONNECT_TIMEOUT = 5.0  # s to reach GitHub before giving up
 READ_TIMEOUT_VAR = "RSB_NETWORK_TIMEOUT"  # s between bytes of the download (default 30)
 SETUP_COMMAND = "python -m rsb_maniskill.physx_gpu"
@@ -49,10 +50,6 @@ def library_url() -> str:
     else:
         archive = "linux-so.zip"
     return f"https://github.com/sapien-sim/physx-precompiled/releases/download/{physx_version()}/{archive}"
-
-
-def offline() -> bool:
-    return any(os.environ.get(v, "").strip().lower() in ("1", "true", "yes") for v in OFFLINE_VARS)
 
 
 def _missing(reason: str) -> PhysXGpuLibraryMissing:

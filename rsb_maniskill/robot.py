@@ -40,6 +40,7 @@ GRIPPER_ACTION_INDEX = {"left": 12, "right": 13}
 
 # Cameras by short name; the sensor (``obs["sensor_data"]``) is ``<name>_camera``.
 CAMERAS = ("head", "left_wrist", "right_wrist")
+CAMERA_SIZE = (320, 240)  # width, height of every camera by default (RoboTwin's D435 model)
 
 ALOHA14_NAMES = tuple(f"{a}_{j}" for a in ARMS for j in ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle",
                                                       "wrist_rotate", "gripper"))

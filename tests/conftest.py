@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from net_helpers import silent_proxy_server
+
 FIXTURE_DATA = Path(__file__).resolve().parent / "fixtures" / "semantic_data"
 
 
@@ -18,3 +20,13 @@ def question_data(monkeypatch) -> Path:
         return Path(os.environ["RSB_DATA_DIR"])
     monkeypatch.setenv("RSB_DATA_DIR", str(FIXTURE_DATA))
     return FIXTURE_DATA
+
+
+@pytest.fixture
+def silent_proxy(monkeypatch):
+    """No network, also on a machine that has one: HTTPS_PROXY (subprocesses inherit it) is a proxy
+    on 127.0.0.1 that accepts connections and never answers (a firewall that drops)."""
+    with silent_proxy_server() as url:
+        monkeypatch.setenv("HTTPS_PROXY", url)
+        monkeypatch.setenv("https_proxy", url)
+        yield url

@@ -17,6 +17,7 @@ import yaml
 
 from rsb_maniskill.cli import main
 from rsb_maniskill.export.build import WORK_DIR, BuildConfig, build_datasets
+from rsb_maniskill.version import BENCHMARK_VERSION
 
 from test_export_lerobot import _lerobot_python, fingerprint, read_data
 
@@ -90,6 +91,27 @@ def test_dataset_contents_and_card(one_proc):
         assert needle in card, needle
     built = json.loads((one_proc / "meta/rsb_build.json").read_text())
     assert built["questions"] == "0:4" and built["cameras"] == ["head", "left_wrist", "right_wrist"]
+    assert built["benchmark_version"] == BENCHMARK_VERSION and "code_commit" in built
+    assert built["skipped_questions"] == []
+    assert f"| benchmark version | RSB-MS {BENCHMARK_VERSION} " in card
+
+
+@pytest.mark.parametrize("skipped, line", [
+    ([], "| questions without a demo | 0 (up to 20 seeds were tried per question) |"),
+    ([3, 17], "| questions without a demo | 2: the expert failed on all 20 seeds tried for each (questions 3, 17) |"),
+])
+def test_card_says_why_a_question_has_no_demo(tmp_path, skipped, line):
+    from rsb_maniskill.export.card import dataset_card
+
+    (tmp_path / "meta").mkdir()
+    (tmp_path / "meta/info.json").write_text(json.dumps({
+        "codebase_version": "v3.0", "total_episodes": 2, "total_frames": 9, "fps": 25,
+        "features": {"action": {"dtype": "float32", "shape": [14]}}}))
+    card = dataset_card(tmp_path, {"env_id": "RSB-Math-4", "split": "train", "questions": "0:4", "pool_size": 500,
+                                   "max_attempts": 20, "skipped_questions": skipped, "rsb_version": "0.2.0",
+                                   "benchmark_version": BENCHMARK_VERSION, "fps": 25, "cameras": ["head"],
+                                   "naming": "rsb"})
+    assert line in card and "the expert failed on 20 seeds" not in card
 
 
 RUN = """

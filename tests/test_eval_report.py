@@ -74,7 +74,7 @@ def test_write_report_files(tmp_path, results):
     assert float(math4["gsr"]) == pytest.approx(0.9) and float(math4["tsr_low"]) < 0.3 < float(math4["tsr_high"])
     assert next(r for r in rows if r["row"] == "clumsy" and r["suite_id"] == "RSB-Math-4")["nsg"] == ""
     assert {r["row"] for r in rows if r["suite_id"] == "Avg"} == {"good", "clumsy", "good (blank)"}
-    assert paths["markdown"].read_text().startswith("### Task Success Rate")
+    assert paths["markdown"].read_text().startswith("Benchmark: RSB-MS ")  # then the tables
     assert {k for k in paths if k.startswith("png:")} == {"png:good", "png:clumsy", "png:good (blank)"}
 
 

@@ -16,8 +16,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from rsb_maniskill.cli import main
-from rsb_maniskill.export.lerobot import ExportError, export_lerobot
+from rsb_maniskill.export.build import export_lerobot
+from rsb_maniskill.export.lerobot import ExportError
 from rsb_maniskill.motionplan.generate import GenerateConfig, generate
+from rsb_maniskill.version import BENCHMARK_VERSION
 
 REPO = Path(__file__).resolve().parents[1]
 LEROBOT = "lerobot[dataset]==0.6.1"  # the current release; needs Python >= 3.12 and numpy 2
@@ -136,6 +138,20 @@ def test_fps_subsamples_and_bad_input_keeps_existing_files(demos, tmp_path):
     with pytest.raises(ExportError, match="not a trajectory file pair"):
         export_lerobot([tmp_path / "missing.h5"], tmp_path / "x", progress=False)
     assert main(["export", "lerobot", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "y")]) == 2
+
+
+def test_the_dataset_names_its_benchmark_version_and_takes_one(demos, exported, tmp_path):
+    src = json.loads(demos.with_suffix(".json").read_text())
+    assert src["rsb"]["benchmark_version"] == BENCHMARK_VERSION and "code_commit" in src["rsb"]
+    meta = json.loads((exported / "meta/rsb_export.json").read_text())
+    assert meta["benchmark_version"] == BENCHMARK_VERSION and meta["rsb_version"] and meta["naming"] == "rsb"
+    old = tmp_path / "old.h5"  # the same demos, as written before benchmark versions
+    shutil.copy(demos, old)
+    del src["rsb"]["benchmark_version"]
+    old.with_suffix(".json").write_text(json.dumps(src))
+    with pytest.raises(ExportError, match=f"of RSB-MS {BENCHMARK_VERSION}, .* of unversioned: one dataset"):
+        export_lerobot([demos, old], tmp_path / "mixed", progress=False)
+    assert not (tmp_path / "mixed").exists()
 
 
 def _python312() -> str | None:

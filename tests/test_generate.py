@@ -433,3 +433,12 @@ def test_objects_demos_replay_with_maniskills_tool_in_delta_joint_control(tmp_pa
                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
     assert res.returncode == 0, res.stderr[-3000:]
     assert "Replayed 2 episodes, 2/2=100.00% demos saved" in res.stdout
+
+
+def test_merged_demos_keep_one_benchmark_version():
+    from rsb_maniskill.motionplan.summary import combine_rsb_blocks
+
+    block = {"requested": 2, "completed": 2, "complete": True, "benchmark_version": "1.1", "shard": "0/2"}
+    assert combine_rsb_blocks([block, {**block, "shard": "1/2"}])["benchmark_version"] == "1.1"
+    with pytest.raises(ValueError, match="cannot merge demos of RSB-MS 1.1 and unversioned"):
+        combine_rsb_blocks([block, {k: v for k, v in block.items() if k != "benchmark_version"}])

@@ -7,15 +7,15 @@ import json
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import pytest
 import requests
 
-from rsb_maniskill import physx_gpu
+from rsb_maniskill import network, physx_gpu
 from rsb_maniskill.cli import main
+from rsb_maniskill.version import benchmark_label
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -25,38 +25,10 @@ def home(tmp_path, monkeypatch):
     """A home without the library; no offline switch; no proxy unless a test sets one."""
     monkeypatch.setenv("HOME", str(tmp_path))
     proxies = ("HTTPS_PROXY", "https_proxy", "HTTP_PROXY", "http_proxy", "NO_PROXY", "no_proxy")
-    for var in (*physx_gpu.OFFLINE_VARS, *proxies):
+    for var in (*network.OFFLINE_VARS, *proxies):
         monkeypatch.delenv(var, raising=False)
     assert not physx_gpu.library_path().exists()
     return tmp_path
-
-
-@pytest.fixture
-def silent_proxy(monkeypatch):
-    """A proxy on 127.0.0.1 that accepts connections and never answers (a firewall that drops)."""
-    srv = socket.socket()
-    srv.bind(("127.0.0.1", 0))
-    srv.listen(8)
-    held, stop = [], threading.Event()
-
-    def accept():
-        srv.settimeout(0.2)
-        while not stop.is_set():
-            try:
-                held.append(srv.accept()[0])
-            except OSError:
-                continue
-    t = threading.Thread(target=accept, daemon=True)
-    t.start()
-    url = f"http://127.0.0.1:{srv.getsockname()[1]}"
-    monkeypatch.setenv("HTTPS_PROXY", url)
-    monkeypatch.setenv("https_proxy", url)
-    yield url
-    stop.set()
-    t.join()
-    for c in held:
-        c.close()
-    srv.close()
 
 
 def _assert_clear(err: Exception, home: Path) -> None:
@@ -66,7 +38,7 @@ def _assert_clear(err: Exception, home: Path) -> None:
     assert physx_gpu.SETUP_COMMAND in msg and "rsb doctor" in msg
 
 
-@pytest.mark.parametrize("var", physx_gpu.OFFLINE_VARS)
+@pytest.mark.parametrize("var", network.OFFLINE_VARS)
 def test_offline_switch_gives_the_clear_error_without_network(home, var, monkeypatch):
     monkeypatch.setenv(var, "1")
     monkeypatch.setattr(requests, "get", lambda *a, **k: pytest.fail("no network call when offline"))
@@ -140,8 +112,11 @@ def test_doctor_reports_every_area(capsys, monkeypatch, home):
     rc = main(["doctor", "--json"])
     report = json.loads(capsys.readouterr().out)
     areas = {c["area"] for c in report["checks"]}
-    assert {"python", "packages", "render", "gpu", "data", "optional"} <= areas
+    assert {"python", "packages", "render", "gpu", "data", "episodes", "optional"} <= areas
     by_name = {c["name"]: c for c in report["checks"]}
+    assert {"mani-skill", "mplib", "numpy", "sapien", "torch"} <= set(by_name)  # the pins of pyproject.toml
+    assert by_name["numpy"]["status"] == "ok" and "<2" in by_name["numpy"]["detail"]
+    assert by_name[benchmark_label()]["status"] == "ok" and "8 suites" in by_name[benchmark_label()]["detail"]
     assert by_name["one-frame render"]["status"] == "ok"  # lavapipe or a GPU: the tests render elsewhere too
     assert "libPhysXGpu_64.so" in by_name["PhysX GPU library"]["detail"]
     assert report["demo_can_run"] is True and rc == 0

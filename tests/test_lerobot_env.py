@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 
 from rsb_maniskill.cli import main
-from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE, eval_seeds, shuffled_instruction
 from rsb_maniskill.evaluation.records import read_records
 from rsb_maniskill.evaluation.reference_policies import ExpertPolicy
 from rsb_maniskill.integrations.lerobot_env import RSBLeRobotEnv, create_rsb_envs, expected_features
 from rsb_maniskill.robot import to_aloha14
+from rsb_maniskill.version import BENCHMARK_VERSION
 
 from test_export_lerobot import _lerobot_python
 
@@ -64,6 +65,7 @@ def test_wrapper_contract_protocol_episodes_and_records(tmp_path):
     assert (r["suite_id"], r["seed"], r["policy"], r["instruction_mode"]) == (SUITE, EVAL_SEED_BASE + 1, "oracle",
                                                                               "normal")
     assert r["success"] and r["grasped_any"] and r["first_grasped"] == r["target_block"]
+    assert r["benchmark_version"] == BENCHMARK_VERSION  # what `rsb report` pools by
     # blank: the policy is told nothing; the record says so
     blank = RSBLeRobotEnv(SUITE, camera_size=SMALL, records_dir=str(tmp_path), episodes=4, instruction_mode="blank",
                           policy_name="oracle", episode_length=3)
@@ -75,6 +77,14 @@ def test_wrapper_contract_protocol_episodes_and_records(tmp_path):
     modes = {(r["seed"], r["instruction_mode"], r["success"]) for r in read_records(tmp_path / "episodes.jsonl")}
     assert modes == {(EVAL_SEED_BASE + 1, "normal", True), (EVAL_SEED_BASE, "blank", False)}
     assert main(["report", str(tmp_path)]) == 0 and (tmp_path / "report.html").is_file()
+    assert json.loads((tmp_path / "results.json").read_text())["benchmark_version"] == BENCHMARK_VERSION
+    # shuffled: the donor rsb eval pairs with the episode (protocol.ShuffledDonors), recorded
+    shuffled = RSBLeRobotEnv(SUITE, camera_size=SMALL, records_dir=None, episodes=4, instruction_mode="shuffled")
+    shuffled.reset(seed=1002)
+    seeds = eval_seeds(SUITE, 4)
+    want = shuffled_instruction([shuffled._env.unwrapped.episode_spec(s).instruction for s in seeds])[2]
+    assert shuffled.task_description == want and shuffled._donor_seed in seeds and shuffled._donor_seed != seeds[2]
+    shuffled.close()
     with pytest.raises(ValueError, match=r"expected an Aloha 14-number action of shape \(14,\)"):
         blank.reset(seed=1001)
         blank.step(np.zeros(7, np.float32))
@@ -183,7 +193,7 @@ def test_env_type_rsb_and_envhub_in_lerobot(tmp_path):
 def test_lerobot_loop_export_train_eval_report(tmp_path):
     """A few Direct-4 demos -> rsb export lerobot -> lerobot-train (tiny ACT, CPU) -> lerobot-eval
     --env.type=rsb: LeRobot's success rate is the records' TSR, and `rsb report` reads the run."""
-    from rsb_maniskill.export.lerobot import export_lerobot
+    from rsb_maniskill.export.build import export_lerobot
     from rsb_maniskill.motionplan.generate import GenerateConfig, generate
 
     py = lerobot_with_rsb()

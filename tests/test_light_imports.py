@@ -36,8 +36,8 @@ def test_imports_are_light(stmt):
     assert got == [], f"{stmt} loaded {got}"
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["questions", "RSB-Math-4", "-n", "2"], ["stats"],
-                                  ["audit", "RSB-Direct-4", "-n", "300"]])
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["questions", "RSB-Math-4", "-n", "2"], ["stats"],
+                                  ["audit", "RSB-Direct-4", "-n", "300"], ["verify", "RSB-Math-4"]])
 def test_light_commands_load_no_simulator(argv):
     got = _run(f"""
         import contextlib, io, json, sys
@@ -134,3 +134,18 @@ def test_one_suite_resolver():
     assert len(resolve_env_ids(["all", "all-objects"])) == 16
     with pytest.raises(ValueError, match=r"unknown suite 'RSB-Math-5'.*" + ", ".join(SUITE_GROUPS)):
         resolve_env_ids(["RSB-Math-5"])
+    # the paper release's task names (a RoboTwin 2.0 fork) name the suites of this pack
+    assert resolve_env_ids(["rsb_math", "rsb_math_10blocks,rsb_hardmath", "rsb_hardmath_10blocks", "rsb_general",
+                            "rsb_general_10blocks"]) == list(PAPER_SUITES)
+    assert resolve_env_ids(["RSB-Math-4,", " RSB-Math-10", "rsb_math"]) == ["RSB-Math-4", "RSB-Math-10"]
+
+
+def test_every_command_takes_the_same_suite_list():
+    """Space- and comma-separated names, groups and release names, resolved at parse time."""
+    from rsb_maniskill.cli import build_parser
+
+    parser = build_parser()
+    for argv in (["eval", "oracle", "--suites"], ["dataset", "build", "--out", "x", "--suites"], ["generate"],
+                 ["audit"], ["stats", "--suites"], ["questions"], ["verify"]):
+        args = parser.parse_args([*argv, "rsb_math,RSB-Direct-4", "RSB-Math-4-Objects"])
+        assert args.suites == ["RSB-Math-4", "RSB-Direct-4", "RSB-Math-4-Objects"], argv

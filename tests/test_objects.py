@@ -11,8 +11,8 @@ import pytest
 from rsb_maniskill.objects import catalog
 from rsb_maniskill.objects import family as fam
 from rsb_maniskill.objects.family import BlockFamily, ObjectFamily, get_family
+from rsb_maniskill.objects.layout import CELL_MARGIN
 from rsb_maniskill.semantic import EpisodeSampler
-from rsb_maniskill.tasks.layout import CELL_MARGIN
 
 
 def test_catalog_has_24_categories_with_variants():

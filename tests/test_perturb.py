@@ -17,10 +17,11 @@ import rsb_maniskill  # noqa: F401
 from rsb_maniskill import perturb as P
 from rsb_maniskill.audit.run import audit_suite
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+from rsb_maniskill.objects import layout
 from rsb_maniskill.semantic import EpisodeSampler, wording
 from rsb_maniskill.semantic.records import normalize_text
+from rsb_maniskill.semantic.stable import axis_rng
 from rsb_maniskill.semantic.templates import get_template
-from rsb_maniskill.tasks import layout
 from rsb_maniskill.tasks.perturb_scene import CLUTTER_ITEMS, clutter_layout
 
 SMALL = (64, 48)  # camera size of the image checks: enough pixels to tell levels apart, fast to render
@@ -54,11 +55,11 @@ def test_env_rejects_a_bad_perturbation_before_building():
 
 
 def test_axis_draws_depend_on_seed_axis_and_level_only():
-    a = P.axis_rng("RSB-Math-4", "test", 5, "camera", 2).random(4)
-    assert np.array_equal(a, P.axis_rng("RSB-Math-4", "test", 5, "camera", 2).random(4))
+    a = axis_rng("RSB-Math-4", "test", 5, "camera", 2).random(4)
+    assert np.array_equal(a, axis_rng("RSB-Math-4", "test", 5, "camera", 2).random(4))
     for other in (("RSB-Math-4", "test", 6, "camera", 2), ("RSB-Math-4", "test", 5, "camera", 3),
                   ("RSB-Math-4", "test", 5, "lighting", 2), ("RSB-Math-4", "train", 5, "camera", 2)):
-        assert not np.array_equal(a, P.axis_rng(*other).random(4)), other
+        assert not np.array_equal(a, axis_rng(*other).random(4)), other
 
 
 # ---------------------------------------------------------------- language axes
@@ -101,7 +102,7 @@ def test_language_rendering_takes_no_answer():
     s = EpisodeSampler("RSB-Math-4", "test", targets="objects", perturb=perturb)
     for seed in range(SEED, SEED + 8):
         sp = s.episode(seed)
-        rngs = {a: P.axis_rng(sp.suite_id, "test", seed, a, lv) for a, lv in perturb.items()}
+        rngs = {a: axis_rng(sp.suite_id, "test", seed, a, lv) for a, lv in perturb.items()}
         again = wording.render(get_template(4, sp.template_id, lettered=False), sp.question, sp.options, sp.letters,
                                sp.block_names, sp.candidates, sp.block_of_option, "object", perturb, rngs)
         assert again == sp.instruction
@@ -170,7 +171,7 @@ def test_clutter_in_free_cells_inside_them_and_out_of_the_zone(targets):
     rng = np.random.default_rng(0)
     for seed in range(300):
         used = rng.choice(len(cells), size=4, replace=False)
-        placed = clutter_layout(P.axis_rng("RSB-Math-4", "test", seed, "clutter", 3), 3, cells, lay.pitch, used)
+        placed = clutter_layout(axis_rng("RSB-Math-4", "test", seed, "clutter", 3), 3, cells, lay.pitch, used)
         assert len(placed) == P.CLUTTER_COUNT[3] and len({k for k, _ in placed}) == len(placed)
         for k, xy in placed:
             hx, hy = CLUTTER_ITEMS[k].half_extents

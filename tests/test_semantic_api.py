@@ -170,3 +170,26 @@ def test_direct_suites():
                 assert not any(re.search(rf"\b{o}\b", spec.instruction) for o in others)
     s = EpisodeSampler("RSB-Direct-10")
     assert s.sample(0, question_index=5).instruction.count("block F") == 1
+
+
+def test_the_suite_registry_is_what_every_reader_reads(monkeypatch):
+    """One registration per question source: ids, pools, Direct, `rsb stats`' column and the card."""
+    from rsb_maniskill.semantic import pools, suites
+
+    assert suites.SUITES == ("Math", "HardMath", "General", "Direct") == tuple(suites.SOURCES)
+    assert SUITE_IDS == tuple(f"RSB-{s}-{n}" for s in suites.SUITES for n in (4, 10))
+    assert [s.name for s in suites.SOURCES.values() if s.direct] == ["Direct"]
+    assert [s.name for s in suites.SOURCES.values() if s.reads_data] == ["HardMath", "General"]
+    assert EpisodeSampler("RSB-Direct-10").pool is None and EpisodeSampler("RSB-Math-10").pool.suite == "Math"
+    with pytest.raises(ValueError, match="unknown question source 'Direct'; valid: Math, HardMath, General"):
+        pools.get_pool("Direct", "train")
+    with pytest.raises(ValueError, match="registered already"):
+        suites.register_suite(suites.suite_source("Math"))
+    with pytest.raises(ValueError, match="choices must be among"):
+        suites.register_suite(suites.SuiteSource("Five", "x", "x", "MIT", choices=(5,)))
+    # a new source: its pool builder is what get_pool calls, cached per split
+    toy = suites.SuiteSource("Toy", "toy questions", "toy", "MIT", pool="rsb_maniskill.semantic.math_source:pool")
+    monkeypatch.setitem(suites.SOURCES, "Toy", toy)
+    assert pools.get_pool("Toy", "test") is pools.get_pool("Toy", "test")
+    assert len(pools.get_pool("Toy", "test")) == 1000
+    pools.clear_cache()

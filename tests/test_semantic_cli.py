@@ -8,6 +8,7 @@ from pathlib import Path
 import huggingface_hub
 import pytest
 
+from rsb_maniskill import network
 from rsb_maniskill.cli import main
 from rsb_maniskill.semantic import EpisodeSampler, clear_cache
 
@@ -38,10 +39,22 @@ def test_questions_json(capsys):
 
 
 def test_questions_errors(capsys):
-    assert main(["questions", "RSB-Poetry-4"]) == 1
-    assert "valid ids" in capsys.readouterr().err
+    assert main(["questions", "RSB-Poetry-4"]) == 2  # a usage error, as in every command naming suites
+    assert "unknown suite 'RSB-Poetry-4'; valid: a suite id (RSB-Math-4" in capsys.readouterr().err
+    assert main(["questions"]) == 1
+    assert "name at least one SUITE" in capsys.readouterr().err
     assert main(["questions", "RSB-Math-4", "--split", "validation"]) == 1
     assert "unknown split" in capsys.readouterr().err
+
+
+def test_suites_by_spaces_commas_and_release_names(capsys):
+    """One suite list form everywhere: space- or comma-separated ids, groups, release task names."""
+    assert main(["questions", "rsb_math_10blocks,RSB-Direct-4", "RSB-Math-4-Objects", "-n", "1"]) == 0
+    heads = [ln.split()[1] for ln in capsys.readouterr().out.splitlines() if ln.startswith("=== ")]
+    assert heads == ["RSB-Math-10", "RSB-Direct-4", "RSB-Math-4-Objects"]
+    assert main(["stats", "--suites", "RSB-Math-4,", "RSB-Direct-10-Objects"]) == 0
+    rows = [ln.split()[0] for ln in capsys.readouterr().out.splitlines() if ln.startswith("RSB-")]
+    assert rows == ["RSB-Math-4", "RSB-Direct-10"]
 
 
 def test_stats_with_fixtures(capsys):
@@ -57,13 +70,17 @@ def test_stats_with_fixtures(capsys):
 
 
 def test_stats_without_data_says_how(capsys, monkeypatch):
-    monkeypatch.setattr(huggingface_hub, "hf_hub_download", lambda *a, **k: (_ for _ in ()).throw(OSError("offline")))
+    monkeypatch.setattr(huggingface_hub, "try_to_load_from_cache", lambda *a, **k: None)
+    monkeypatch.setenv("RSB_OFFLINE", "1")
     assert main(["stats"]) == 1
     out = capsys.readouterr().out
     assert "RSB-Math-4" in out and "n/a" in out and "RSB_DATA_DIR" in out and "rsb data download" in out
+    assert out.count("note: ") == 1 and "offline (RSB_OFFLINE" in out  # one message, not one per pool
 
 
 def test_data_download_reports_failure(capsys, monkeypatch):
+    monkeypatch.setattr(huggingface_hub, "try_to_load_from_cache", lambda *a, **k: None)
+    monkeypatch.setattr(network, "unreachable", lambda url: None)  # the hub answers, the download fails
     monkeypatch.setattr(huggingface_hub, "hf_hub_download", lambda *a, **k: (_ for _ in ()).throw(OSError("offline")))
     assert main(["data", "download"]) == 1
     assert "hub download" in capsys.readouterr().err

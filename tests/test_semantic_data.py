@@ -10,6 +10,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from rsb_maniskill import network
 from rsb_maniskill.semantic import DataNotFoundError, EpisodeSampler, SemanticDataError, clear_cache
 from rsb_maniskill.semantic import data as data_mod
 from rsb_maniskill.semantic.gsm8k import clean_solution, gsm8k_pool, parse_final_answer
@@ -114,9 +115,9 @@ def test_mmlu_pro_malformed_names_file_and_row(tmp_path, bad, reason):
 
 
 def test_missing_data_names_both_ways(monkeypatch, tmp_path):
-    def offline(*a, **k):
-        raise OSError("network unreachable")
-    monkeypatch.setattr(huggingface_hub, "hf_hub_download", offline)
+    monkeypatch.setattr(huggingface_hub, "try_to_load_from_cache", lambda *a, **k: None)
+    monkeypatch.setattr(huggingface_hub, "hf_hub_download", lambda *a, **k: pytest.fail("no download offline"))
+    monkeypatch.setenv("RSB_OFFLINE", "1")
     with pytest.raises(DataNotFoundError) as err:
         EpisodeSampler("RSB-HardMath-4")
     msg = str(err.value)
@@ -140,9 +141,12 @@ def test_hub_path_uses_pinned_revisions(monkeypatch, tmp_path):
                 "test": [{"question": "Q2?", "answer": "#### 1,024"}]}
     pro_rows = [_pro_row(i, answer_index=i % 10, answer="ABCDEFGHIJ"[i % 10]) for i in range(60)]
 
-    def fake_download(repo_id, filename, repo_type=None, revision=None, local_files_only=False, **kw):
-        calls.append((repo_id, filename, repo_type, revision, local_files_only))
+    def fake_download(repo_id, filename, repo_type=None, revision=None, **kw):
+        calls.append((repo_id, filename, repo_type, revision))
         return str(tmp_path / repo_id.replace("/", "_") / filename)
+
+    def fake_cache(repo_id, filename, revision=None, repo_type=None):
+        calls.append(("cache", repo_id, filename, repo_type, revision))
 
     def fake_read(path):
         p = str(path)
@@ -151,13 +155,15 @@ def test_hub_path_uses_pinned_revisions(monkeypatch, tmp_path):
         return pro_rows
 
     monkeypatch.setattr(huggingface_hub, "hf_hub_download", fake_download)
+    monkeypatch.setattr(huggingface_hub, "try_to_load_from_cache", fake_cache)
+    monkeypatch.setattr(network, "unreachable", lambda url: None)
     monkeypatch.setattr(data_mod, "read_parquet_rows", fake_read)
     assert [q.answer for q in gsm8k_pool("test")] == ["1024"]
-    assert calls[0] == ("openai/gsm8k", "main/test-00000-of-00001.parquet", "dataset", data_mod.GSM8K_REVISION, True)
+    gsm_test = ("openai/gsm8k", "main/test-00000-of-00001.parquet", "dataset", data_mod.GSM8K_REVISION)
+    assert calls[:2] == [("cache", *gsm_test), gsm_test]  # the cache first
     s = EpisodeSampler("RSB-General-10", "train")
     assert s.pool.source_counts["mmlu_pro"] > 0
-    assert ("TIGER-Lab/MMLU-Pro", "data/test-00000-of-00001.parquet", "dataset", data_mod.MMLU_PRO_REVISION,
-            True) in calls
+    assert ("TIGER-Lab/MMLU-Pro", "data/test-00000-of-00001.parquet", "dataset", data_mod.MMLU_PRO_REVISION) in calls
     assert len(data_mod.GSM8K_REVISION) == 40 and len(data_mod.MMLU_PRO_REVISION) == 40
 
 
@@ -176,6 +182,8 @@ def test_hub_parquet_roundtrip(monkeypatch, tmp_path):
     hub_files = {**{fn: tmp_path / "hub" / fn for fn in files},
                  data_mod.MMLU_PRO_FILE: tmp_path / "hub_pro" / data_mod.MMLU_PRO_FILE_IN_DIR}
     monkeypatch.setattr(huggingface_hub, "hf_hub_download", lambda repo, fn, **kw: str(hub_files[fn]))
+    monkeypatch.setattr(huggingface_hub, "try_to_load_from_cache", lambda *a, **k: None)
+    monkeypatch.setattr(network, "unreachable", lambda url: None)
     assert [q.answer for q in gsm8k_pool("test")] == ["-2"]
     data_mod.download_hub_data(tmp_path / "export")
     exported = tmp_path / "export" / data_mod.MMLU_PRO_FILE_IN_DIR  # the hub's file, byte for byte

@@ -142,3 +142,13 @@ def test_paraphrases_reword_within_the_episodes_template_set(suite_id, targets, 
     bad = spec.__class__(**{**spec.__dict__, "instruction": spec.instruction + " Now."})
     with pytest.raises(ValueError, match="not the recorded"):
         paraphrases(bad)
+
+
+@pytest.mark.parametrize("tid", range(len(T.SEEN_LETTERED) + len(T.UNSEEN_LETTERED)))
+def test_an_option_ending_its_sentence_closes_the_list_with_one_full_stop(tid):
+    """General-10's MMLU-Pro options often end with their own full stop: never ".. Place the block"."""
+    opts = [f"option {i} holds." for i in range(9)] + ["at least 200 songs."]
+    letters = "ABCDEFGHIK"
+    text = render_instruction(10, tid, "How many songs?", opts, letters, [f"block {c}" for c in letters],
+                              list(range(10)))
+    assert ".." not in text and "at least 200 songs." in text  # the option's own full stop is kept

@@ -36,6 +36,7 @@ from rsb_maniskill.robot import (  # noqa: F401  (ALOHA14_NAMES, to/from_aloha14
     ARM_JOINT_NAMES,
     ARM_JOINTS,
     ARMS,
+    CAMERA_SIZE,
     CAMERAS,
     FINGER_JOINT_NAMES,
     FINGER_TRAVEL,
@@ -58,7 +59,6 @@ ARM_DELTA = 0.1  # rad per control step at |action| = 1 in the delta modes
 # tool pointing 57 degrees down, gripper open. The right arm mirrors the left (joint1 sign).
 REST_ARM_QPOS = {"left": np.array([-0.6, 0.6, 0.8, -1.2, 0.0, 0.0]),
                  "right": np.array([0.6, 0.6, 0.8, -1.2, 0.0, 0.0])}
-CAMERA_SIZE = (320, 240)  # width, height (RoboTwin's D435 model)
 CAMERA_FOVY = np.deg2rad(42.0)  # a D435's colour camera
 WRIST_CAMERA_FOVY = np.deg2rad(60.0)  # wide enough to see both fingertips and the block
 

@@ -20,9 +20,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "chance + 3 points, an ambiguous set, or split overlap). Question-aware readers (similarity to "
                     "the question, numbers reachable from the question's) are reference rows; a 10-choice suite fails "
                     "when a reader lifts it above its 4-choice twin, intervals apart (the twin rule).")
-    p.add_argument("suites", nargs="*", metavar="SUITE",
-                   help="suite ids (RSB-Math-4, RSB-Math-4-Objects, ...), 'paper' (the six paper suites), 'all', "
-                        "'paper-objects' or 'all-objects'; omit with --specs")
+    from rsb_maniskill.env_ids import SUITES_HELP, add_suites_argument
+
+    add_suites_argument(p, default=(), positional=True, help=SUITES_HELP + "; omit with --specs")
     p.add_argument("--split", default="test", choices=("train", "test"), help="split to audit (default test)")
     p.add_argument("-n", "--episodes", type=int, default=3000, help="audited episodes per suite (default 3000)")
     p.add_argument("--train-episodes", type=int, default=None, help="train-split episodes for the probe (default: -n)")

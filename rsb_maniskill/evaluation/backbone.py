@@ -178,9 +178,8 @@ def ask_episodes(backbone: Backbone, suite_id: str, seeds: Sequence[int], out_pa
                  env_kwargs: Mapping[str, Any] | None = None, progress: bool = True) -> list[dict]:
     """Ask ``backbone`` the episodes ``seeds`` of ``suite_id`` (those not yet in ``out_path``),
     appending one record each; returns every record of this row and suite, old and new."""
-    from .protocol import SHUFFLE_SEED
+    from .protocol import SHUFFLE_SEED, ShuffledDonors, ablate
     from .records import RecordWriter
-    from .runner import Donors, ablate
     from .statements import EpisodeText
 
     seeds = [int(s) for s in seeds]
@@ -191,7 +190,7 @@ def ask_episodes(backbone: Backbone, suite_id: str, seeds: Sequence[int], out_pa
     if not todo:
         return mine
     questions = _Questions(suite_id, dict(env_kwargs or {}), images)
-    donors = (Donors(seeds, lambda s: questions.sampler.episode(s).instruction, SHUFFLE_SEED)
+    donors = (ShuffledDonors(seeds, lambda s: questions.sampler.episode(s).instruction, SHUFFLE_SEED)
               if instruction_mode == "shuffled" else None)
     bar = None
     if progress:

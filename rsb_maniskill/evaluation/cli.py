@@ -8,7 +8,8 @@
 
 Output directory (``--out``, default ``results/<name>``): ``episodes.jsonl`` (one record per
 finished episode; rerunning the same command resumes), ``run.json`` (the settings each policy row
-was run with; a resumed run must use the same ones), ``summary.{json,csv,md}``, one
+was run with; a resumed run must use the same ones, and the same benchmark version),
+``summary.{json,csv,md}``, ``results.json`` (the shareable numbers, docs/evaluation.md), one
 ``summary_<row>.png`` per row, ``report.html`` (``rsb report``) and ``videos/``. See docs/evaluation.md.
 """
 from __future__ import annotations
@@ -22,10 +23,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-EPISODES_FILE = "episodes.jsonl"
-MANIFEST_FILE = "run.json"
 # Settings that change what an episode of a row means: a resumed run must keep them.
-MANIFEST_KEYS = ("policy", "policy_kwargs", "obs_mode", "control_mode", "max_steps", "env_kwargs")
+MANIFEST_KEYS = ("policy", "policy_kwargs", "obs_mode", "control_mode", "max_steps", "env_kwargs", "benchmark_version",
+                 "checkpoint")
 PROTOCOL_KEYS = ("split", "instructions")  # fixed by the protocol; not settable with --env-arg
 SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0: the unperturbed run)
 
@@ -35,7 +35,7 @@ class EvalError(RuntimeError):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
+    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS, add_suites_argument
     from rsb_maniskill.evaluation.policy import POLICIES
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
     from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
@@ -52,10 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("policy", help=f"built-in ({', '.join(POLICIES)}) or package.module:factory")
     p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="keyword argument of the policy factory (VALUE parsed as JSON, else a string); repeatable")
-    p.add_argument("--suites", nargs="+", default=["paper"], metavar="SUITE",
-                   help="suite ids (RSB-Math-4, RSB-Math-4-Objects, ...), 'paper' (the six of the paper, default), "
-                        "'all' (with the Direct controls), 'paper-objects' / 'all-objects' (the same with everyday "
-                        "objects: the Beyond Blocks table)")
+    add_suites_argument(p)
     p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
                    help=f"episodes per suite (default {EPISODES_PER_SUITE}); "
                         "the first n are a prefix of any longer run")
@@ -69,6 +66,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="run each axis at levels 0-3, one after the other (level 0, the unperturbed run, once for "
                         "all); resumable; the summary and report.html get a robustness table per suite")
     p.add_argument("--name", default=None, help="row label in records and tables (default: the policy spec)")
+    p.add_argument("--checkpoint", default=None, metavar="ID",
+                   help="your id of the weights evaluated (a hub revision, a run name): results.json carries it")
     p.add_argument("--out", default=None, help="results directory (default: results/<name>)")
     p.add_argument("-o", "--obs-mode", default=None,
                    help=f"observations (default: rgb; state for {', '.join(state_only)})")
@@ -121,15 +120,6 @@ def perturbations(perturb: list[str], sweep: list[str]) -> list[dict[str, int]]:
         raise EvalError(f"{err} (--perturb AXIS=LEVEL, --sweep AXIS)") from None
 
 
-def resolve_suites(names: list[str]) -> list[str]:
-    from rsb_maniskill.env_ids import resolve_env_ids
-
-    try:
-        return resolve_env_ids(names)
-    except ValueError as err:
-        raise EvalError(str(err)) from None
-
-
 def check_policy_spec(spec: str, num_envs: int = 1) -> None:
     """Fail before any env is built when a spec cannot resolve, or cannot run on parallel envs."""
     from rsb_maniskill.evaluation.policy import policy_spec, resolve_factory
@@ -161,9 +151,15 @@ def check_data(suites: list[str], data_dir: str | None) -> None:
 def check_manifest(out: Path, label: str, settings: dict[str, Any], section: str = "runs",
                    keys: tuple[str, ...] = MANIFEST_KEYS) -> None:
     """Record this row's settings in run.json (under ``section``: ``runs`` for policies,
-    ``backbones`` for ``rsb backbone``), or check that ``keys`` match those it was started with."""
-    from rsb_maniskill import __version__
+    ``backbones`` for ``rsb backbone``), or check that ``keys`` match those it was started with; the
+    directory's records must be of this benchmark version (a table holds one)."""
+    from rsb_maniskill.evaluation.records import MANIFEST_FILE, RECORDS_FILE, VERSION_FIELD, one_version, read_records
+    from rsb_maniskill.version import BENCHMARK_VERSION, code_commit, package_version
 
+    try:
+        one_version([*read_records(out / RECORDS_FILE), {VERSION_FIELD: BENCHMARK_VERSION}])
+    except ValueError as err:
+        raise EvalError(f"{out / RECORDS_FILE}: {err}. Use another --out for this version's run.") from None
     path = out / MANIFEST_FILE
     manifest = json.loads(path.read_text()) if path.exists() else {"runs": {}}
     old = manifest.setdefault(section, {}).get(label)
@@ -174,7 +170,7 @@ def check_manifest(out: Path, label: str, settings: dict[str, Any], section: str
             raise EvalError(f"{out} already holds episodes of {label!r} run with other settings ({shown}). "
                             "Use the same settings to resume, or another --out / --name for a new run.")
         return
-    manifest[section][label] = {**settings, "rsb_version": __version__}
+    manifest[section][label] = {**settings, "rsb_version": package_version(), "code_commit": code_commit()}
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(manifest, indent=2) + "\n")
     os.replace(tmp, path)
@@ -219,11 +215,12 @@ def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.evaluation.policy import policy_spec
     from rsb_maniskill.evaluation.protocol import eval_seeds
-    from rsb_maniskill.evaluation.records import read_records
+    from rsb_maniskill.evaluation.records import RECORDS_FILE, read_records
     from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records, write_report
+    from rsb_maniskill.version import BENCHMARK_VERSION
     from rsb_maniskill.workers import executor_from_args
 
-    suites = resolve_suites(args.suites)
+    suites = args.suites
     for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-procs", args.num_procs or 1, 1),
                              ("--num-envs", args.num_envs, 1), ("--videos", args.videos, 0)):
         if value < low:
@@ -281,10 +278,11 @@ def _run_eval(args: argparse.Namespace) -> int:
     obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
     max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
     settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
-                    control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs)
+                    control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs,
+                    benchmark_version=BENCHMARK_VERSION, checkpoint=args.checkpoint)
     check_manifest(out, label, settings)
 
-    records_path = out / EPISODES_FILE
+    records_path = out / RECORDS_FILE
     interrupted = False
     with contextlib.ExitStack() as stack:
         num_procs = args.num_procs or 1
@@ -308,7 +306,7 @@ def _run_eval(args: argparse.Namespace) -> int:
 
         paths = write_report(results, out, records=all_records)
         page = write_html_report(out, records=all_records)
-        print(markdown_tables(results))
+        print(markdown_tables(results, BENCHMARK_VERSION))
         from rsb_maniskill.evaluation.reporting.robustness import robustness_markdown, robustness_table
 
         robust = robustness_table(all_records)
@@ -317,7 +315,8 @@ def _run_eval(args: argparse.Namespace) -> int:
         from rsb_maniskill.evaluation.reporting.reasoning import reasoning_markdown, reasoning_table
 
         print(reasoning_markdown(reasoning_table(all_records)), end="")  # nothing unless a policy talked
-        print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\nreport: {page}")
+        print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\n"
+              f"results: {paths['results']}\nreport: {page}")
     if interrupted:
         print(f"rsb eval: interrupted; finished episodes are in {records_path}. "
               "Rerun the same command to resume.", file=sys.stderr)

@@ -10,7 +10,7 @@ at ten million so that the two can never meet even if someone evaluates on the t
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -26,11 +26,14 @@ EPISODES_PER_SUITE = 500
 EVAL_ENV_KWARGS: dict[str, str] = {"split": "test", "instructions": "unseen"}
 # Seed of the shuffled-instruction pairing; fixed so every policy gets the same mismatches.
 SHUFFLE_SEED = 0
+# lerobot-eval seeds episode i of a run with --seed + i (default 1000): the LeRobot env maps that
+# seed back to protocol episode i (integrations/lerobot_env.py, the lerobot_env_rsb plugin).
+LEROBOT_SEED_BASE = 1000
 
 __all__ = [
-    "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "INSTRUCTION_MODES", "PAPER_OBJECT_SUITES",
-    "PAPER_SUITES", "SHUFFLE_SEED",
-    "SUITE_IDS", "apply_instruction_mode", "derangement", "eval_seeds", "num_choices", "shuffled_instruction",
+    "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "INSTRUCTION_MODES", "LEROBOT_SEED_BASE",
+    "PAPER_OBJECT_SUITES", "PAPER_SUITES", "SHUFFLE_SEED", "SUITE_IDS", "ShuffledDonors",
+    "apply_instruction_mode", "derangement", "eval_seeds", "num_choices", "shuffled_instruction",
 ]
 
 
@@ -80,6 +83,35 @@ def shuffled_instruction(instructions: Sequence[str], seed: int = SHUFFLE_SEED) 
     return out
 
 
+class ShuffledDonors:
+    """Shuffled mode: episode ``seeds[i]`` is told the instruction of ``seeds[donor[i]]``.
+
+    Same rule as :func:`shuffled_instruction` on the whole seed list (so resumed and uninterrupted
+    runs agree, and ``rsb eval`` and the LeRobot env pair alike), with the instructions looked up
+    lazily, one donor at a time: ``donors(seed, own)`` -> (donor seed, its instruction).
+    """
+
+    def __init__(self, seeds: Sequence[int], lookup: Callable[[int], str], shuffle_seed: int) -> None:
+        self.seeds = list(seeds)
+        self.index = {s: i for i, s in enumerate(self.seeds)}
+        self.donor = derangement(len(self.seeds), shuffle_seed)
+        self.lookup = lookup
+        self.cache: dict[int, str] = {}
+
+    def text(self, seed: int) -> str:
+        if seed not in self.cache:
+            self.cache[seed] = self.lookup(seed)
+        return self.cache[seed]
+
+    def __call__(self, seed: int, own: str) -> tuple[int, str]:
+        j = self.donor[self.index[seed]]
+        for _ in range(len(self.seeds) - 1):
+            if self.text(self.seeds[j]) != own:
+                break
+            j = self.donor[j]
+        return self.seeds[j], self.text(self.seeds[j])
+
+
 def apply_instruction_mode(instruction: str, mode: str, donor_instruction: str | None = None) -> str:
     """Instruction the policy sees: ``normal`` as is, ``blank`` empty, ``shuffled`` another episode's."""
     if mode == "normal":
@@ -91,3 +123,15 @@ def apply_instruction_mode(instruction: str, mode: str, donor_instruction: str |
             raise ValueError("instruction mode 'shuffled' needs the donor episode's instruction")
         return donor_instruction
     raise ValueError(f"instruction mode must be one of {INSTRUCTION_MODES}, got {mode!r}")
+
+
+def ablate(own: str, mode: str, donor: tuple[int, str] | None) -> tuple[str, dict[str, Any]]:
+    """The instruction given in ``mode`` (``donor``: the shuffled mode's (seed, instruction), from
+    :class:`ShuffledDonors`), and the record fields saying what was done (``donor_seed``,
+    ``original_instruction``)."""
+    extra: dict[str, Any] = {}
+    if donor is not None:
+        extra["donor_seed"] = donor[0]
+    if mode != "normal":
+        extra["original_instruction"] = own
+    return apply_instruction_mode(own, mode, donor[1] if donor else None), extra

@@ -1,5 +1,8 @@
 """Episode records: one JSON line per finished episode, written so that a killed run loses nothing.
 
+A results directory (``rsb eval --out``, ``lerobot-eval``'s ``records_dir``) holds them in
+``RECORDS_FILE``, and ``rsb eval`` the settings of each policy row in ``MANIFEST_FILE``.
+
 Each record is appended, flushed and fsync'ed as its episode ends. A run killed mid-write leaves
 at most one partial last line; the reader skips it and the writer cuts it off before appending, so
 resuming (skip ``completed_seeds``, run the rest) yields the same records as an uninterrupted run.
@@ -12,6 +15,8 @@ import warnings
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
+RECORDS_FILE = "episodes.jsonl"
+MANIFEST_FILE = "run.json"
 # Fields every record carries (the runner fills them; extra fields are free).
 RECORD_FIELDS: tuple[str, ...] = (
     "suite_id", "seed", "question_id", "instruction", "instruction_mode", "target_block", "correct_letter",
@@ -23,6 +28,34 @@ INSTRUCTION_MODES: tuple[str, ...] = ("normal", "blank", "shuffled")
 RECORD_KEY: tuple[str, ...] = ("policy", "suite_id", "instruction_mode", "perturb", "seed")
 # Values of key fields that a record may lack (records written before the field existed).
 KEY_DEFAULTS: dict[str, Any] = {"perturb": "none"}
+# The benchmark version of the episodes (rsb_maniskill.version): the runner writes it into every
+# record; records written before versions existed read as "unversioned".
+VERSION_FIELD = "benchmark_version"
+
+
+class VersionMixError(ValueError):
+    """Records of two benchmark versions (their episodes differ) asked to share one table."""
+
+
+def record_version(record: Mapping[str, Any]) -> str:
+    """The benchmark version a record was measured on (``"unversioned"`` before versions existed)."""
+    from rsb_maniskill.version import UNVERSIONED
+
+    return str(record.get(VERSION_FIELD) or UNVERSIONED)
+
+
+def one_version(records: Iterable[Mapping[str, Any]]) -> str | None:
+    """The one benchmark version of ``records`` (None when there are none); VersionMixError, one
+    line naming two of them, when they hold several."""
+    from rsb_maniskill.version import UNVERSIONED, benchmark_label
+
+    versions = sorted({record_version(r) for r in records})
+    if len(versions) > 1:
+        a, b = (benchmark_label(v) if v != UNVERSIONED else "unversioned records (written before benchmark "
+                "versions existed; their episodes may differ)" for v in versions[:2])
+        raise VersionMixError(f"cannot pool records of {a} and {b} into one table: they were measured on "
+                              "different episodes; report each version's records apart")
+    return versions[0] if versions else None
 
 
 def validate_record(record: Mapping[str, Any]) -> None:
@@ -156,6 +189,18 @@ def perturb_label(record: Mapping[str, Any]) -> str:
     return str(record.get("perturb", "none"))
 
 
+def row_label(policy: str, instruction_mode: str = "normal", perturb: str = "none") -> str:
+    """Table row of a policy; ablation modes and perturbations get their own rows, e.g.
+    ``"pi0 (blank)"``, ``"pi0 [camera=2]"``."""
+    label = policy if instruction_mode == "normal" else f"{policy} ({instruction_mode})"
+    return label if perturb == "none" else f"{label} [{perturb}]"
+
+
+def record_row(record: Mapping[str, Any]) -> str:
+    """The table row a record belongs to (:func:`row_label` of its policy, mode and perturbation)."""
+    return row_label(str(record.get("policy", "?")), record.get("instruction_mode", "normal"), perturb_label(record))
+
+
 def dedupe(records: Iterable[Mapping[str, Any]]) -> list[dict]:
     """Keep the first record of each (policy, suite, instruction mode, perturbation, seed)."""
     seen: set[tuple] = set()
@@ -172,6 +217,13 @@ def read_records(path: str | os.PathLike, unique: bool = True) -> list[dict]:
     """All records of ``path`` (first of each duplicate when ``unique``)."""
     records = list(iter_records(path))
     return dedupe(records) if unique else records
+
+
+def read_manifest(results_dir: str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """The settings of each policy row of a results directory (``MANIFEST_FILE``; ``rsb eval``
+    writes it), or nothing when it has none (``lerobot-eval``)."""
+    path = Path(results_dir) / MANIFEST_FILE
+    return json.loads(path.read_text()).get("runs", {}) if path.exists() else {}
 
 
 def completed_seeds(

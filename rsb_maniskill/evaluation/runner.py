@@ -26,6 +26,7 @@ from rsb_maniskill.batch import env_row, first_value, single_env_obs
 from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.perturb import parse_perturb
+from rsb_maniskill.version import BENCHMARK_VERSION
 
 from .policy import (
     PerEnvPolicies,
@@ -37,8 +38,8 @@ from .policy import (
     split_output,
     split_outputs,
 )
-from .protocol import SHUFFLE_SEED, apply_instruction_mode, derangement
-from .records import INSTRUCTION_MODES
+from .protocol import SHUFFLE_SEED, ShuffledDonors, ablate
+from .records import INSTRUCTION_MODES, VERSION_FIELD
 from .statements import EpisodeText
 
 # info flags copied into every record, and extra ones kept when the env provides them.
@@ -111,7 +112,8 @@ def build_record(
     policy: str,
     extra: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The episode record (``records.RECORD_FIELDS``) from the episode spec and the last ``info``."""
+    """The episode record (``records.RECORD_FIELDS``, and the benchmark version) from the episode
+    spec and the last ``info``."""
     record: dict[str, Any] = {
         "suite_id": suite_id,
         "seed": int(seed),
@@ -124,50 +126,12 @@ def build_record(
         **{k: bool(info_flag(info, k)) for k in RECORD_FLAGS},
         "steps": int(steps),
         "policy": policy,
+        VERSION_FIELD: BENCHMARK_VERSION,
     }
     record.update({k: bool(info_flag(info, k)) for k in EXTRA_FLAGS if k in info})
     if extra:
         record.update(extra)
     return record
-
-
-class Donors:
-    """Shuffled mode: episode ``seeds[i]`` is told the instruction of ``seeds[donor[i]]``.
-
-    Same rule as ``protocol.shuffled_instruction`` on the whole seed list (so resumed and
-    uninterrupted runs agree), with the instructions looked up lazily, one donor at a time.
-    """
-
-    def __init__(self, seeds: Sequence[int], lookup: Callable[[int], str], shuffle_seed: int) -> None:
-        self.seeds = list(seeds)
-        self.index = {s: i for i, s in enumerate(self.seeds)}
-        self.donor = derangement(len(self.seeds), shuffle_seed)
-        self.lookup = lookup
-        self.cache: dict[int, str] = {}
-
-    def text(self, seed: int) -> str:
-        if seed not in self.cache:
-            self.cache[seed] = self.lookup(seed)
-        return self.cache[seed]
-
-    def __call__(self, seed: int, own: str) -> tuple[int, str]:
-        j = self.donor[self.index[seed]]
-        for _ in range(len(self.seeds) - 1):
-            if self.text(self.seeds[j]) != own:
-                break
-            j = self.donor[j]
-        return self.seeds[j], self.text(self.seeds[j])
-
-
-def ablate(own: str, mode: str, donor: tuple[int, str] | None) -> tuple[str, dict[str, Any]]:
-    """The instruction given in ``mode`` (``donor``: the shuffled mode's (seed, instruction)), and
-    the record fields saying what was done (``donor_seed``, ``original_instruction``)."""
-    extra: dict[str, Any] = {}
-    if donor is not None:
-        extra["donor_seed"] = donor[0]
-    if mode != "normal":
-        extra["original_instruction"] = own
-    return apply_instruction_mode(own, mode, donor[1] if donor else None), extra
 
 
 def default_instruction_lookup(env: Any, reset_options: Mapping[str, Any] | None = None) -> Callable[[int], str]:
@@ -198,7 +162,7 @@ class _Episodes:
                 if not resets_allowed and not callable(getattr(env.unwrapped, "episode_spec", None)):
                     raise ValueError("shuffled mode on parallel envs needs the task's episode_spec(seed)")
                 lookup = default_instruction_lookup(env, settings.reset_options)
-            self.donors = Donors(settings.seeds, lookup, settings.shuffle_seed)
+            self.donors = ShuffledDonors(settings.seeds, lookup, settings.shuffle_seed)
 
     def donor(self, seed: int, own: str | None = None) -> tuple[int, str] | None:
         """Shuffled mode: (donor seed, its instruction); ``own`` defaults to the looked-up text.
@@ -249,7 +213,7 @@ class Observations:
 
     def __init__(self, env: Any, every_step: bool = False) -> None:
         self.env, self.base = env, env.unwrapped
-        self.mode = getattr(self.base, "_obs_mode", None)
+        self.mode = getattr(self.base, "obs_mode", None)
         self.lazy = (not every_step and isinstance(self.mode, str)
                      and self.mode not in ("none", "state", "state_dict")
                      and callable(getattr(self.base, "get_obs", None)))

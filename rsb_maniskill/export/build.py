@@ -1,4 +1,4 @@
-"""``rsb dataset build``: the training sets as LeRobot datasets, in shards, in parallel, resumable.
+"""``rsb dataset build`` and ``rsb export lerobot``: LeRobot datasets in shards, in parallel, resumable.
 
 A build is cut into shards by arithmetic, never by timing: each suite's question range in chunks of
 ``shard_size`` questions (``rsb export lerobot``: each demo file's episodes in chunks). Workers
@@ -29,11 +29,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from rsb_maniskill.export.lerobot import ExportError
+from rsb_maniskill.export.lerobot import DEFAULT_CAMERAS, ExportError
+from rsb_maniskill.export.naming import DEFAULT_NAMING
 
 WORK_DIR = ".work"
 SETTINGS_FILE = "settings.json"
 BUILD_META = "meta/rsb_build.json"  # the settings a dataset was built with, inside the dataset
+PROVENANCE = ("code_commit", "skipped_questions")  # also in BUILD_META; they decide no episode or file
+EXPORT_META = "meta/rsb_export.json"  # what an exported dataset's demos are (benchmark version, ...)
 SHARD_META = "meta/rsb_shard.json"
 DEFAULT_SHARD_SIZE = 25  # questions a shard: a kill loses at most this many demos per worker
 
@@ -132,7 +135,7 @@ def _check_settings(work: Path, dataset: Path | None, settings: dict) -> bool:
         if not path.is_file():
             return None
         old = json.loads(path.read_text())
-        diff = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
+        diff = sorted(k for k in (set(old) | set(settings)) - set(PROVENANCE) if old.get(k) != settings.get(k))
         return ", ".join(f"{k}={old.get(k)!r} there, {settings.get(k)!r} now" for k in diff) or None
 
     for path, holder in ((work / SETTINGS_FILE, work), *(((dataset / BUILD_META, dataset),) if dataset else ())):
@@ -305,9 +308,61 @@ def _run(shards: list[tuple[Path, dict, int, Any]], num_procs: int, executor: An
     return [t.error for t in outcome.tasks if t.error], interrupted, bar
 
 
+def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *, fps: int | None = None,
+                   cameras: Sequence[str] = DEFAULT_CAMERAS, naming: str = DEFAULT_NAMING, overwrite: bool = False,
+                   progress: bool = True, num_procs: int = 1, executor: Any = None,
+                   shard_size: int | None = None) -> dict[str, Any]:
+    """Writes the episodes of ``demos`` (``rsb generate`` files, merged or converted ones too) as
+    one LeRobot v3.0 dataset under ``out``; returns a summary.
+
+    The episodes are cut into shards of ``shard_size`` (default: a few per worker), rendered by
+    ``num_procs`` worker processes (or ``executor``, e.g. Ray), each shard written whole under
+    ``.<out>.work/`` beside ``out``, then merged into ``out``. A rerun after an interruption keeps
+    the finished shards; nothing is written at ``out`` until the merge is complete. Demos of two
+    benchmark versions do not go into one dataset; ``meta/rsb_export.json`` names the version."""
+    try:
+        import pyarrow.parquet  # noqa: F401
+    except ImportError:
+        raise ExportError("writing parquet needs pyarrow: pip install 'rsb_maniskill[export]'") from None
+    from rsb_maniskill.export.lerobot import check_cameras, check_fps, check_out
+    from rsb_maniskill.version import UNVERSIONED, benchmark_label, code_commit, package_version
+
+    out = Path(out)
+    cameras = check_cameras(cameras, naming)
+    fps, _ = check_fps(fps)
+    paths = [Path(p) for p in demos]
+    for p in paths:
+        if p.suffix != ".h5" or not p.is_file() or not p.with_suffix(".json").is_file():
+            raise ExportError(f"{p}: not a trajectory file pair (X.h5 with X.json beside it)")
+    check_out(out, overwrite)
+    ids, versions = [], {}
+    for p in paths:
+        data = json.loads(p.with_suffix(".json").read_text())
+        ids.append((p, [int(e["episode_id"]) for e in data["episodes"]]))
+        versions.setdefault((data.get("rsb") or {}).get("benchmark_version") or UNVERSIONED, p)
+    if len(versions) > 1:
+        (va, pa), (vb, pb) = sorted(versions.items())[:2]
+        raise ExportError(f"{pa} holds demos of {benchmark_label(va)}, {pb} of {benchmark_label(vb)}: one dataset "
+                          "holds the episodes of one benchmark version")
+    total = sum(len(i) for _, i in ids)
+    if total == 0:
+        raise ExportError("the demo files hold no episodes")
+    if num_procs < 1:
+        raise ExportError(f"--num-procs must be >= 1, got {num_procs}")
+    size = shard_size or max(1, min(50, -(-total // (4 * num_procs))))
+    shards = [ExportShard(str(p), tuple(i[k:k + size])) for p, i in ids for k in range(0, len(i), size)]
+    settings = {"demos": [str(p.resolve()) for p in paths], "fps": fps, "cameras": list(cameras), "naming": naming,
+                "shard_size": size}
+    meta = {"benchmark_version": next(iter(versions)), "rsb_version": package_version(),
+            "code_commit": code_commit(), **settings}
+    return run_export_shards(shards, out, settings, num_procs=num_procs, executor=executor, progress=progress,
+                             overwrite=overwrite, meta=meta)
+
+
 def run_export_shards(shards: list[ExportShard], out: Path, settings: dict, *, num_procs: int, executor: Any,
-                      progress: bool, overwrite: bool) -> dict[str, Any]:
-    """``rsb export lerobot``: render the shards in workers, then merge them into ``out``."""
+                      progress: bool, overwrite: bool, meta: dict) -> dict[str, Any]:
+    """``rsb export lerobot``: render the shards in workers, then merge them into ``out`` (with
+    ``meta`` as ``meta/rsb_export.json``)."""
     from rsb_maniskill.export.merge import merge_datasets
 
     work = out.parent / f".{out.name}.work"
@@ -327,7 +382,7 @@ def run_export_shards(shards: list[ExportShard], out: Path, settings: dict, *, n
         raise ExportError(f"a worker failed (finished shards are kept; rerun to continue): {errors[0]}")
     full = [shard_dir(work, k) for k in range(len(shards))
             if json.loads((shard_dir(work, k) / SHARD_META).read_text())["episodes"]]
-    summary = merge_datasets(full, out)
+    summary = merge_datasets(full, out, extra_files={EXPORT_META: json.dumps(meta, indent=1)})
     shutil.rmtree(work, ignore_errors=True)
     return summary
 
@@ -366,10 +421,11 @@ def _suite_plan(cfg: BuildConfig) -> list[tuple[str, int, int, int]]:
 
 def build_settings(cfg: BuildConfig, env_id: str, start: int, stop: int, pool: int) -> dict[str, Any]:
     """What decides a suite's episodes and files: a rerun must ask for the same to resume."""
-    import rsb_maniskill
     from rsb_maniskill.export.lerobot import check_cameras, check_fps
+    from rsb_maniskill.version import BENCHMARK_VERSION, package_version
 
-    return {"rsb_version": rsb_maniskill.__version__, "env_id": env_id, "split": cfg.split,
+    return {"benchmark_version": BENCHMARK_VERSION, "rsb_version": package_version(), "env_id": env_id,
+            "split": cfg.split,
             "questions": f"{start}:{stop}", "pool_size": pool, "cameras": list(check_cameras(cfg.cameras, cfg.naming)),
             "fps": check_fps(cfg.fps)[0], "naming": cfg.naming, "shard_size": cfg.shard_size,
             "max_attempts": cfg.max_attempts, "env_kwargs": {k: list(v) if isinstance(v, tuple) else v
@@ -382,6 +438,7 @@ def build_datasets(cfg: BuildConfig, executor: Any = None) -> list[dict[str, Any
     ``KeyboardInterrupt`` (finished shards kept) when stopped, ``ExportError`` on bad input."""
     from rsb_maniskill.export.card import dataset_card
     from rsb_maniskill.export.merge import merge_datasets
+    from rsb_maniskill.version import code_commit
 
     out = Path(cfg.out)
     suites = []
@@ -420,8 +477,9 @@ def build_datasets(cfg: BuildConfig, executor: Any = None) -> list[dict[str, Any
             public = {k: v for k, v in settings.items() if k != "data_dir"}
             skipped = sorted(q for m in metas for q in m.get("skipped_questions", []))
             full = [shard_dir(work, k) for k, m in enumerate(metas) if m["episodes"]]
-            info = merge_datasets(full, dataset, extra_files={BUILD_META: json.dumps(public, indent=1)})
-            card = dataset_card(dataset, {**public, "skipped_questions": skipped})
+            meta = {**public, "code_commit": code_commit(), "skipped_questions": skipped}
+            info = merge_datasets(full, dataset, extra_files={BUILD_META: json.dumps(meta, indent=1)})
+            card = dataset_card(dataset, meta)
             (dataset / "README.md").write_text(card)
         info = json.loads((dataset / "meta/info.json").read_text())
         summaries.append({"env_id": env_id, "out": str(dataset), "episodes": info["total_episodes"],

@@ -13,14 +13,13 @@ import json
 from pathlib import Path
 from typing import Any
 
-# Where each suite's questions come from, with their licences (our code and the generated
-# questions: MIT, as the package).
-QUESTION_SOURCES = {
-    "Math": ("procedural two-operand arithmetic written by rsb_maniskill", "MIT"),
-    "HardMath": ("GSM8K word problems (openai/gsm8k, MIT)", "MIT"),
-    "General": ("a commonsense knowledge table written by rsb_maniskill and MMLU-Pro (TIGER-Lab/MMLU-Pro, MIT)", "MIT"),
-    "Direct": ("none: the instruction names the target", "MIT"),
-}
+
+def _skipped(skipped: list[int], attempts: int) -> str:
+    """The card's line on questions without a demo: how many, and why (the attempt limit)."""
+    if not skipped:
+        return f"0 (up to {attempts} seeds were tried per question)"
+    shown = ", ".join(map(str, skipped[:10])) + (", ..." if len(skipped) > 10 else "")
+    return f"{len(skipped)}: the expert failed on all {attempts} seeds tried for each (questions {shown})"
 
 
 def _size_category(n: int) -> str:
@@ -61,14 +60,15 @@ def _header(meta: dict[str, Any]) -> str:
 def dataset_card(dataset: str | Path, settings: dict[str, Any]) -> str:
     """The card of the dataset at ``dataset`` (its meta/ is read), built with ``settings``."""
     from rsb_maniskill.objects.family import split_env_id
-    from rsb_maniskill.semantic.suites import parse_suite_id
+    from rsb_maniskill.semantic.suites import parse_suite_id, suite_source
+    from rsb_maniskill.version import benchmark_label
 
     dataset = Path(dataset)
     info = json.loads((dataset / "meta/info.json").read_text())
     env_id = settings["env_id"]
     suite_id, targets = split_env_id(env_id)
     family, n_choices = parse_suite_id(suite_id)
-    source, licence = QUESTION_SOURCES[family]
+    source, licence = suite_source(family).card, suite_source(family).licence
     repo = f"<your-hf-user>/{env_id.lower()}"
     cameras = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
     skipped = settings.get("skipped_questions") or []
@@ -87,7 +87,9 @@ def dataset_card(dataset: str | Path, settings: dict[str, Any]) -> str:
 # RoboSemanticBench: {env_id}, {settings['split']} split
 
 Expert demonstrations of the RoboSemanticBench (RSB) task **{env_id}** as a LeRobot dataset (format
-{info['codebase_version']}), made with `rsb_maniskill` {settings['rsb_version']} on ManiSkill 3.
+{info['codebase_version']}), made with `rsb_maniskill` {settings['rsb_version']} on ManiSkill 3: the episodes
+of benchmark version **{benchmark_label(settings['benchmark_version'])}** (a result is comparable with results
+of the same version only).
 A dual-arm Aloha-AgileX robot sees {n_choices} candidate {"everyday objects" if targets == "objects" else "blocks"}
 and a gray answer zone; the instruction holds a multiple-choice question whose options are bound to
 the candidates, and the robot places the candidate of the correct answer in the zone. Each
@@ -99,8 +101,9 @@ episode's instruction is its task string.
 | split | {settings['split']} (disjoint from the evaluation split's questions) |
 | question source | {source} |
 | questions | {settings['questions']} of a pool of {settings['pool_size']}; one demonstration each |
+| benchmark version | {benchmark_label(settings['benchmark_version'])} (`rsb --version`; docs/versions.md) |
 | episodes / frames | {info['total_episodes']} / {info['total_frames']} at {info['fps']} fps |
-| questions without a demo | {len(skipped)} (the expert failed on {settings['max_attempts']} seeds) |
+| questions without a demo | {_skipped(skipped, settings['max_attempts'])} |
 | cameras | {', '.join(f"`{c}`" for c in cameras)} |
 | state / action | `observation.state`, `action`: Aloha 14 numbers [left arm 6, left gripper, right arm 6, \
 right gripper], grippers in [0, 1] (absolute joint targets) |

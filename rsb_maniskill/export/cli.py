@@ -44,10 +44,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                     "expert on every question of the split, camera frames rendered from its "
                                     "states, in shards written whole by parallel workers; rerun the same command "
                                     "to resume. One dataset per suite at OUT/<suite> with its dataset card.")
-    b.add_argument("--suites", default="paper",
-                   help="comma-separated suite ids or groups: paper (the six of the paper), all, paper-objects, "
-                        "all-objects, RSB-Math-4, ... (default paper)")
+    from rsb_maniskill.env_ids import add_suites_argument
     from rsb_maniskill.objects.family import DEFAULT_TARGETS, target_names
+
+    add_suites_argument(b)
 
     b.add_argument("--targets", choices=target_names(), default=DEFAULT_TARGETS,
                    help="blocks, or the Beyond Blocks everyday objects (the -Objects ids)")
@@ -74,7 +74,8 @@ def _cameras(text: str) -> list[str]:
 
 
 def cmd_lerobot(args: argparse.Namespace) -> int:
-    from .lerobot import ExportError, export_lerobot
+    from .build import export_lerobot
+    from .lerobot import ExportError
 
     try:
         executor, num_procs = _executor(args)
@@ -98,7 +99,7 @@ def cmd_build(args: argparse.Namespace) -> int:
 
     try:
         executor, num_procs = _executor(args)
-        cfg = BuildConfig(suites=[s for s in args.suites.split(",") if s.strip()], out=args.out, targets=args.targets,
+        cfg = BuildConfig(suites=args.suites, out=args.out, targets=args.targets,
                           split=args.split, questions=args.questions, cameras=_cameras(args.cameras), fps=args.fps,
                           naming=args.naming, num_procs=num_procs, shard_size=args.shard_size,
                           data_dir=args.data_dir, progress=sys.stderr.isatty())

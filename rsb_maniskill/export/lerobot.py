@@ -14,10 +14,10 @@ layout (``to_aloha14``) and each episode's instruction is its task. Feature keys
 the project's.
 
 :func:`write_dataset` writes one dataset from an iterable of episodes in this process (videos are
-encoded on a thread while the next episode renders). :func:`export_lerobot` splits the demos into
-shards, writes each with :func:`write_dataset` in worker processes (``rsb_maniskill.workers``) and
-merges them (``export/merge.py``); ``rsb dataset build`` (``export/build.py``) does the same with
-the expert's demos made in the same workers.
+encoded on a thread while the next episode renders). ``rsb export lerobot`` (``export/build.py``:
+``export_lerobot``) splits the demos into shards, writes each with :func:`write_dataset` in worker
+processes (``rsb_maniskill.workers``) and merges them (``export/merge.py``); ``rsb dataset build``
+does the same with the expert's demos made in the same workers.
 """
 from __future__ import annotations
 
@@ -99,7 +99,7 @@ def aggregate_stats(per_episode: Sequence[dict[str, np.ndarray]]) -> dict[str, n
     return out
 
 
-def _jsonable(stats: dict[str, dict[str, np.ndarray]]) -> dict:
+def jsonable_stats(stats: dict[str, dict[str, np.ndarray]]) -> dict:
     return {f: {k: np.asarray(v).tolist() for k, v in s.items()} for f, s in stats.items()}
 
 
@@ -240,7 +240,7 @@ def _features(cameras: Sequence[str], shapes: dict[str, tuple[int, int]], fps: i
     return feats
 
 
-def _tasks_table(tasks: dict[str, int]):
+def tasks_table(tasks: dict[str, int]):
     """``meta/tasks.parquet``: column task_index, index "task" (pandas metadata, as LeRobot reads it)."""
     import pyarrow as pa
 
@@ -258,7 +258,7 @@ def _tasks_table(tasks: dict[str, int]):
     return table.replace_schema_metadata({"pandas": json.dumps(pandas_md)})
 
 
-def _check_out(out: Path, overwrite: bool) -> None:
+def check_out(out: Path, overwrite: bool) -> None:
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
         raise ExportError(f"{out} exists and is not empty; choose another --out or pass --overwrite")
     try:
@@ -306,9 +306,9 @@ def _write_meta(root: Path, episodes: list[dict], tasks: dict[str, int], stats: 
 
     (root / EPISODES_FILE).parent.mkdir(parents=True)
     pq.write_table(pa.Table.from_pylist(episodes), root / EPISODES_FILE)
-    pq.write_table(_tasks_table(tasks), root / "meta/tasks.parquet")
+    pq.write_table(tasks_table(tasks), root / "meta/tasks.parquet")
     agg = {f: aggregate_stats([s[f] for s in stats]) for f in stats[0]}
-    (root / "meta/stats.json").write_text(json.dumps(_jsonable(agg), indent=1))
+    (root / "meta/stats.json").write_text(json.dumps(jsonable_stats(agg), indent=1))
     info = {"codebase_version": CODEBASE_VERSION, "fps": fps, "features": features, "total_episodes": len(episodes),
             "total_frames": frames, "total_tasks": len(tasks), "chunks_size": CHUNKS_SIZE,
             "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
@@ -433,43 +433,3 @@ def write_dataset(episodes: Iterable[Episode], out: str | os.PathLike, *, fps: i
         raise
     return {"out": str(out), "episodes": len(rows), "frames": index, "tasks": len(tasks), "fps": fps,
             "cameras": [video_key(c, naming) for c in cameras]}
-
-
-def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *, fps: int | None = None,
-                   cameras: Sequence[str] = DEFAULT_CAMERAS, naming: str = DEFAULT_NAMING, overwrite: bool = False,
-                   progress: bool = True, num_procs: int = 1, executor: Any = None,
-                   shard_size: int | None = None) -> dict[str, Any]:
-    """Writes the episodes of ``demos`` (``rsb generate`` files, merged or converted ones too) as
-    one LeRobot v3.0 dataset under ``out``; returns a summary.
-
-    The episodes are cut into shards of ``shard_size`` (default: a few per worker), rendered by
-    ``num_procs`` worker processes (or ``executor``, e.g. Ray), each shard written whole under
-    ``.<out>.work/`` beside ``out``, then merged into ``out``. A rerun after an interruption keeps
-    the finished shards; nothing is written at ``out`` until the merge is complete."""
-    try:
-        import pyarrow.parquet  # noqa: F401
-    except ImportError:
-        raise ExportError("writing parquet needs pyarrow: pip install 'rsb_maniskill[export]'") from None
-    from rsb_maniskill.export.build import ExportShard, run_export_shards
-
-    out = Path(out)
-    cameras = check_cameras(cameras, naming)
-    fps, _ = check_fps(fps)
-    paths = [Path(p) for p in demos]
-    for p in paths:
-        if p.suffix != ".h5" or not p.is_file() or not p.with_suffix(".json").is_file():
-            raise ExportError(f"{p}: not a trajectory file pair (X.h5 with X.json beside it)")
-    _check_out(out, overwrite)
-    ids = [(p, [int(e["episode_id"]) for e in json.loads(p.with_suffix(".json").read_text())["episodes"]])
-           for p in paths]
-    total = sum(len(i) for _, i in ids)
-    if total == 0:
-        raise ExportError("the demo files hold no episodes")
-    if num_procs < 1:
-        raise ExportError(f"--num-procs must be >= 1, got {num_procs}")
-    size = shard_size or max(1, min(50, -(-total // (4 * num_procs))))
-    shards = [ExportShard(str(p), tuple(i[k:k + size])) for p, i in ids for k in range(0, len(i), size)]
-    settings = {"demos": [str(p.resolve()) for p in paths], "fps": fps, "cameras": list(cameras), "naming": naming,
-                "shard_size": size}
-    return run_export_shards(shards, out, settings, num_procs=num_procs, executor=executor, progress=progress,
-                             overwrite=overwrite)

@@ -23,9 +23,9 @@ from rsb_maniskill.export.lerobot import (
     EPISODES_FILE,
     VIDEO_PATH,
     ExportError,
-    _jsonable,
-    _tasks_table,
     aggregate_stats,
+    jsonable_stats,
+    tasks_table,
 )
 
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
@@ -111,10 +111,10 @@ def merge_datasets(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
             frames += data.num_rows
         (tmp / EPISODES_FILE).parent.mkdir(parents=True, exist_ok=True)
         pq.write_table(pa.Table.from_pylist(rows), tmp / EPISODES_FILE)
-        pq.write_table(_tasks_table(tasks), tmp / "meta/tasks.parquet")
+        pq.write_table(tasks_table(tasks), tmp / "meta/tasks.parquet")
         features = [f for f in stat_features if all(stats_[f] for stats_ in stats)]
         agg = {f: aggregate_stats([s[f] for s in stats]) for f in features}
-        (tmp / "meta/stats.json").write_text(json.dumps(_jsonable(agg), indent=1))
+        (tmp / "meta/stats.json").write_text(json.dumps(jsonable_stats(agg), indent=1))
         info = dict(info0, total_episodes=len(rows), total_frames=frames, total_tasks=len(tasks),
                     data_path=DATA_PATH, splits={"train": f"0:{len(rows)}"})
         (tmp / "meta/info.json").write_text(json.dumps(info, indent=4))

@@ -12,12 +12,15 @@ env is wrapped here, as LeRobot wraps RoboTwin 2.0 (the same robot). Nothing her
   14-number state (``agent_pos``) and Aloha 14-number absolute joint targets as actions, so a
   policy trained on an export evaluates with no feature mapping.
 - Episodes are the evaluation protocol's: LeRobot seeds episode i of a run with ``--seed`` + i;
-  ``seed_base`` (LeRobot's default ``--seed`` 1000) maps it back to i and episode i is protocol
-  episode i (seed 10,000,000 + i, test split, unseen templates), the one ``rsb eval`` runs.
-- ``instruction_mode`` ``blank`` / ``shuffled`` are ``rsb eval``'s ablations (the same donors).
-- Each finished episode appends an ``rsb eval`` record to ``records_dir/episodes.jsonl`` (under a
-  file lock: sub-envs may live in several processes), so ``rsb report records_dir`` gives the
-  paper's GSR / TSR / nSG tables and report.html of a ``lerobot-eval`` run.
+  ``seed_base`` (LeRobot's default ``--seed``, ``protocol.LEROBOT_SEED_BASE``) maps it back to i
+  and episode i is protocol episode i (seed 10,000,000 + i, test split, unseen templates), the one
+  ``rsb eval`` runs.
+- ``instruction_mode`` ``blank`` / ``shuffled`` are ``rsb eval``'s ablations (the same donors,
+  ``protocol.ShuffledDonors``).
+- Each finished episode appends an ``rsb eval`` record (with the benchmark version) to
+  ``records_dir/episodes.jsonl`` (under a file lock: sub-envs may live in several processes), so
+  ``rsb report records_dir`` gives the paper's GSR / TSR / nSG tables, report.html and results.json
+  of a ``lerobot-eval`` run.
 """
 from __future__ import annotations
 
@@ -31,12 +34,12 @@ import numpy as np
 from gymnasium import spaces
 
 from rsb_maniskill.env_ids import CONTROL_FREQ, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, LEROBOT_SEED_BASE
+from rsb_maniskill.evaluation.records import RECORDS_FILE
 from rsb_maniskill.export.naming import DEFAULT_NAMING, camera_key, check_naming
-from rsb_maniskill.robot import ACTION_DIM, CAMERAS, from_aloha14, sensor_uid
+from rsb_maniskill.robot import ACTION_DIM, CAMERA_SIZE, CAMERAS, from_aloha14, sensor_uid
 
-DEFAULT_SEED_BASE = 1000  # lerobot-eval's --seed default
 OBS_TYPES = ("pixels_agent_pos", "pixels")
-RECORDS_FILE = "episodes.jsonl"  # what `rsb report DIR` reads
 
 
 def append_record(path: Path, record: dict[str, Any]) -> None:
@@ -77,9 +80,9 @@ class RSBLeRobotEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FREQ}
 
     def __init__(self, env_id: str, *, instruction_mode: str = "normal", naming: str = DEFAULT_NAMING,
-                 obs_type: str = "pixels_agent_pos", camera_size: tuple[int, int] = (320, 240),
-                 episode_length: int = TASK_MAX_EPISODE_STEPS, seed_base: int = DEFAULT_SEED_BASE,
-                 episodes: int = 500, records_dir: str | None = None, policy_name: str = "lerobot",
+                 obs_type: str = "pixels_agent_pos", camera_size: tuple[int, int] = CAMERA_SIZE,
+                 episode_length: int = TASK_MAX_EPISODE_STEPS, seed_base: int = LEROBOT_SEED_BASE,
+                 episodes: int = EPISODES_PER_SUITE, records_dir: str | None = None, policy_name: str = "lerobot",
                  data_dir: str | None = None) -> None:
         from rsb_maniskill.env_ids import resolve_env_ids
         from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
@@ -109,6 +112,7 @@ class RSBLeRobotEnv(gym.Env):
         self.action_space = spaces.Box(-np.inf, np.inf, (ACTION_DIM,), np.float32)
         self._env: Any = None  # built at the first reset, in the process that steps it
         self._donors: Any = None
+        self._donor_seed: int | None = None
         self._episode = -1
         self._seed = 0
         self._steps = 0
@@ -137,18 +141,19 @@ class RSBLeRobotEnv(gym.Env):
         return out
 
     def _shown_instruction(self, seed: int, own: str) -> str:
-        if self.instruction_mode == "normal":
-            return own
-        if self.instruction_mode == "blank":
-            return ""
-        if self._donors is None:
-            from rsb_maniskill.evaluation.protocol import SHUFFLE_SEED, eval_seeds
-            from rsb_maniskill.evaluation.runner import Donors
+        """The instruction the policy gets (``rsb eval``'s ablations); shuffled: the donor's seed is
+        kept for the record."""
+        from rsb_maniskill.evaluation.protocol import SHUFFLE_SEED, ShuffledDonors, apply_instruction_mode, eval_seeds
 
-            base = self._env.unwrapped
-            self._donors = Donors(eval_seeds(self.env_id, self.episodes),
-                                  lambda s: base.episode_spec(s).instruction, SHUFFLE_SEED)
-        return self._donors(seed, own)[1]
+        self._donor_seed = None
+        donor = None
+        if self.instruction_mode == "shuffled":
+            if self._donors is None:
+                base = self._env.unwrapped
+                self._donors = ShuffledDonors(eval_seeds(self.env_id, self.episodes),
+                                              lambda s: base.episode_spec(s).instruction, SHUFFLE_SEED)
+            self._donor_seed, donor = self._donors(seed, own)
+        return apply_instruction_mode(own, self.instruction_mode, donor)
 
     # ------------------------------------------------------------------ gym.Env
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -207,7 +212,8 @@ class RSBLeRobotEnv(gym.Env):
         record = build_record(suite_id=self.env_id, seed=self._seed, spec=self._env.unwrapped.episode_specs[0],
                               instruction=self.task_description, instruction_mode=self.instruction_mode, info=info,
                               steps=self._steps, policy=self.policy_name,
-                              extra={"original_instruction": self._instruction, "runner": "lerobot-eval"})
+                              extra={"original_instruction": self._instruction, "runner": "lerobot-eval",
+                                     **({"donor_seed": self._donor_seed} if self._donor_seed is not None else {})})
         append_record(self.records, json.loads(json.dumps(record, default=_plain)))
 
     def render(self) -> np.ndarray:
@@ -257,7 +263,7 @@ def create_rsb_envs(task: str, n_envs: int, use_async_envs: bool = False, **kwar
 
 
 def expected_features(naming: str = DEFAULT_NAMING, obs_type: str = "pixels_agent_pos",
-                      camera_size: tuple[int, int] = (320, 240)) -> dict[str, tuple[int, ...]]:
+                      camera_size: tuple[int, int] = CAMERA_SIZE) -> dict[str, tuple[int, ...]]:
     """The policy input features a policy must take (LeRobot keys -> shapes), for error messages."""
     w, h = camera_size
     out: dict[str, tuple[int, ...]] = {f"observation.images.{camera_key(c, naming)}": (3, h, w) for c in CAMERAS}
@@ -267,7 +273,7 @@ def expected_features(naming: str = DEFAULT_NAMING, obs_type: str = "pixels_agen
 
 
 def check_policy_features(policy_features: dict[str, tuple[int, ...]], naming: str = DEFAULT_NAMING,
-                          obs_type: str = "pixels_agent_pos", camera_size: tuple[int, int] = (320, 240)) -> None:
+                          obs_type: str = "pixels_agent_pos", camera_size: tuple[int, int] = CAMERA_SIZE) -> None:
     """Raises one ValueError naming the expected keys and shapes when a policy's observation inputs
     (LeRobot key -> shape; ``observation.*`` only) are not all given, in those shapes, by the env."""
     given = expected_features(naming, obs_type, camera_size)

@@ -9,6 +9,7 @@ import contextlib
 import sys
 from typing import Any
 
+from rsb_maniskill.env_ids import add_suites_argument
 from rsb_maniskill.motionplan.config import DEFAULT_EXPERT
 from rsb_maniskill.workers import add_executor_args, executor_from_args
 
@@ -20,9 +21,9 @@ _NO_PREFIX = "\x01"
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "generate", help="scripted-expert demonstrations (ManiSkill .h5 + .json)",
-        description="Runs the motion-planning expert and keeps only successful episodes. Output: "
-                    "<out>/<ENV_ID>/motionplanning/<split>.<obs_mode>.pd_joint_pos.physx_cpu.h5 and .json.")
-    p.add_argument("env_id", help="suite id, e.g. RSB-Math-4")
+        description="Runs the motion-planning expert and keeps only successful episodes, suite after suite. "
+                    "Output: <out>/<ENV_ID>/motionplanning/<split>.<obs_mode>.pd_joint_pos.physx_cpu.h5 and .json.")
+    add_suites_argument(p, default=(), positional=True)
     p.add_argument("--split", default="train", help="question pool: train (default) or test")
     p.add_argument("-n", "--num", type=int, default=None,
                    help="number of successful demos (total over all shards); with --questions: "
@@ -83,22 +84,31 @@ def _generate(args: argparse.Namespace, executor: Any) -> int:
     from rsb_maniskill.motionplan.generate import GenerateConfig, GenerateError, describe, generate
     from rsb_maniskill.motionplan.shards import parse_shard
 
+    if not args.suites:
+        print("rsb generate: error: name at least one SUITE (e.g. RSB-Math-4)", file=sys.stderr)
+        return 2
     extra = {k: v for k, v in (("instructions", args.instructions), ("color_map", args.color_map),
                                ("data_dir", args.data_dir)) if v is not None}
     num_procs = args.num_procs or (executor.workers() if executor is not None else 1)
-    try:
-        cfg = GenerateConfig(
-            env_id=args.env_id, out=args.out, split=args.split, num=args.num, questions=args.questions,
-            seed_start=args.seed_start, obs_mode=args.obs_mode, save_video=args.save_video,
-            num_procs=num_procs, shard=parse_shard(args.shard), overwrite=args.overwrite,
-            max_attempts=args.max_attempts, traj_name=args.traj_name, expert=args.expert,
-            env_kwargs=extra, progress=not args.quiet, verbose=args.verbose)
-        summary = generate(cfg, executor)
-    except (GenerateError, DatasetError) as err:
-        print(f"rsb generate: error: {err}", file=sys.stderr)
-        return 2
-    print(describe(summary))
-    return summary.exit_code
+    status = 0
+    for env_id in args.suites:
+        try:
+            cfg = GenerateConfig(
+                env_id=env_id, out=args.out, split=args.split, num=args.num, questions=args.questions,
+                seed_start=args.seed_start, obs_mode=args.obs_mode, save_video=args.save_video,
+                num_procs=num_procs, shard=parse_shard(args.shard), overwrite=args.overwrite,
+                max_attempts=args.max_attempts, traj_name=args.traj_name, expert=args.expert,
+                env_kwargs=extra, progress=not args.quiet, verbose=args.verbose)
+            summary = generate(cfg, executor)
+        except (GenerateError, DatasetError) as err:
+            print(f"rsb generate: error: {env_id}: {err}" if len(args.suites) > 1 else f"rsb generate: error: {err}",
+                  file=sys.stderr)
+            return 2
+        print(describe(summary))
+        status = status or summary.exit_code
+        if summary.interrupted:
+            break
+    return status
 
 
 def run_merge(args: argparse.Namespace) -> int:
@@ -113,7 +123,7 @@ def run_merge(args: argparse.Namespace) -> int:
         header = {"rsb": combine_rsb_blocks([b["rsb"] for b in blocks]), "rsb_merged_from": blocks}
         key = (lambda ep: ep["episode_seed"]) if args.sort_by_seed else None
         n = merge_pairs(args.inputs, args.out, overwrite=args.overwrite, sort_key=key, header=header)
-    except DatasetError as err:
+    except (DatasetError, ValueError) as err:
         print(f"rsb merge: error: {err}", file=sys.stderr)
         return 2
     print(f"wrote {n} episodes to {args.out}")

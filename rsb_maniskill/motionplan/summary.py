@@ -7,6 +7,8 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
+from rsb_maniskill.version import BENCHMARK_VERSION, UNVERSIONED, benchmark_label, code_commit, package_version
+
 from .config import GenerateConfig
 
 
@@ -42,16 +44,22 @@ def rsb_header(cfg: GenerateConfig, pool_size: int, num_procs: int, requested: i
         max_attempts=cfg.max_attempts, requested=requested, completed=completed,
         complete=completed == requested and not errors,
         interrupted=next((s["interrupted"] for s in summaries if s["interrupted"]), None),
-        expert=cfg.expert, env_kwargs_extra=cfg.env_kwargs, rsb_version=_version(),
+        expert=cfg.expert, env_kwargs_extra=cfg.env_kwargs, benchmark_version=BENCHMARK_VERSION,
+        rsb_version=package_version(), code_commit=code_commit(),
         failures=sorted((f for s in summaries for f in s["failures"]), key=lambda f: f["seed"]),
         skipped_questions=sorted(q for s in summaries for q in s["skipped_questions"]),
     ))
 
 
 def combine_rsb_blocks(blocks: list[dict | None]) -> dict | None:
-    """One ``rsb`` block for merged shards: counts summed, failures and skipped questions joined."""
+    """One ``rsb`` block for merged shards: counts summed, failures and skipped questions joined.
+    ValueError when the shards are demos of two benchmark versions (their episodes differ)."""
     if not blocks or any(b is None for b in blocks):
         return None
+    versions = sorted({b.get("benchmark_version") or UNVERSIONED for b in blocks})
+    if len(versions) > 1:
+        raise ValueError(f"cannot merge demos of {' and '.join(map(benchmark_label, versions))}: their episodes "
+                         "differ (docs/versions.md)")
     out = {k: v for k, v in blocks[0].items() if k not in ("shard", "num_procs")}
     out["shards"] = [b.get("shard") for b in blocks]
     for key in ("requested", "completed"):
@@ -61,14 +69,6 @@ def combine_rsb_blocks(blocks: list[dict | None]) -> dict | None:
     out["failures"] = sorted((f for b in blocks for f in b.get("failures", [])), key=lambda f: f["seed"])
     out["skipped_questions"] = sorted(q for b in blocks for q in b.get("skipped_questions", []))
     return out
-
-
-def _version() -> str:
-    try:
-        from rsb_maniskill import __version__
-        return __version__
-    except ImportError:
-        return "unknown"
 
 
 def describe(summary: GenerateSummary) -> str:

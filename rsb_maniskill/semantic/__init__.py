@@ -19,14 +19,17 @@ from .suites import (
     SUITE_IDS,
     SUITE_SOURCES,
     SUITES,
+    SuiteSource,
     letters_for,
     parse_suite_id,
+    register_suite,
+    suite_source,
 )
 from .templates import render_instruction
 
 __all__ = [
     "COLOR_MAPS", "DataNotFoundError", "EpisodeSampler", "EpisodeSpec", "INSTRUCTION_SETS",
     "LETTERS_4", "LETTERS_10", "SPLITS", "SUITE_IDS", "SUITE_SOURCES", "SUITES", "SemanticDataError",
-    "SemanticError", "clear_cache", "get_pool", "letters_for", "paraphrases", "parse_suite_id",
-    "render_instruction",
+    "SemanticError", "SuiteSource", "clear_cache", "get_pool", "letters_for", "paraphrases", "parse_suite_id",
+    "register_suite", "render_instruction", "suite_source",
 ]

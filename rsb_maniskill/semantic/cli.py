@@ -8,12 +8,14 @@ import sys
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the semantic engine's sub-commands to the `rsb` dispatcher."""
-    from .suites import COLOR_MAPS, INSTRUCTION_SETS, SPLITS, SUITE_IDS
+    from rsb_maniskill.env_ids import add_suites_argument
+
+    from .suites import COLOR_MAPS, INSTRUCTION_SETS, SPLITS
 
     p = subparsers.add_parser(
         "questions", help="print sample episodes of a suite",
         description="Print sample episode specifications (question, options, instruction, answer).")
-    p.add_argument("suite", help=f"suite id, one of: {', '.join(SUITE_IDS)}")
+    add_suites_argument(p, default=(), positional=True)
     p.add_argument("--split", default="train", help=f"{' | '.join(SPLITS)} (test = evaluation pool)")
     p.add_argument("-n", "--num", type=int, default=5, help="number of episodes (default 5)")
     p.add_argument("--seed", type=int, default=0, help="first seed (episodes use seed, seed+1, ...)")
@@ -26,6 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_questions)
 
     s = subparsers.add_parser("stats", help="print question pool sizes per suite and split")
+    add_suites_argument(s, default=("all",))
     s.add_argument("--data-dir", default=None)
     s.set_defaults(func=cmd_stats)
 
@@ -44,25 +47,33 @@ def _fail(err: Exception) -> int:
 
 
 def cmd_questions(args: argparse.Namespace) -> int:
-    """Print ``-n`` episodes of a suite."""
+    """Print ``-n`` episodes of each suite named."""
+    from rsb_maniskill.objects.family import split_env_id
+
     from .errors import SemanticError
     from .sampler import EpisodeSampler
 
+    if not args.suites:
+        return _fail(ValueError("name at least one SUITE (e.g. RSB-Math-4)"))
     try:
-        sampler = EpisodeSampler(args.suite, args.split, args.instructions, args.color_map, args.data_dir)
-        for seed in range(args.seed, args.seed + args.num):
-            spec = sampler.sample(seed)
-            if args.json:
-                print(json.dumps(spec.to_dict()))
-                continue
-            print(f"=== {spec.suite_id} {spec.split} seed={seed} question_id={spec.question_id} "
-                  f"template={spec.template_id}")
-            print(f"instruction: {spec.instruction}")
-            for letter, opt, blk in zip(spec.letters, spec.options, spec.block_of_option):
-                mark = "*" if letter == spec.correct_letter else " "
-                print(f"  {mark} ({letter}) {opt}  -> {spec.block_names[blk]}")
-            print(f"answer: {spec.correct_letter} (block {spec.target_block}: {spec.block_names[spec.target_block]})")
-            print(f"rationale: {spec.rationale}")
+        for env_id in args.suites:
+            suite_id, targets = split_env_id(env_id)
+            sampler = EpisodeSampler(suite_id, args.split, args.instructions, args.color_map, args.data_dir,
+                                     targets=targets)
+            for seed in range(args.seed, args.seed + args.num):
+                spec = sampler.sample(seed)
+                if args.json:
+                    print(json.dumps(spec.to_dict()))
+                    continue
+                print(f"=== {env_id} {spec.split} seed={seed} question_id={spec.question_id} "
+                      f"template={spec.template_id}")
+                print(f"instruction: {spec.instruction}")
+                for letter, opt, blk in zip(spec.letters, spec.options, spec.block_of_option):
+                    mark = "*" if letter == spec.correct_letter else " "
+                    print(f"  {mark} ({letter}) {opt}  -> {spec.block_names[blk]}")
+                print(f"answer: {spec.correct_letter} (block {spec.target_block}: "
+                      f"{spec.block_names[spec.target_block]})")
+                print(f"rationale: {spec.rationale}")
     except (ValueError, SemanticError) as err:
         return _fail(err)
     return 0
@@ -70,27 +81,30 @@ def cmd_questions(args: argparse.Namespace) -> int:
 
 def cmd_stats(args: argparse.Namespace) -> int:
     """Pool sizes per suite and split (reads like the paper's Table 2, plus evaluation pools)."""
+    from rsb_maniskill.objects.family import split_env_id
+
     from .data import data_source_label
     from .errors import DataNotFoundError
     from .pools import get_pool
-    from .suites import SUITE_IDS, SUITE_SOURCES, parse_suite_id
+    from .suites import parse_suite_id, suite_source
 
     print(f"data: {data_source_label(args.data_dir)}")
     print(f"{'suite':<18}{'source':<32}{'choices':>8}{'train':>9}{'test':>9}")
     notes: list[str] = []
     status = 0
-    for sid in SUITE_IDS:
+    for sid in dict.fromkeys(split_env_id(eid)[0] for eid in args.suites):  # pools do not depend on targets
         suite, n = parse_suite_id(sid)
+        source = suite_source(suite)
         sizes = []
         for split in ("train", "test"):
-            if suite == "Direct":
+            if source.direct:
                 sizes.append(f"{n:,}")
                 continue
             try:
                 pool = get_pool(suite, split, args.data_dir)
             except DataNotFoundError as err:
                 sizes.append("n/a")
-                if str(err) not in notes:
+                if not status:  # one message: every source it lacks is found the same ways
                     notes.append(str(err))
                 status = 1
                 continue
@@ -98,7 +112,7 @@ def cmd_stats(args: argparse.Namespace) -> int:
             if suite == "General" and n == 4:
                 mix = ", ".join(f"{k} {v:,}" for k, v in pool.source_counts.items())
                 notes.append(f"General {split} mix: {mix}")
-        print(f"{sid:<18}{SUITE_SOURCES[suite]:<32}{n:>8}{sizes[0]:>9}{sizes[1]:>9}")
+        print(f"{sid:<18}{source.summary:<32}{n:>8}{sizes[0]:>9}{sizes[1]:>9}")
     for note in notes:
         print(f"note: {note}")
     return status

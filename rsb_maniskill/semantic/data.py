@@ -3,8 +3,10 @@
 Order: ``data_dir`` argument, else ``$RSB_DATA_DIR`` -- a directory holding
 ``gsm8k/{train,test}.jsonl`` (GSM8K's original format) and ``mmlu_pro/data/test-*.parquet`` (the
 hub's layout) -- else the hub files at pinned revisions (cached by huggingface_hub, so the second
-run is offline), else :class:`DataNotFoundError` naming both ways. Readers return raw row dicts with
-their origin ("file, line N") so that every later error can point at the record.
+run is offline), else :class:`DataNotFoundError` naming both ways. A machine without network gets
+that error within seconds: the hub is asked once per process, with a deadline, before
+huggingface_hub and its retries are (``rsb_maniskill.network``). Readers return raw row dicts
+with their origin ("file, line N") so that every later error can point at the record.
 """
 from __future__ import annotations
 
@@ -13,6 +15,8 @@ import os
 import shutil
 from pathlib import Path
 from typing import Any
+
+from rsb_maniskill import network
 
 from .errors import DataNotFoundError, SemanticDataError
 
@@ -113,17 +117,19 @@ def _mmlu_pro_dir_files(root: Path) -> list[Path]:
 
 
 def hub_file(repo: str, filename: str, revision: str, *, allow_network: bool = True) -> Path:
-    """Path of a pinned hub file: the local cache first, the network second."""
+    """Path of a pinned hub file: the local cache first (a file lookup: huggingface_hub's own
+    ``local_files_only`` download reaches for the network all the same), the network second."""
     try:
         import huggingface_hub
+        from huggingface_hub import constants
     except ImportError as err:  # pragma: no cover - a core dependency
         raise DataNotFoundError(_how_to_provide(repo) + f" (huggingface_hub unavailable: {err})") from None
-    try:
-        return Path(huggingface_hub.hf_hub_download(repo, filename, repo_type="dataset", revision=revision,
-                                                    local_files_only=True))
-    except Exception as cache_err:  # noqa: BLE001 - any miss falls through to the network
-        if not allow_network:
-            raise DataNotFoundError(_how_to_provide(repo) + f" (hub cache: {cache_err})") from None
+    cached = huggingface_hub.try_to_load_from_cache(repo, filename, revision=revision, repo_type="dataset")
+    if isinstance(cached, str):
+        return Path(cached)
+    why = "network not allowed" if not allow_network else network.unreachable(constants.ENDPOINT)
+    if why:
+        raise DataNotFoundError(_how_to_provide(repo) + f" (not in the hub cache; {why})") from None
     try:
         return Path(huggingface_hub.hf_hub_download(repo, filename, repo_type="dataset", revision=revision))
     except Exception as err:  # noqa: BLE001 - offline, DNS, HTTP: all mean "not available"

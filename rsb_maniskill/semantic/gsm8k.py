@@ -7,6 +7,7 @@ import re
 from .data import gsm8k_rows
 from .errors import SemanticDataError
 from .normalize import question_key
+from .pools import Pool
 from .records import Question, format_number, normalize_text
 
 _ANNOTATION = re.compile(r"<<[^>]*>>")
@@ -62,3 +63,9 @@ def question_from_row(row: dict) -> Question:
 def gsm8k_pool(split: str, data_dir: str | os.PathLike | None = None) -> tuple[Question, ...]:
     """All GSM8K questions of ``split`` in file order (question_id = row index)."""
     return tuple(question_from_row(r) for r in gsm8k_rows(split, data_dir))
+
+
+def pool(split: str, data_dir: str | os.PathLike | None = None) -> Pool:
+    """The HardMath pool of ``split``: GSM8K's split of the same name."""
+    qs = gsm8k_pool(split, data_dir)
+    return Pool("HardMath", split, qs, (None,) * len(qs), {"gsm8k": len(qs)})

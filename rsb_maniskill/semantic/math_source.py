@@ -14,9 +14,11 @@ no commuted copy of a training question.
 from __future__ import annotations
 
 import operator
+import os
 import re
 from functools import lru_cache
 
+from .pools import Pool
 from .records import Question
 from .stable import stable_key
 
@@ -93,3 +95,13 @@ def math_pool(split: str) -> tuple[Question, ...]:
         chosen.extend(_question(op, a, b) for a, b in pairs)
     chosen.sort(key=lambda q: stable_key("rsb-math-order", q.text))  # mix the operations
     return tuple(chosen)
+
+
+def pool(split: str, data_dir: str | os.PathLike | None = None) -> Pool:
+    """The Math pool of ``split`` (no data needed: ``data_dir`` is ignored)."""
+    qs = math_pool(split)
+    return Pool("Math", split, qs, (None,) * len(qs), {"math": len(qs)})
+
+
+def clear_cache() -> None:
+    math_pool.cache_clear()

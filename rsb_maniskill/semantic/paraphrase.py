@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from ..objects.family import get_family
 from .spec import EpisodeSpec
+from .suites import suite_source
 from .templates import render_direct, render_instruction, sibling_template_ids
 
 
@@ -18,7 +19,7 @@ def paraphrases(spec: EpisodeSpec) -> tuple[str, ...]:
     another version of the templates): rewording it would train on instructions of another episode."""
     n, tid = spec.n_choices, spec.template_id
     family = get_family(spec.targets)
-    lettered, direct = family.lettered(n), spec.suite == "Direct"
+    lettered, direct = family.lettered(n), suite_source(spec.suite).direct
     ids = sibling_template_ids(n, tid, direct, lettered)
     texts = []
     for t in ids:

@@ -1,20 +1,20 @@
 """Question pools per (suite, split, data source), loaded once per process.
 
-The 4- and 10-choice suites of a subset share one pool.
+The 4- and 10-choice suites of a source share one pool. Each source's builder (the registry in
+``suites.py``) makes its pools; a builder module may define ``clear_cache()`` for caches of its own.
 """
 from __future__ import annotations
 
+import importlib
 import os
+import sys
 from collections import Counter
 from dataclasses import dataclass, field
 
-from . import commonsense, mmlu_pro
-from .data import mmlu_pro_rows, resolve_data_dir
+from .data import resolve_data_dir
 from .distractors import Bins, value_bins
-from .gsm8k import gsm8k_pool
-from .math_source import math_pool
 from .records import Question
-from .suites import SUITES, check_split
+from .suites import SOURCES, check_split, suite_source
 
 
 @dataclass
@@ -47,53 +47,36 @@ class Pool:
 
 
 _POOLS: dict[tuple[str, str, str], Pool] = {}
-_MMLU_PRO: dict[str, tuple[dict[str, list[Question]], Counter]] = {}
 
 
-def _dir_key(data_dir: str | os.PathLike | None) -> str:
+def data_key(data_dir: str | os.PathLike | None) -> str:
+    """The question data a pool was built from: a resolved directory, or ``"hub"``."""
     root = resolve_data_dir(data_dir)
     return str(root.resolve()) if root is not None else "hub"
 
 
-def _mmlu_pro_split(data_dir: str | os.PathLike | None) -> tuple[dict[str, list[Question]], Counter]:
-    key = _dir_key(data_dir)
-    if key not in _MMLU_PRO:
-        _MMLU_PRO[key] = mmlu_pro.split_questions(mmlu_pro_rows(data_dir))
-    return _MMLU_PRO[key]
-
-
-def _general(split: str, data_dir: str | os.PathLike | None) -> Pool:
-    cs = commonsense.commonsense_pool(split)
-    by_split, excluded = _mmlu_pro_split(data_dir)
-    mq, dropped = mmlu_pro.balanced_selection(by_split[split])
-    excluded = excluded + Counter({"answer rank balance (this split)": dropped}) if dropped else excluded
-    questions = tuple(item.question for item in cs) + tuple(mq)
-    cands = tuple((item.candidates, item.answer_weight) for item in cs) + (None,) * len(mq)
-    return Pool("General", split, questions, cands, {"commonsense": len(cs), "mmlu_pro": len(mq)}, excluded)
-
-
 def get_pool(suite: str, split: str, data_dir: str | os.PathLike | None = None) -> Pool:
-    """The cached pool of ``suite`` ("Math", "HardMath", "General") and ``split``."""
+    """The cached pool of ``suite`` (a registered source with questions: "Math", "HardMath",
+    "General") and ``split``."""
     check_split(split)
-    if suite not in SUITES or suite == "Direct":
-        raise ValueError(f"unknown question source {suite!r}; valid: Math, HardMath, General")
-    key = (suite, split, "" if suite == "Math" else _dir_key(data_dir))
+    try:
+        source = suite_source(suite)
+    except ValueError:
+        source = None
+    if source is None or source.direct:
+        valid = ", ".join(s.name for s in SOURCES.values() if not s.direct)
+        raise ValueError(f"unknown question source {suite!r}; valid: {valid}")
+    key = (suite, split, data_key(data_dir) if source.reads_data else "")
     if key not in _POOLS:
-        if suite == "Math":
-            qs = math_pool(split)
-            pool = Pool(suite, split, qs, (None,) * len(qs), {"math": len(qs)})
-        elif suite == "HardMath":
-            qs = gsm8k_pool(split, data_dir)
-            pool = Pool(suite, split, qs, (None,) * len(qs), {"gsm8k": len(qs)})
-        else:
-            pool = _general(split, data_dir)
-        _POOLS[key] = pool
+        module, _, func = source.pool.partition(":")
+        _POOLS[key] = getattr(importlib.import_module(module), func)(split, data_dir)
     return _POOLS[key]
 
 
 def clear_cache() -> None:
-    """Forget loaded pools (tests; after changing $RSB_DATA_DIR)."""
+    """Forget loaded pools and the sources' own caches (tests; after changing $RSB_DATA_DIR)."""
     _POOLS.clear()
-    _MMLU_PRO.clear()
-    math_pool.cache_clear()
-    commonsense.commonsense_pool.cache_clear()
+    for source in SOURCES.values():
+        module = sys.modules.get((source.pool or "").partition(":")[0])
+        if module is not None and hasattr(module, "clear_cache"):
+            module.clear_cache()

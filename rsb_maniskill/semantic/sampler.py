@@ -7,14 +7,14 @@ from typing import Mapping
 import numpy as np
 
 from ..objects.family import get_family
-from ..perturb import axis_rng, language, parse_perturb
+from ..perturb import language, parse_perturb
 from . import mmlu_pro, wording
 from .distractors import numeric_options, weighted_options
 from .pools import Pool, get_pool
 from .records import Question, format_number
 from .spec import EpisodeSpec
-from .stable import episode_rng
-from .suites import COLOR_MAPS, INSTRUCTION_SETS, check_split, letters_for, parse_suite_id
+from .stable import axis_rng, episode_rng
+from .suites import COLOR_MAPS, INSTRUCTION_SETS, check_split, letters_for, parse_suite_id, suite_source
 from .templates import get_template, render_direct, render_instruction, template_ids
 
 
@@ -60,7 +60,7 @@ class EpisodeSampler:
         self.targets = targets
         self.letters = letters_for(self.n_choices)
         self.lettered = self.family.lettered(self.n_choices)
-        self.direct = self.suite == "Direct"
+        self.direct = suite_source(self.suite).direct
         self._templates = template_ids(self.n_choices, instructions, self.direct, self.lettered)
         self.pool: Pool | None = None if self.direct else get_pool(self.suite, split, data_dir)
 

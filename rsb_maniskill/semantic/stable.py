@@ -26,3 +26,9 @@ def episode_rng(suite_id: str, split: str, seed: int, salt: str = "") -> np.rand
     entropy = [zlib.crc32(suite_id.encode()), zlib.crc32(split.encode()), int(seed) & 0xFFFFFFFF,
                (int(seed) >> 32) & 0xFFFFFFFF, zlib.crc32(salt.encode())]
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence(entropy)))
+
+
+def axis_rng(suite_id: str, split: str, seed: int, axis: str, level: int) -> np.random.Generator:
+    """The draws of one robustness axis at one level for one episode (``rsb_maniskill.perturb``):
+    independent of every other stream."""
+    return episode_rng(suite_id, split, seed, f"perturb:{axis}:{level}")

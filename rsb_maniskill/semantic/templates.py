@@ -216,6 +216,8 @@ def render_template(t: Template, question: str, options: Sequence[str], letters:
         fields["BLOCKS"] = ", ".join(block_names[:-1]) + " and " + block_names[-1]
         text = text.format(MAPS=" ".join(entries), **fields)
     else:
+        if t.text.partition("{OPTIONS}")[2][:1] == "." and entries[-1].endswith("."):
+            entries[-1] = entries[-1][:-1]  # an option ending its own sentence closes the list: one full stop
         text = text.format(OPTIONS=t.joiner.join(entries), **fields)
     return normalize_text(text)
 

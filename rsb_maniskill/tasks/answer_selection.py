@@ -8,7 +8,7 @@ The physical primitive never changes.
 Determinism: everything about an episode is a function of its episode seed. The question is
 ``seed mod pool size`` of the split's pool (so seeds 0..P-1 visit every question once), the rest
 of the semantic draw (options, colour map, template) comes from the semantic engine seeded with
-the same seed, and the layout from ManiSkill's ``_batched_episode_rng``, identical on CPU and
+the same seed, and the layout from ManiSkill's batched episode RNG (``objects/layout.py``), identical on CPU and
 GPU and under ``replay_trajectory``.
 """
 from __future__ import annotations
@@ -19,20 +19,21 @@ import torch
 
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
+from rsb_maniskill import compat
 from rsb_maniskill.agents.aloha import AlohaAgilex
 from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.objects import layout
 from rsb_maniskill.objects.family import get_family
 from rsb_maniskill.objects.pool import CandidatePool
 from rsb_maniskill.perturb import language as perturb_language
 from rsb_maniskill.perturb import parse_perturb
 from rsb_maniskill.semantic import EpisodeSampler, EpisodeSpec, parse_suite_id
-from rsb_maniskill.tasks import layout
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.contacts import PairContacts
 from rsb_maniskill.tasks.perturb_scene import CLUTTER_ITEMS, SceneAxes, build_clutter
 from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
 
-# Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0); cells: tasks/layout.py.
+# Layout (metres, robot frame: arm bases at (0, +-0.30), table top z = 0); cells: objects/layout.py.
 # Parked pool members: one layout cell apart (no two touch, so they stay asleep), in layers
 # under the part of the table top that hides the floor from every camera (the human camera
 # looks under the far and right edges), clear of the robot's base.
@@ -61,7 +62,7 @@ class AnswerSelectionEnv(RSBEnv):
         instructions: ``"seen"`` or ``"unseen"`` templates; default seen for train, unseen for test.
         color_map: 4-choice only: ``"fixed"`` (A=red, B=green, C=blue, D=yellow) or ``"shuffle"``.
         data_dir: directory with GSM8K / MMLU-Pro files (else ``$RSB_DATA_DIR``, else the HF hub cache).
-        camera_size: (width, height) of the head and wrist cameras; default 320x240.
+        camera_size: (width, height) of the head and wrist cameras; default ``robot.CAMERA_SIZE`` (320x240).
         targets: ``"blocks"`` or ``"objects"`` (everyday objects; the ``-Objects`` ids set it).
         perturb: robustness axes and their levels 0-3, e.g. ``{"camera": 2, "lang_layout": 1}``
             (``rsb_maniskill.perturb.AXES``; level 0 is today's episode). See docs/robustness.md.
@@ -161,7 +162,7 @@ class AnswerSelectionEnv(RSBEnv):
         self.table_scene.initialize(env_idx)
         idx = env_idx.cpu().numpy()
         for i in idx:
-            spec = self.episode_spec(int(self._episode_seed[i]))
+            spec = self.episode_spec(int(compat.episode_seeds(self)[i]))
             self.episode_specs[i] = spec
             self.target_block[i] = spec.target_block
             self.answer_slot[i] = spec.answer_slot
@@ -181,7 +182,7 @@ class AnswerSelectionEnv(RSBEnv):
         """Random distinct cells, position and yaw jitter within each candidate's footprint:
         identity and place are independent."""
         half = self.pool.half_extents()[env_idx].cpu().numpy()
-        slots, xy, yaw = layout.place(self._batched_episode_rng[env_idx], self.family.layout, half)
+        slots, xy, yaw = layout.place(compat.batched_episode_rng(self)[env_idx], self.family.layout, half)
         self.block_slot[env_idx] = torch.as_tensor(slots, device=self.device)
         xy = torch.as_tensor(xy, device=self.device)
         yaw = torch.as_tensor(yaw, device=self.device)

@@ -9,7 +9,7 @@ from gymnasium.envs.registration import EnvSpec
 
 from mani_skill.envs.sapien_env import BaseEnv
 
-from rsb_maniskill import _render
+from rsb_maniskill import _render, compat
 from rsb_maniskill.env_ids import qualified_id
 from rsb_maniskill.physx_gpu import check_for_sim_backend
 
@@ -35,5 +35,5 @@ class RSBEnv(BaseEnv):
         super().__init__(*args, **kwargs)
 
     def _setup_scene(self):
-        _render.hold_render_engine(self._render_device)  # before the first render object of the scene
+        _render.hold_render_engine(compat.render_device(self))  # before the first render object of the scene
         super()._setup_scene()

@@ -20,7 +20,8 @@ from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 
 from rsb_maniskill import perturb as P
-from rsb_maniskill.compat import entities, forget_camera_pose, physx_bodies, render_cameras
+from rsb_maniskill.compat import entities, episode_seeds, forget_camera_pose, physx_bodies, render_cameras
+from rsb_maniskill.semantic.stable import axis_rng
 
 HEAD_CAMERA = "head_camera"
 # Lights of the default scene (ManiSkill's BaseEnv._load_lighting), perturbed around.
@@ -131,7 +132,7 @@ class SceneAxes:
 
     def rng(self, env: int, axis: str) -> np.random.Generator:
         e = self.env
-        return P.axis_rng(e.suite_id, e.split, int(e._episode_seed[env]), axis, self.level(axis))
+        return axis_rng(e.suite_id, e.split, int(episode_seeds(e)[env]), axis, self.level(axis))
 
     # ------------------------------------------------------------------ load
     def load_lighting(self, shadow: bool) -> None:
@@ -239,7 +240,7 @@ class SceneAxes:
                         m.base_color = [*P.recolour(rng, level, rgb[:3]), 1.0]
 
     def _clutter(self, env_idx: torch.Tensor, idx: list[int]) -> None:
-        from rsb_maniskill.tasks import layout
+        from rsb_maniskill.objects import layout
 
         e = self.env
         cells = layout.grid(e.family.layout)
@@ -276,7 +277,7 @@ class SceneAxes:
                 if img is None:
                     continue
                 noise = np.stack([
-                    P.axis_rng(e.suite_id, e.split, int(e._episode_seed[i]), f"noise:{name}:{key}:{int(steps[i])}",
+                    axis_rng(e.suite_id, e.split, int(episode_seeds(e)[i]), f"noise:{name}:{key}:{int(steps[i])}",
                                level).normal(0.0, sigma, tuple(img.shape[1:]))
                     for i in range(img.shape[0])])
                 noisy = img.to(torch.float32) + torch.as_tensor(noise, dtype=torch.float32, device=img.device)

@@ -12,8 +12,9 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
 from rsb_maniskill.env_ids import CONTROL_FREQ, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, LEROBOT_SEED_BASE
 from rsb_maniskill.export.naming import camera_key
-from rsb_maniskill.robot import ACTION_DIM, CAMERAS
+from rsb_maniskill.robot import ACTION_DIM, CAMERA_SIZE, CAMERAS
 
 __all__ = ["RSBEnvConfig"]
 
@@ -26,8 +27,9 @@ class RSBEnvConfig(EnvConfig):
     ``task``: suite ids, comma-separated, or a group (``paper``, ``paper-objects``, ``all``).
     ``naming``: camera keys, ``rsb`` (``cam_high``, ...: what ``rsb export lerobot`` writes) or
     ``robotwin`` (``head_camera``, ...: LeRobot's RoboTwin env). ``instruction_mode``: ``normal``,
-    ``blank`` or ``shuffled``. ``seed_base`` must equal ``--seed`` (LeRobot's default 1000).
-    ``records_dir``: where ``episodes.jsonl`` goes, for ``rsb report``.
+    ``blank`` or ``shuffled``. ``seed_base`` must equal ``--seed`` (LeRobot's default, 1000).
+    ``records_dir``: where ``episodes.jsonl`` goes (records with the benchmark version), for
+    ``rsb report``.
     """
 
     task: str = "RSB-Math-4"
@@ -36,10 +38,10 @@ class RSBEnvConfig(EnvConfig):
     obs_type: str = "pixels_agent_pos"
     naming: str = "rsb"
     instruction_mode: str = "normal"
-    camera_width: int = 320
-    camera_height: int = 240
-    seed_base: int = 1000
-    episodes: int = 500
+    camera_width: int = CAMERA_SIZE[0]
+    camera_height: int = CAMERA_SIZE[1]
+    seed_base: int = LEROBOT_SEED_BASE
+    episodes: int = EPISODES_PER_SUITE
     records_dir: str | None = "outputs/rsb_eval"
     policy_name: str = "lerobot"
     data_dir: str | None = None

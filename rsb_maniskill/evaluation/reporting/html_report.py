@@ -6,7 +6,10 @@ suite, instruction mode, outcome) whose cards show the instruction, the correct 
 candidate, and the first and last frames of the episode's video when one was recorded (click to
 play it from ``videos/``). Styles, script, data and thumbnails are inline: it opens from disk,
 with no server and no network. Everything is computed from ``episodes.jsonl`` with the functions
-of ``metrics.py`` and ``summary.py``, so the page and the summary files always agree.
+of ``metrics.py`` and ``summary.py``, so the page and the summary files always agree; the line under
+the title names the benchmark version (records of two never share a page) and the code. The
+command also writes ``results.json`` and, with ``--compare A B``, prints two runs side by side
+(``results.py``).
 """
 from __future__ import annotations
 
@@ -23,11 +26,10 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from ..metrics import OUTCOMES, SuiteMetrics, average, outcome
-from ..records import dedupe, perturb_label, read_records
-from .summary import markdown_tables, results_from_records, row_label, suite_columns
+from ..records import RECORDS_FILE, dedupe, one_version, read_manifest, read_records, record_row
+from .summary import markdown_tables, results_from_records, suite_columns
 
 REPORT_FILE = "report.html"
-EPISODES_FILE = "episodes.jsonl"  # as cli.py writes it
 THUMB_WIDTH = 240
 OUTCOME_LABELS = {"success": "success", "not_placed": "not placed", "wrong_target": "wrong target",
                   "no_grasp": "no grasp"}
@@ -87,7 +89,7 @@ def episode_cards(records: Iterable[Mapping[str, Any]], results_dir: Path) -> li
         if video and (results_dir / "videos" / video).exists():
             thumbs = video_thumbnails(results_dir / "videos" / video)
         cards.append({
-            "row": row_label(str(r.get("policy", "?")), r.get("instruction_mode", "normal"), perturb_label(r)),
+            "row": record_row(r),
             "policy": str(r.get("policy", "?")),
             "suite": r["suite_id"],
             "mode": r.get("instruction_mode", "normal"),
@@ -261,8 +263,7 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
     cards = episode_cards(records, results_dir)
     suites = suite_columns(results)
     title = title or f"RSB evaluation: {results_dir.resolve().name}"
-    manifest_path = results_dir / "run.json"
-    runs = json.loads(manifest_path.read_text()).get("runs", {}) if manifest_path.exists() else {}
+    runs = read_manifest(results_dir)
 
     policy_of = {c["row"]: c["policy"] for c in cards}
     summary = []
@@ -296,13 +297,16 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
                           f'{_options(vals, labels)}</select></label>' for key, name, vals, labels in filters)
     n_videos = sum(1 for c in cards if c["video"])
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    from rsb_maniskill import __version__
+    from rsb_maniskill.version import benchmark_label, code_label
 
+    code = code_label()
+    version = benchmark_label(one_version(records) or "")
     return _PAGE.format(
         title=html.escape(title), css=_CSS, script=_SCRIPT, data=_script_json(cards),
         colors=_script_json({"colors": OUTCOME_COLORS, "labels": OUTCOME_LABELS}),
-        meta=f"{len(cards)} episodes &middot; {len(rows)} row(s) &middot; {len(suites)} suite(s) &middot; "
-             f"{n_videos} with video &middot; rsb_maniskill {__version__} &middot; written {stamp}",
+        meta=f"<b>{html.escape(version)}</b> &middot; {len(cards)} episodes &middot; {len(rows)} row(s) &middot; "
+             f"{len(suites)} suite(s) &middot; {n_videos} with video &middot; {html.escape(code)} &middot; "
+             f"written {stamp}",
         summary="".join(summary), tables=markdown_to_html(markdown_tables(results)),
         robustness=_robustness(records) + _reasoning(records) + _gap(records, results_dir),
         errors="".join(err_rows), legend=legend, filters=filter_html,
@@ -314,11 +318,11 @@ def write_html_report(results_dir: str | os.PathLike, out: str | os.PathLike | N
     """Write ``report.html`` for the episodes of ``results_dir`` (or ``records``); returns its path."""
     results_dir = Path(results_dir)
     if records is None:
-        if not (results_dir / EPISODES_FILE).exists():
-            raise ReportError(f"{results_dir} has no {EPISODES_FILE}: give the --out directory of an `rsb eval` run")
-        records = read_records(results_dir / EPISODES_FILE)
+        if not (results_dir / RECORDS_FILE).exists():
+            raise ReportError(f"{results_dir} has no {RECORDS_FILE}: give the --out directory of an `rsb eval` run")
+        records = read_records(results_dir / RECORDS_FILE)
     if not records:
-        raise ReportError(f"{results_dir / EPISODES_FILE} holds no episode records yet")
+        raise ReportError(f"{results_dir / RECORDS_FILE} holds no episode records yet")
     path = Path(out) if out is not None else results_dir / REPORT_FILE
     page = build_html(records, results_dir, title)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
@@ -330,29 +334,44 @@ def write_html_report(results_dir: str | os.PathLike, out: str | os.PathLike | N
 # ---------------------------------------------------------------- command line
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "report", help="write report.html: tables, bars, error analysis and a browsable grid of episodes",
-        description="Writes RESULTS_DIR/report.html from RESULTS_DIR/episodes.jsonl (an `rsb eval` output "
-                    "directory): a self-contained page that opens from disk. RESULTS_DIR may also be a "
-                    "`vla-eval run` output directory (or its *_aggregate.json) of RSBBenchmark: then the "
-                    "paper's tables are printed and written to summary.* beside it too.")
-    p.add_argument("results_dir", metavar="RESULTS_DIR")
+        "report", help="write report.html and results.json; --compare: two runs side by side",
+        description="Writes RESULTS_DIR/report.html (a self-contained page that opens from disk) and "
+                    "RESULTS_DIR/results.json from RESULTS_DIR/episodes.jsonl (an `rsb eval` output directory). "
+                    "RESULTS_DIR may also be a `vla-eval run` output directory (or its *_aggregate.json) of "
+                    "RSBBenchmark: then the paper's tables are printed and written to summary.* beside it too. "
+                    "With --compare A B: the two runs' GSR / TSR / nSG per suite side by side, B - A, and whether "
+                    "their 95 %% intervals separate (Markdown). Records of two benchmark versions never pool.")
+    p.add_argument("results_dir", metavar="RESULTS_DIR", nargs="?")
     p.add_argument("-o", "--out", default=None, help="page to write (default: RESULTS_DIR/report.html)")
     p.add_argument("--title", default=None, help="page title (default: the directory's name)")
+    p.add_argument("--compare", nargs=2, metavar=("DIR_A", "DIR_B"), default=None,
+                   help="compare two results directories (or directories holding a results.json)")
     p.set_defaults(func=run_report)
 
 
 def run_report(args: argparse.Namespace) -> int:
+    from .results import RESULTS_FILE, compare, load_results, write_results
     from .vla_eval_results import is_vla_eval_results, report_vla_eval
 
     try:
-        if is_vla_eval_results(args.results_dir):  # a `vla-eval run` of RSBBenchmark
+        if args.compare:
+            a, b = args.compare
+            print(compare(load_results(a), load_results(b), (a, b)), end="")
+            return 0
+        if not args.results_dir:
+            raise ReportError("give RESULTS_DIR, or --compare DIR_A DIR_B")
+        if is_vla_eval_results(args.results_dir):  # a `vla-eval run` of RSBBenchmark: summary.* and results.json
             path = report_vla_eval(args.results_dir, args.out, title=args.title)
+            src = Path(args.results_dir)
+            results = (src if src.is_dir() else src.parent) / RESULTS_FILE
         else:
-            path = write_html_report(args.results_dir, args.out, title=args.title)
+            records = read_records(Path(args.results_dir) / RECORDS_FILE)
+            path = write_html_report(args.results_dir, args.out, records=records or None, title=args.title)
+            results = write_results(args.results_dir, records)
     except (ReportError, ValueError, OSError) as err:
         print(f"rsb report: error: {err}", file=sys.stderr)
         return 2
-    print(f"report: {path}")
+    print(f"results: {results}\nreport: {path}")
     return 0
 
 

@@ -17,24 +17,19 @@ from typing import Any, Iterable, Mapping, Sequence
 from rsb_maniskill.objects.family import OBJECTS_SUFFIX
 
 from ..metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, SuiteMetrics, average, suite_order, summarize
-from ..records import dedupe, perturb_label
+from ..records import dedupe, one_version, record_row
 
 Results = Mapping[str, Mapping[str, SuiteMetrics]]
 
 
-def row_label(policy: str, instruction_mode: str = "normal", perturb: str = "none") -> str:
-    """Table row of a policy; ablation modes and perturbations get their own rows, e.g.
-    ``"pi0 (blank)"``, ``"pi0 [camera=2]"``."""
-    label = policy if instruction_mode == "normal" else f"{policy} ({instruction_mode})"
-    return label if perturb == "none" else f"{label} [{perturb}]"
-
-
 def results_from_records(records: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, SuiteMetrics]]:
-    """Group (deduplicated) records by policy and instruction mode, then by suite."""
+    """Group (deduplicated) records by policy and instruction mode, then by suite. Records of two
+    benchmark versions do not pool: ``records.VersionMixError``, naming both."""
+    records = dedupe(records)
+    one_version(records)
     rows: dict[str, list[Mapping[str, Any]]] = {}
-    for r in dedupe(records):
-        rows.setdefault(row_label(str(r.get("policy", "?")), r.get("instruction_mode", "normal"), perturb_label(r)),
-                        []).append(r)
+    for r in records:
+        rows.setdefault(record_row(r), []).append(r)
     return {label: summarize(recs) for label, recs in rows.items()}
 
 
@@ -43,9 +38,11 @@ def suite_columns(results: Results) -> list[str]:
     return suite_order({s for row in results.values() for s in row})
 
 
-def summary_dict(results: Results) -> dict[str, Any]:
-    """Everything as plain JSON-able data: per-suite metrics with intervals, and Avg per row."""
+def summary_dict(results: Results, benchmark_version: str | None = None) -> dict[str, Any]:
+    """Everything as plain JSON-able data: per-suite metrics with intervals, and Avg per row
+    (with the benchmark version of the episodes, when given)."""
     return {
+        **({"benchmark_version": benchmark_version} if benchmark_version else {}),
         "avg_suites": list(PAPER_SUITES),
         "rows": {
             label: {
@@ -57,20 +54,20 @@ def summary_dict(results: Results) -> dict[str, Any]:
     }
 
 
-def write_json(results: Results, path: str | os.PathLike) -> Path:
+def write_json(results: Results, path: str | os.PathLike, benchmark_version: str | None = None) -> Path:
     path = Path(path)
-    path.write_text(json.dumps(summary_dict(results), indent=2) + "\n", encoding="utf-8")
+    path.write_text(json.dumps(summary_dict(results, benchmark_version), indent=2) + "\n", encoding="utf-8")
     return path
 
 
 CSV_FIELDS = (
     "row", "suite_id", "n_choices", "n_episodes", "n_grasped", "n_success",
     "gsr", "gsr_low", "gsr_high", "tsr", "tsr_low", "tsr_high", "nsg", "nsg_low", "nsg_high",
-    "err_not_placed", "err_wrong_target", "err_no_grasp",
+    "err_not_placed", "err_wrong_target", "err_no_grasp", "benchmark_version",
 )
 
 
-def csv_rows(results: Results) -> list[dict[str, Any]]:
+def csv_rows(results: Results, benchmark_version: str | None = None) -> list[dict[str, Any]]:
     """One row per (row label, suite) plus an ``Avg`` row per label; rates as fractions in [0, 1]."""
     out = []
     for label, row in results.items():
@@ -83,19 +80,20 @@ def csv_rows(results: Results) -> list[dict[str, Any]]:
                 "tsr": m.tsr.value, "tsr_low": m.tsr.low, "tsr_high": m.tsr.high,
                 "nsg": m.nsg.value, "nsg_low": m.nsg.low, "nsg_high": m.nsg.high,
                 "err_not_placed": f["not_placed"], "err_wrong_target": f["wrong_target"], "err_no_grasp": f["no_grasp"],
+                "benchmark_version": benchmark_version,
             })
         a = average(row)
         out.append({"row": label, "suite_id": "Avg", "gsr": a.gsr, "tsr": a.tsr, "nsg": a.nsg,
-                    "n_episodes": sum(row[s].n_episodes for s in a.present)})
+                    "n_episodes": sum(row[s].n_episodes for s in a.present), "benchmark_version": benchmark_version})
     return out
 
 
-def write_csv(results: Results, path: str | os.PathLike) -> Path:
+def write_csv(results: Results, path: str | os.PathLike, benchmark_version: str | None = None) -> Path:
     path = Path(path)
     with open(path, "w", newline="", encoding="utf-8") as f:
         w = csv.DictWriter(f, fieldnames=CSV_FIELDS)
         w.writeheader()
-        for r in csv_rows(results):
+        for r in csv_rows(results, benchmark_version):
             w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in CSV_FIELDS})
     return path
 
@@ -122,8 +120,9 @@ def _avg_label(avgs: Sequence[Average]) -> tuple[str, str]:
     return "**Avg\\***", "\n\n\\* Avg over the paper's suites that were run, not all six."
 
 
-def markdown_tables(results: Results) -> str:
-    """Paper Tables 3, 4, 6 and 7 (plus per-suite intervals) as one Markdown document."""
+def markdown_tables(results: Results, benchmark_version: str | None = None) -> str:
+    """Paper Tables 3, 4, 6 and 7 (plus per-suite intervals) as one Markdown document, under a line
+    naming the benchmark version when given."""
     suites = suite_columns(results)
     labels = list(results)
     avgs = {label: average(results[label]) for label in labels}
@@ -169,6 +168,10 @@ def markdown_tables(results: Results) -> str:
     parts.append("### Error analysis, all suites pooled (%, paper Table 7)\n\n"
                  "Shares of the grasped-but-failed episodes, except no-grasp (share of all episodes).\n\n"
                  + _table(["Error type"] + labels, err_rows))
+    if benchmark_version:
+        from rsb_maniskill.version import benchmark_label
+
+        parts.insert(0, f"Benchmark: {benchmark_label(benchmark_version)} (docs/versions.md)")
     return "\n\n".join(parts) + "\n"
 
 
@@ -198,9 +201,9 @@ def _pool_errors(errs: Sequence[Any]) -> dict[str, float | None]:
     }
 
 
-def write_markdown(results: Results, path: str | os.PathLike) -> Path:
+def write_markdown(results: Results, path: str | os.PathLike, benchmark_version: str | None = None) -> Path:
     path = Path(path)
-    path.write_text(markdown_tables(results), encoding="utf-8")
+    path.write_text(markdown_tables(results, benchmark_version), encoding="utf-8")
     return path
 
 
@@ -297,23 +300,30 @@ def _slug(label: str) -> str:
 
 def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summary",
                  records: Iterable[Mapping[str, Any]] | None = None) -> dict[str, Path]:
-    """Write ``<stem>.json``, ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<row>.png`` per row;
-    with ``records`` that hold perturbed episodes, the robustness tables go into the JSON
-    (``robustness``) and the Markdown too; with records of a policy that talks, Table 5 goes into
-    them (``reasoning_following``) and into ``<stem>_reasoning.csv``; with ``rsb backbone`` answers in
-    ``out_dir``, the backbone's accuracy and the semantic gap (``backbone``, ``<stem>_gap.csv``,
-    ``<stem>_gap.png``)."""
+    """Write ``<stem>.json``, ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<row>.png`` per row,
+    each naming the benchmark version (of ``records``, else this code's); with ``records``, also
+    ``results.json`` (``results.py``); when they hold perturbed episodes, the robustness tables go
+    into the JSON (``robustness``) and the Markdown too; with records of a policy that talks, Table 5
+    goes into them (``reasoning_following``) and into ``<stem>_reasoning.csv``; with ``rsb backbone``
+    answers in ``out_dir``, the backbone's accuracy and the semantic gap (``backbone``,
+    ``<stem>_gap.csv``, ``<stem>_gap.png``)."""
+    from rsb_maniskill.version import BENCHMARK_VERSION
+
     from .reasoning import reasoning_json, reasoning_markdown, reasoning_rows, reasoning_table
+    from .results import write_results
     from .robustness import robustness_markdown, robustness_rows, robustness_table
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {
-        "json": write_json(results, out / f"{stem}.json"),
-        "csv": write_csv(results, out / f"{stem}.csv"),
-        "markdown": write_markdown(results, out / f"{stem}.md"),
-    }
     records = list(records) if records is not None else []
+    version = one_version(records) or BENCHMARK_VERSION
+    paths = {
+        "json": write_json(results, out / f"{stem}.json", version),
+        "csv": write_csv(results, out / f"{stem}.csv", version),
+        "markdown": write_markdown(results, out / f"{stem}.md", version),
+    }
+    if records:
+        paths["results"] = write_results(out, records)
     table = robustness_table(records)
     if table:
         append_section(paths, "robustness", robustness_rows(table), robustness_markdown(table))

@@ -2,9 +2,13 @@
 each turned and shifted inside its cell as far as its footprint allows (no overlaps).
 
 Cell identity, position jitter and yaw are drawn from the episode's batched RNG, so the layout
-is a function of the episode seed and independent of which candidate is the answer.
+is a function of the episode seed and independent of which candidate is the answer. Numpy only:
+:func:`episode_layouts` gives episodes' layouts without the simulator (the pinned episodes,
+``rsb_maniskill/golden.py``, digest them).
 """
 from __future__ import annotations
+
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -30,15 +34,31 @@ def _extent(a: np.ndarray, b: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray
     return a * c + b * s, a * s + b * c
 
 
-def place(rng, layout: Layout, half_extents: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+Draws = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def draw(rng: Any, layout: Layout, n: int) -> Draws:
+    """What a layout draws, in this order: cells (n), position jitter (n, 2), yaw jitter (n) and
+    base-yaw choice (n), each with a leading env dimension when ``rng`` is ManiSkill's batched
+    episode RNG (a ``RandomState`` per env), without when it is one ``RandomState``."""
+    slots = rng.permutation(len(grid(layout)))[..., :n]
+    u_pos = rng.uniform(-1.0, 1.0, size=(n, 2))
+    u_yaw = rng.uniform(-1.0, 1.0, size=(n,))
+    u_base = rng.randint(0, len(layout.yaw_choices), size=(n,))
+    return slots, u_pos, u_yaw, u_base
+
+
+def place(rng: Any, layout: Layout, half_extents: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cells (b, N), positions (b, N, 2) and yaws (b, N) for candidates with footprint half sizes
     ``half_extents`` (b, N, 2). ``rng`` is ManiSkill's batched episode RNG of the envs placed."""
+    return arrange(draw(rng, layout, half_extents.shape[1]), layout, half_extents)
+
+
+def arrange(draws: Draws, layout: Layout, half_extents: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cells, positions and yaws from the draws of ``b`` episodes (leading dimension b) and the
+    candidates' footprints (b, N, 2): the geometry, no randomness."""
     cells = grid(layout)
-    n = half_extents.shape[1]
-    slots = rng.permutation(len(cells))[:, :n]  # (b, n)
-    u_pos = rng.uniform(-1.0, 1.0, size=(n, 2))  # (b, n, 2)
-    u_yaw = rng.uniform(-1.0, 1.0, size=(n,))  # (b, n)
-    u_base = rng.randint(0, len(layout.yaw_choices), size=(n,))  # (b, n); RandomState per env
+    slots, u_pos, u_yaw, u_base = draws
     cx, cy = layout.pitch[0] / 2 - CELL_MARGIN, layout.pitch[1] / 2 - CELL_MARGIN
     hx, hy = half_extents[..., 0], half_extents[..., 1]
 
@@ -66,3 +86,19 @@ def place(rng, layout: Layout, half_extents: np.ndarray) -> tuple[np.ndarray, np
     slack = np.stack([np.clip(cx - ex, 0, None), np.clip(cy - ey, 0, None)], -1)
     xy = cells[slots] + u_pos * np.minimum(layout.pos_jitter, slack)
     return slots, xy.astype(np.float32), (base + theta).astype(np.float32)
+
+
+def episode_layouts(family: Any, candidates: Sequence[Sequence[str]],
+                    seeds: Sequence[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`place` for the episodes ``seeds`` whose candidates are ``candidates`` (asset keys of
+    ``family``), without the simulator: at a seeded reset ManiSkill's episode RNG of an env is
+    ``np.random.RandomState(seed)``, so reseeding one such generator per episode draws the same
+    numbers. Footprints are the family's shapes, as the task's candidate pool reads them."""
+    rng = np.random.RandomState()
+    draws = []
+    for seed in seeds:
+        rng.seed(int(seed))
+        draws.append(draw(rng, family.layout, len(candidates[0])))
+    shapes = {k: family.shape(k).half_extents for k in {k for keys in candidates for k in keys}}
+    half = np.array([[shapes[k] for k in keys] for keys in candidates], dtype=np.float32)
+    return arrange(tuple(np.stack(d) for d in zip(*draws)), family.layout, half)

@@ -1,0 +1,179 @@
+"""The pinned episodes: per-suite digests that say whether an install gives this benchmark
+version's episodes, and ``rsb verify``.
+
+Two digests per suite (every suite, blocks and everyday objects):
+
+- ``eval``: the evaluation protocol's episodes, ``EPISODES_PER_SUITE`` of them (test split,
+  unseen templates, seeds ``EVAL_SEED_BASE + i``: what ``rsb eval`` and ``lerobot-eval`` run);
+- ``train``: the first ``TRAIN_EPISODES`` training episodes (train split, seen templates, fixed
+  colour map, seeds 0, 1, ...: what ``rsb generate`` makes first).
+
+An episode is digested as one canonical JSON line: question, options, letters, the option ->
+candidate map, the answer, question and template ids, the instruction, the candidates and the
+seed-derived layout (cells, positions to 0.01 mm, yaws to 1e-5 rad, by ``objects.layout`` without
+the simulator, as the task places them). ``golden_episodes.json`` beside this module holds the
+digests of ``version.BENCHMARK_VERSION`` on the pinned GSM8K / MMLU-Pro; ``scripts/pin_episodes.py``
+writes it (docs/versions.md says when and how).
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterator, Mapping, Sequence
+
+import numpy as np
+
+GOLDEN_FILE = Path(__file__).with_name("golden_episodes.json")
+TRAIN_EPISODES = 500
+POSITION_DECIMALS = 5  # metres: 0.01 mm
+YAW_DECIMALS = 5  # radians
+
+
+def episode_sets() -> dict[str, dict[str, Any]]:
+    """What each digest covers: sampler settings and seeds (the protocol owns the evaluation's)."""
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS, EVAL_SEED_BASE
+
+    return {
+        "eval": {**EVAL_ENV_KWARGS, "color_map": "fixed", "first_seed": EVAL_SEED_BASE,
+                 "episodes": EPISODES_PER_SUITE},
+        "train": {"split": "train", "instructions": "seen", "color_map": "fixed", "first_seed": 0,
+                  "episodes": TRAIN_EPISODES},
+    }
+
+
+def canonical_episode(spec: Any, cells: list[int], xy: list[list[float]], yaw: list[float]) -> dict[str, Any]:
+    """What pins an episode: its semantics (the ``EpisodeSpec`` fields a policy or a grader meets)
+    and its layout (``objects.layout.episode_layouts``, rounded)."""
+    return {
+        "seed": spec.seed, "question_id": spec.question_id, "question": spec.question,
+        "options": list(spec.options), "letters": list(spec.letters), "block_of_option": list(spec.block_of_option),
+        "answer_slot": spec.answer_slot, "correct_letter": spec.correct_letter, "template_id": spec.template_id,
+        "instruction": spec.instruction, "candidates": list(spec.candidates),
+        "cells": cells, "xy": xy, "yaw": yaw,
+    }
+
+
+def iter_episodes(env_id: str, which: str, data_dir: str | os.PathLike | None = None) -> Iterator[dict[str, Any]]:
+    """The canonical episodes of one digest (``which``: ``"eval"`` or ``"train"``) of ``env_id``."""
+    from rsb_maniskill.objects.family import get_family, split_env_id
+    from rsb_maniskill.objects.layout import episode_layouts
+    from rsb_maniskill.semantic import EpisodeSampler
+
+    suite_id, targets = split_env_id(env_id)
+    cfg = episode_sets()[which]
+    sampler = EpisodeSampler(suite_id, split=cfg["split"], instructions=cfg["instructions"],
+                             color_map=cfg["color_map"], data_dir=data_dir, targets=targets)
+    specs = [sampler.episode(s) for s in range(cfg["first_seed"], cfg["first_seed"] + cfg["episodes"])]
+    cells, xy, yaw = episode_layouts(get_family(targets), [s.candidates for s in specs], [s.seed for s in specs])
+    xy = np.round(xy.astype(np.float64), POSITION_DECIMALS).tolist()
+    yaw = np.round(yaw.astype(np.float64), YAW_DECIMALS).tolist()
+    for spec, c, p, y in zip(specs, cells.tolist(), xy, yaw):
+        yield canonical_episode(spec, c, p, y)
+
+
+def suite_digests(env_id: str, data_dir: str | os.PathLike | None = None) -> dict[str, str]:
+    """``{"eval": sha256, "train": sha256}`` of one suite on this install."""
+    out = {}
+    for which in episode_sets():
+        h = hashlib.sha256()
+        for ep in iter_episodes(env_id, which, data_dir):
+            h.update(json.dumps(ep, sort_keys=True, ensure_ascii=False, separators=(",", ":")).encode() + b"\n")
+        out[which] = h.hexdigest()
+    return out
+
+
+def all_env_ids() -> list[str]:
+    """Every suite, blocks then everyday objects."""
+    from rsb_maniskill.env_ids import resolve_env_ids
+
+    return resolve_env_ids(["all", "all-objects"])
+
+
+def compute(env_ids: Sequence[str] | None = None, data_dir: str | os.PathLike | None = None) -> dict[str, dict]:
+    """``{env_id: {"eval": digest, "train": digest}}``; a suite whose question data is missing
+    raises :class:`~rsb_maniskill.semantic.DataNotFoundError`."""
+    return {eid: suite_digests(eid, data_dir) for eid in (env_ids or all_env_ids())}
+
+
+def document(digests: Mapping[str, Mapping[str, str]]) -> dict[str, Any]:
+    """The golden file's content for the current benchmark version."""
+    from rsb_maniskill.version import BENCHMARK_VERSION, benchmark_label
+
+    return {"benchmark": benchmark_label(), "benchmark_version": BENCHMARK_VERSION, "episodes": episode_sets(),
+            "suites": {k: dict(v) for k, v in digests.items()}}
+
+
+def load(path: str | os.PathLike | None = None) -> dict[str, Any]:
+    """A golden file (default: this package's)."""
+    return json.loads(Path(path or GOLDEN_FILE).read_text(encoding="utf-8"))
+
+
+def write(path: str | os.PathLike, doc: Mapping[str, Any]) -> None:
+    Path(path).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+
+
+def differences(digests: Mapping[str, Mapping[str, str]], pinned: Mapping[str, Any]) -> dict[str, list[str]]:
+    """``{env_id: ["eval", ...]}``: the digests that differ from the pinned ones (a suite the pinned
+    file lacks differs in all)."""
+    suites = pinned["suites"]
+    return {eid: [w for w, d in ds.items() if suites.get(eid, {}).get(w) != d]
+            for eid, ds in digests.items() if suites.get(eid) != dict(ds)}
+
+
+# ---------------------------------------------------------------------------------- rsb verify
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.env_ids import add_suites_argument
+
+    p = subparsers.add_parser(
+        "verify", help="does this install give the pinned episodes of this benchmark version?",
+        description="Recomputes every suite's protocol evaluation episodes and first training episodes "
+                    "(questions, options, instructions, candidates, layout) and compares their digests with "
+                    "the ones pinned for this benchmark version. Exit status 1 when a suite differs or could "
+                    "not be checked. No simulator; about ten seconds for all suites.")
+    add_suites_argument(p, default=["all", "all-objects"], positional=True)
+    p.add_argument("--data-dir", default=None,
+                   help="GSM8K / MMLU-Pro directory (else $RSB_DATA_DIR, else the hub cache)")
+    p.set_defaults(func=cmd_verify)
+
+
+def cmd_verify(args: argparse.Namespace) -> int:
+    from rsb_maniskill.semantic.errors import SemanticError
+    from rsb_maniskill.version import BENCHMARK_VERSION, benchmark_label
+
+    t0 = time.perf_counter()
+    pinned = load()
+    if pinned["benchmark_version"] != BENCHMARK_VERSION:
+        print(f"rsb verify: error: {GOLDEN_FILE} pins {pinned['benchmark']}, the code is {benchmark_label()}: "
+              "reinstall the package", file=sys.stderr)
+        return 1
+    differ, unchecked, missing = [], [], None
+    for eid in args.suites:
+        try:
+            diff = differences({eid: suite_digests(eid, args.data_dir)}, pinned).get(eid)
+        except SemanticError as err:
+            missing = missing or str(err)
+            unchecked.append(eid)
+            print(f"{eid:<26} not checked (question data missing)")
+            continue
+        if diff:
+            differ.append(eid)
+            print(f"{eid:<26} DIFFERS from {pinned['benchmark']} ({', '.join(diff)} episodes)")
+        else:
+            print(f"{eid:<26} ok")
+    if missing:
+        print(f"rsb verify: {missing}", file=sys.stderr)
+    took = f"{len(args.suites)} suite(s), {time.perf_counter() - t0:.1f} s"
+    if differ:
+        print(f"this install does NOT give the episodes of {pinned['benchmark']}: {', '.join(differ)} ({took})")
+    elif unchecked:
+        print(f"the suites checked give {pinned['benchmark']}'s episodes; {len(unchecked)} could not be "
+              f"checked ({took})")
+    else:
+        print(f"this install gives the episodes of {pinned['benchmark']} ({took})")
+    status = 1 if differ or unchecked else 0
+    return status

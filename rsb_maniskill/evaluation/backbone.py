@@ -225,6 +225,8 @@ def ask_episodes(backbone: Backbone, suite_id: str, seeds: Sequence[int], out_pa
 
 # ---------------------------------------------------------------- command line
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.env_ids import add_suites_argument
+
     from .protocol import EPISODES_PER_SUITE
     from .records import INSTRUCTION_MODES
 
@@ -237,8 +239,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("backbone", metavar="MODEL", help=f"built-in ({', '.join(BACKBONES)}) or package.module:factory")
     p.add_argument("-a", "--backbone-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="keyword argument of the backbone factory (VALUE parsed as JSON, else a string); repeatable")
-    p.add_argument("--suites", nargs="+", default=["paper"], metavar="SUITE",
-                   help="suite ids, 'paper' (default), 'all', 'paper-objects' or 'all-objects' (as rsb eval)")
+    add_suites_argument(p)
     p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
                    help=f"episodes per suite (default {EPISODES_PER_SUITE}); the same seeds as rsb eval -n")
     p.add_argument("--instruction", nargs="+", default=["normal"], choices=INSTRUCTION_MODES,
@@ -266,12 +267,12 @@ def run_backbone(args: argparse.Namespace) -> int:
 
 
 def _run_backbone(args: argparse.Namespace) -> int:
-    from .cli import EPISODES_FILE, PROTOCOL_KEYS, EvalError, check_data, check_manifest, parse_kv, resolve_suites
+    from .cli import PROTOCOL_KEYS, EvalError, check_data, check_manifest, parse_kv
     from .protocol import eval_seeds
-    from .records import read_records
+    from .records import RECORDS_FILE, read_records
     from .reporting.gap import backbone_markdown, gap_markdown, gap_table
 
-    suites = resolve_suites(args.suites)
+    suites = args.suites  # resolved at parse time (env_ids.add_suites_argument)
     if args.num_episodes < 1:
         raise EvalError(f"--num-episodes must be >= 1, got {args.num_episodes}")
     kwargs = parse_kv(args.backbone_arg, "--backbone-arg")
@@ -316,7 +317,7 @@ def _run_backbone(args: argparse.Namespace) -> int:
             close()
     answers = read_backbone_records(path)
     print(backbone_markdown(answers))
-    episodes = read_records(out / EPISODES_FILE) if (out / EPISODES_FILE).exists() else []
+    episodes = read_records(out / RECORDS_FILE) if (out / RECORDS_FILE).exists() else []
     if episodes:
         from .reporting.html_report import write_html_report
         from .reporting.summary import results_from_records, write_report
@@ -325,5 +326,5 @@ def _run_backbone(args: argparse.Namespace) -> int:
         print(gap_markdown(gap_table(episodes, answers)))
         print(f"answers: {path}\nsummary: {paths['markdown']}\nreport: {write_html_report(out, records=episodes)}")
     else:
-        print(f"answers: {path}\n(no {EPISODES_FILE} in {out}: run `rsb eval ... --out {out}` to see the gap)")
+        print(f"answers: {path}\n(no {RECORDS_FILE} in {out}: run `rsb eval ... --out {out}` to see the gap)")
     return 0

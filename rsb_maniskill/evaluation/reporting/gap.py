@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
 from ..metrics import Rate, outcome, suite_metrics, suite_order
-from ..records import dedupe, perturb_label
+from ..records import dedupe, perturb_label, row_label
 from .reasoning import rate_cell
-from .summary import _table, row_label
+from .summary import _table
 
 CROSSING = ("right/right", "right/wrong", "wrong/right", "wrong/wrong")  # backbone / arm, over grasped episodes
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 from typing import Any, Iterable, Mapping
 
 from ..metrics import Rate, group_by_suite, suite_order
-from ..records import dedupe, perturb_label
+from ..records import dedupe, perturb_label, row_label
 from ..statements import FAILURE_LABELS, FAILURES, STATEMENTS, ReasoningFollowing, reasoning_following, talks
-from .summary import _ci, _table, row_label
+from .summary import _ci, _table
 
 Table = Mapping[str, Mapping[str, ReasoningFollowing]]
 STATED = {"right": "Stated right", "wrong": "Stated wrong", "none": "No statement"}

@@ -7,14 +7,16 @@ from the options alone -- never the question -- teaches and rewards shortcuts, s
 
 1. every eligible question (``mmlu_pro.eligible``) is seen as each suite shows it: its ten options
    (RSB-General-10) and the four of RSB-General-4 (``mmlu_pro.shown_subsets``; run
-   scripts/mmlu_options.py first). Each option becomes word and character n-grams plus features
-   of its shape relative to its set (length, words, similarity to the others, punctuation, ...);
+   scripts/mmlu_options.py first). Each option becomes word and character n-grams, features of its
+   shape relative to its set (length, words, similarity to the others, punctuation, ...), and its
+   sentence embedding (all-MiniLM-L6-v2, the ``baselines`` extra) beside its difference from the
+   set's mean: what it says, which a text encoder reads (AFLite filters with one);
 2. models are fit on three quarters of the questions and score the last quarter, the quarters
    drawn by the questions' split groups (``mmlu_pro._facts``: no near-duplicate or shared option
-   on both sides), ``--rounds`` times: on the tens, a logistic regression on n-grams and shape and
-   gradient-boosted trees on shape; on the fours, a logistic regression on n-grams and shape. A
-   question's predictability in a suite is the lift over chance of the probability the held-out
-   models gave its answer (normalised over its options);
+   on both sides), ``--rounds`` times: a logistic regression on n-grams and shape, one on the
+   embeddings, and on the tens gradient-boosted trees on shape. A question's predictability in a
+   suite is the lift over chance of the probability the held-out models gave its answer (their
+   mean, each normalised over its options);
 3. the ``--drop`` fraction most predictable on average over the suites still above chance is left
    out (a suite already at chance is not pushed below it: that would make its answers look like
    its distractors, the opposite give-away), and 2-3 repeat until the held-out argmax accuracy of
@@ -24,7 +26,8 @@ The content keys of the questions left out (``mmlu_pro.content_key``) are writte
 rsb_maniskill/semantic/mmlu_pro_filtered.txt, which the package ships: pools are built with that
 list and no model at run time, so every machine builds the same pool. ``rsb audit``'s surface and
 lexical probes (other features, fit on episodes) and scripts/check_general.py (model families
-and tokenisations the filter never used, other seeds) are the independent checks. Run (needs the
+and tokenisations the filter never used, other seeds) are the independent checks. Takes about 40
+minutes on two busy cores. Run (needs the
 MMLU-Pro data, see docs/semantic.md):
 
     python scripts/filter_general.py [--data-dir DIR] [--out rsb_maniskill/semantic/mmlu_pro_filtered.txt]
@@ -70,9 +73,10 @@ def set_features(options: list[str]) -> np.ndarray:
 class Shown:
     """One suite's option sets of every eligible question (in a fixed random order, as episodes
     show them: ties in the shape ranks must not sort the answer first), as model inputs: word and
-    character n-grams (vocabulary and weights from all the texts: no labels) and shape features."""
+    character n-grams (vocabulary and weights from all the texts: no labels), shape features, and
+    sentence embeddings of each option and their difference from the set's mean."""
 
-    def __init__(self, rows: list[dict], n: int) -> None:
+    def __init__(self, rows: list[dict], n: int, encoder: dict[str, np.ndarray]) -> None:
         from scipy.sparse import hstack
         from sklearn.feature_extraction.text import TfidfVectorizer
 
@@ -91,6 +95,8 @@ class Shown:
                              TfidfVectorizer(analyzer="char_wb", ngram_range=(2, 5), min_df=3,
                                              sublinear_tf=True).fit_transform(texts)]).tocsr()
         self.shape = np.stack([set_features(s) for s in sets])  # (Q, n, F)
+        emb = np.stack([encoder[o] for o in texts]).reshape(len(sets), n, -1)
+        self.meaning = np.concatenate([emb, emb - emb.mean(axis=1, keepdims=True)], axis=2)  # (Q, n, 2 x 384)
 
     def rows(self, idx: np.ndarray) -> np.ndarray:
         """Option rows of the questions ``idx``."""
@@ -98,6 +104,16 @@ class Shown:
 
     def labels(self, idx: np.ndarray) -> np.ndarray:
         return (np.arange(self.n)[None, :] == self.answer[idx, None]).astype(int)
+
+
+def encode(texts: set[str]) -> dict[str, np.ndarray]:
+    """all-MiniLM-L6-v2 embeddings of the texts (the ``baselines`` extra ships the weights)."""
+    from rsb_maniskill.baselines.diffusion_policy.text import TextEncoder
+
+    order = sorted(texts)
+    emb = TextEncoder().model.encode(order, batch_size=128, normalize_embeddings=True, convert_to_numpy=True,
+                                     show_progress_bar=False)
+    return dict(zip(order, emb))
 
 
 def _held_out(shown: Shown, fit: np.ndarray, score: np.ndarray, seed: int) -> np.ndarray:
@@ -113,7 +129,10 @@ def _held_out(shown: Shown, fit: np.ndarray, score: np.ndarray, seed: int) -> np
     scale = StandardScaler().fit(fit_s)  # shape beside unit-norm n-grams: unscaled, the solver crawls
     fit_x = hstack([shown.words[shown.rows(fit)], csr_matrix(scale.transform(fit_s))]).tocsr()
     score_x = hstack([shown.words[shown.rows(score)], csr_matrix(scale.transform(score_s))]).tocsr()
-    probs = [LogisticRegression(C=1.0, solver="liblinear").fit(fit_x, y).predict_proba(score_x)[:, 1]]
+    nm = shown.meaning.shape[-1]
+    probs = [LogisticRegression(C=1.0, solver="liblinear").fit(fit_x, y).predict_proba(score_x)[:, 1],
+             LogisticRegression(C=1.0, max_iter=2000).fit(shown.meaning[fit].reshape(-1, nm), y)
+             .predict_proba(shown.meaning[score].reshape(-1, nm))[:, 1]]
     if n == mmlu_pro.N_OPTIONS:
         trees = HistGradientBoostingClassifier(max_iter=200, learning_rate=0.05, min_samples_leaf=20,
                                                l2_regularization=1.0, random_state=seed)
@@ -154,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     rows, _ = mmlu_pro.eligible(mmlu_pro_rows(args.data_dir))
     rows.sort(key=mmlu_pro.content_key)
     facts = mmlu_pro._facts(rows)
-    suites = [Shown(rows, n) for n in SUITES]
+    suites = [Shown(rows, n, encode({o for r in rows for o in mmlu_pro.to_question(r).choices})) for n in SUITES]
     alive = np.ones(len(rows), dtype=bool)
     for it in range(args.max_iters):
         idx = np.flatnonzero(alive)

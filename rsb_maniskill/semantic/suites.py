@@ -69,7 +69,10 @@ register_suite(SuiteSource(
     pool="rsb_maniskill.semantic.gsm8k:pool", reads_data=True))
 register_suite(SuiteSource(
     "General", "commonsense table + MMLU-Pro",
-    "a commonsense knowledge table written by rsb_maniskill and MMLU-Pro (TIGER-Lab/MMLU-Pro, MIT)", "MIT",
+    "a commonsense knowledge table written by rsb_maniskill and MMLU-Pro (TIGER-Lab/MMLU-Pro, MIT); the pool is "
+    "smaller than the paper's 10,000 training questions: only MMLU-Pro writes ten options for a question, and RSB "
+    "keeps those whose answer no answer-blind model finds from the options alone (docs/semantic.md, Pool sizes)",
+    "MIT",
     pool="rsb_maniskill.semantic.general:pool", reads_data=True))
 register_suite(SuiteSource("Direct", "target named in the instruction", "none: the instruction names the target",
                            "MIT"))

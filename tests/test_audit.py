@@ -148,6 +148,16 @@ def test_train_split_audit_has_no_lexical_probe():
     assert "n/a (train split)" in summary_markdown([a])
 
 
+def test_numeric_guessers_read_the_number_a_text_option_starts_with():
+    sp = dataclasses.replace(EpisodeSampler("RSB-General-4", "test").sample(seed=0),
+                             options=("240 grams, 6.5 grams", "220 grams, 5.75 grams", "230 grams, 6 grams",
+                                      "215 grams, 5.65 grams"))
+    sp = dataclasses.replace(sp, answer_slot=2, correct_letter=sp.letters[2])
+    median = next(g for g in named_guessers(4, sp.letters) if g.name == "median")
+    assert credit(median.score(sp), sp.answer_slot) == 0.5  # 220 and 230 are the two middle values
+    assert median.score(dataclasses.replace(sp, options=("a", "b", "c", "d"))) is None
+
+
 def test_credit_splits_ties():
     assert credit([1, 3, 3, 0], 1) == 0.5 and credit([1, 3, 3, 0], 0) == 0.0 and credit([2, 2, 2, 2], 3) == 0.25
 

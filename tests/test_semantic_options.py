@@ -177,6 +177,10 @@ def test_mmlu_pro_exclusions():
     assert exclusion_reason({**row, "choices": TEN[:9] + ["paris."]}) == "duplicate options"
     numbers = [f"{2 * i} m/s" for i in range(1, 11)]
     assert exclusion_reason({**row, "choices": numbers}) == "numeric options centred on the answer"
+    # written numeric distractors sit around the answer with words after the number too
+    worded = [f"{20 * i} grams, {i / 2} grams" for i in range(1, 11)]
+    assert exclusion_reason({**row, "choices": worded}) == "numeric options centred on the answer"
+    assert exclusion_reason({**row, "choices": worded[:9] + ["none at all"]}) is None
     assert exclusion_reason({**row, "choices": TEN[:9] + ["All of the above"]}) == "option refers to other options"
     assert exclusion_reason({**row, "choices": TEN[:9] + ["G and H"]}) == "option refers to other options"
     # an option naming a block colour would be bound to a block of another colour

@@ -12,7 +12,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from rsb_maniskill.semantic.normalize import content_words, jaccard, numeric_values, overlap, trigrams
+from rsb_maniskill.semantic.normalize import content_words, jaccard, leading_numbers, overlap, trigrams
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
 from .text import digit_string, edit_distance, trailing_zeros
@@ -36,7 +36,9 @@ def credit(scores: Sequence[float], answer: int) -> float:
 
 
 def _values(sp: EpisodeSpec) -> np.ndarray | None:
-    v = numeric_values(sp.options)
+    """Option values for the numeric guessers: plain numbers, and the number a text option starts
+    with ("240 grams, 6.5 grams") when every option starts with one."""
+    v = leading_numbers(sp.options)
     return None if v is None else np.asarray(v, dtype=float)
 
 

@@ -15,7 +15,7 @@ from typing import Sequence
 import numpy as np
 
 from rsb_maniskill.objects.catalog import CATEGORY_KEYS
-from rsb_maniskill.semantic.normalize import jaccard, numeric_values, option_key, trigrams
+from rsb_maniskill.semantic.normalize import jaccard, leading_numbers, option_key, trigrams
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
 from .guessers import credit, made_of_others
@@ -108,7 +108,7 @@ def option_features(sp: EpisodeSpec, prior: AnswerPrior | None = None) -> np.nda
     """(N, len(FEATURES)) features of an episode's options; NaN where a feature does not apply."""
     opts = sp.options
     n = len(opts)
-    vals = numeric_values(opts)
+    vals = leading_numbers(opts)  # plain numbers, or the number each option starts with
     num = (_numeric_block(np.asarray(vals, dtype=float)) if vals is not None
            else np.full((n, len(NUMERIC_FEATURES)), np.nan))
     chars = np.array([len(o) for o in opts], dtype=float)

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..objects.family import BLOCK_COLORS
 from .duplicates import duplicate_groups
-from .normalize import numeric_values, option_key, question_key, similarity_matrix
+from .normalize import leading_numbers, option_key, question_key, similarity_matrix
 from .records import Question, normalize_text
 from .stable import stable_bucket, stable_key
 
@@ -106,8 +106,9 @@ def exclusion_reason(row: dict) -> str | None:
         return "duplicate options"
     if any(_REFERENTIAL.search(o) or _LETTER_REF.search(o) for o in opts):
         return "option refers to other options"
-    if numeric_values(opts) is not None:
-        # numeric distractors are written around the answer: the median option is right ~21 %
+    if leading_numbers(opts) is not None:
+        # numeric distractors are written around the answer, with or without words after the
+        # number ("240 grams, 6.5 grams"): the answer is one of the two middle values ~45 % of the time
         return "numeric options centred on the answer"
     if any(_BLOCK_COLOR.search(o) for o in opts):
         return "option names a block colour"

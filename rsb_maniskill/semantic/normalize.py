@@ -98,6 +98,19 @@ def numeric_values(options: Sequence[str]) -> list[float] | None:
     return vals if len(units) == 1 else None
 
 
+def leading_numbers(options: Sequence[str]) -> list[float] | None:
+    """The number each option starts with, when every option starts with one ("240 grams, 6.5
+    grams" -> 240, "3.06% = 30.6 mills" -> 3.06, "162" -> 162); None when one does not. Written
+    numeric distractors sit around the answer by these values as much as by plain numbers."""
+    vals = []
+    for o in options:
+        m = _UNIT_NUMBER.match(o)
+        if not m:
+            return None
+        vals.append(float(m.group(1).replace(",", "")))
+    return vals
+
+
 def _related(word: str, words: frozenset[str]) -> bool:
     """``word`` equals one of ``words``, shares its first four letters with one, or one of the two
     holds the other (4+ letters): "juice" / "juicer", "cork" / "corkscrew", "dish" / "dishwasher"."""

@@ -28,8 +28,8 @@ rsb_maniskill/semantic/mmlu_pro_filtered.txt, which the package ships: pools are
 list and no model at run time, so every machine builds the same pool (the defaults below wrote the
 shipped list). ``rsb audit``'s surface and
 lexical probes (other features, fit on episodes) and scripts/check_general.py (model families
-and tokenisations the filter never used, other seeds) are the independent checks. Takes about 40
-minutes on two busy cores. Run (needs the
+and tokenisations the filter never used, other seeds) are the independent checks. Takes about 12
+minutes on two idle cores (40 on busy ones). Run (needs the
 MMLU-Pro data, see docs/semantic.md):
 
     python scripts/filter_general.py [--data-dir DIR] [--out rsb_maniskill/semantic/mmlu_pro_filtered.txt]

@@ -183,6 +183,8 @@ def test_mmlu_pro_exclusions():
     assert exclusion_reason({**row, "choices": worded[:9] + ["none at all"]}) is None
     assert exclusion_reason({**row, "choices": TEN[:9] + ["All of the above"]}) == "option refers to other options"
     assert exclusion_reason({**row, "choices": TEN[:9] + ["G and H"]}) == "option refers to other options"
+    labelled = dict(row, question="Express the tax rates (A) 3.06% (B) 6.85% in mills.")
+    assert exclusion_reason(labelled) == "question labels its parts with option letters"
     # an option naming a block colour would be bound to a block of another colour
     assert exclusion_reason({**row, "choices": TEN[:9] + ["The Red Sea"]}) == "option names a block colour"
 

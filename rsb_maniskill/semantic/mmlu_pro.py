@@ -39,6 +39,9 @@ SHOWN = (N_OPTIONS, 4)  # options shown by RSB-General-10 and RSB-General-4
 _REFERENTIAL = re.compile(r"of the (?:above|following|these|options)\b", re.IGNORECASE)
 _LETTER_REF = re.compile(r"(?:\b(?:[Bb]oth|[Nn]either|[Oo]nly|[Oo]ptions?|[Cc]hoices?)\s+\(?[A-J]\)?(?![\w'])"
                          r"|^\(?[A-J]\)?\s*(?:,|and|or|&)\s*\(?[A-J]\)?(?!\w)|\b[A-J],? (?:and|or) [A-J]\b)")
+# A question that labels its own parts "(A)", "(B)" reads as if those were the options, whose
+# letters name the blocks; such questions are left out.
+_LETTER_LABEL = re.compile(r"\([A-J]\)")
 # An option naming a block colour would be bound to a block of another colour ("A <- yellow
 # (red block)") in the coloured-block suites, so such questions are left out of the pool.
 _BLOCK_COLOR = re.compile(r"\b(?:" + "|".join(BLOCK_COLORS) + r")\b", re.IGNORECASE)
@@ -106,6 +109,8 @@ def exclusion_reason(row: dict) -> str | None:
         return "duplicate options"
     if any(_REFERENTIAL.search(o) or _LETTER_REF.search(o) for o in opts):
         return "option refers to other options"
+    if _LETTER_LABEL.search(q):
+        return "question labels its parts with option letters"
     if leading_numbers(opts) is not None:
         # numeric distractors are written around the answer, with or without words after the
         # number ("240 grams, 6.5 grams"): the answer is one of the two middle values ~45 % of the time

@@ -98,6 +98,13 @@ class ShuffledDonors:
         self.lookup = lookup
         self.cache: dict[int, str] = {}
 
+    @classmethod
+    def of_env(cls, env: Any, suite_id: str, n: int) -> ShuffledDonors:
+        """Donors over the protocol's first ``n`` evaluation episodes of ``suite_id``, with the
+        instructions ``env``'s task draws for them (``episode_spec``: no simulation)."""
+        task = env.unwrapped
+        return cls(eval_seeds(suite_id, n), lambda s: task.episode_spec(s).instruction, SHUFFLE_SEED)
+
     def text(self, seed: int) -> str:
         if seed not in self.cache:
             self.cache[seed] = self.lookup(seed)

@@ -143,15 +143,13 @@ class RSBLeRobotEnv(gym.Env):
     def _shown_instruction(self, seed: int, own: str) -> str:
         """The instruction the policy gets (``rsb eval``'s ablations); shuffled: the donor's seed is
         kept for the record."""
-        from rsb_maniskill.evaluation.protocol import SHUFFLE_SEED, ShuffledDonors, apply_instruction_mode, eval_seeds
+        from rsb_maniskill.evaluation.protocol import ShuffledDonors, apply_instruction_mode
 
         self._donor_seed = None
         donor = None
         if self.instruction_mode == "shuffled":
             if self._donors is None:
-                base = self._env.unwrapped
-                self._donors = ShuffledDonors(eval_seeds(self.env_id, self.episodes),
-                                              lambda s: base.episode_spec(s).instruction, SHUFFLE_SEED)
+                self._donors = ShuffledDonors.of_env(self._env, self.env_id, self.episodes)
             self._donor_seed, donor = self._donors(seed, own)
         return apply_instruction_mode(own, self.instruction_mode, donor)
 

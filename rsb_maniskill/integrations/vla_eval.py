@@ -28,13 +28,7 @@ from vla_eval.render import DEFAULT_RENDER_MODE, assert_lavapipe_vulkan, configu
 from rsb_maniskill.batch import single_env_obs
 from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS, resolve_env_ids
 from rsb_maniskill.evaluation.metrics import outcome
-from rsb_maniskill.evaluation.protocol import (
-    EPISODES_PER_SUITE,
-    SHUFFLE_SEED,
-    ShuffledDonors,
-    apply_instruction_mode,
-    eval_seeds,
-)
+from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, ShuffledDonors, apply_instruction_mode, eval_seeds
 from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
 from rsb_maniskill.evaluation.remote.vla_eval_layout import make_layout
 from rsb_maniskill.evaluation.reporting.vla_eval_results import RUNNER
@@ -112,9 +106,7 @@ class RSBBenchmark(StepBenchmark):
         donor = None
         if self.instruction_mode == "shuffled":
             if self._donors is None:
-                base = self._env.unwrapped
-                self._donors = ShuffledDonors(eval_seeds(self._suite, self.episodes),
-                                              lambda s: base.episode_spec(s).instruction, SHUFFLE_SEED)
+                self._donors = ShuffledDonors.of_env(self._env, self._suite, self.episodes)
             donor = self._donors(seed, own)[1]
         return apply_instruction_mode(own, self.instruction_mode, donor)
 

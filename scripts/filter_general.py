@@ -26,10 +26,9 @@ from the options alone -- never the question -- teaches and rewards shortcuts, s
 The content keys of the questions left out (``mmlu_pro.content_key``) are written to
 rsb_maniskill/semantic/mmlu_pro_filtered.txt, which the package ships: pools are built with that
 list and no model at run time, so every machine builds the same pool (the defaults below wrote the
-shipped list). ``rsb audit``'s surface and
-lexical probes (other features, fit on episodes) and scripts/check_general.py (model families
-and tokenisations the filter never used, other seeds) are the independent checks. Takes about 12
-minutes on two idle cores (40 on busy ones). Run (needs the
+shipped list). ``rsb audit``'s surface and lexical probes (other features, fit on episodes) and
+scripts/check_general.py (model families and tokenisations the filter never used, other seeds) are
+the independent checks. Takes about 12 minutes on two idle cores (40 on busy ones). Run (needs the
 MMLU-Pro data, see docs/semantic.md):
 
     python scripts/filter_general.py [--data-dir DIR] [--out rsb_maniskill/semantic/mmlu_pro_filtered.txt]

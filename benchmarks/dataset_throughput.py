@@ -119,7 +119,7 @@ def main() -> None:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")  # pool sizes: local data or the fallback, no network waits
     if args._child:
         return _child(args._child)
-    from rsb_maniskill.export.build import lavapipe_share, software_rendering
+    from rsb_maniskill._render import lavapipe_share, software_rendering
 
     size = tuple(int(v) for v in args.camera_size.split("x"))
     share = lavapipe_share(2)  # raster threads of each of 2 workers

@@ -23,12 +23,13 @@ from pathlib import Path
 
 from rsb_maniskill.evaluation import eval_seeds
 from rsb_maniskill.evaluation.jobs import EvalJob, run_job
+from rsb_maniskill.evaluation.store import RECORDS_FILE
 
 
 def run(job: EvalJob, procs: int = 1, executor=None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        records = run_job(job, Path(tmp) / "episodes.jsonl", num_procs=procs, progress=False, executor=executor)
+        records = run_job(job, Path(tmp) / RECORDS_FILE, num_procs=procs, progress=False, executor=executor)
         wall = time.perf_counter() - t0
     return dict(procs=procs, episodes=len(records), wall=wall, per_min=60 * len(records) / wall,
                 loop_per_min=60 * len(records) / sum(r["wall_s"] for r in records),

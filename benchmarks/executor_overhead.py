@@ -18,13 +18,14 @@ from pathlib import Path
 
 from rsb_maniskill.evaluation import eval_seeds
 from rsb_maniskill.evaluation.jobs import EvalJob, run_job
-from rsb_maniskill.workers import RayExecutor
+from rsb_maniskill.evaluation.store import RECORDS_FILE
+from rsb_maniskill.workers_ray import RayExecutor
 
 
 def timed(job: EvalJob, workers: int, executor=None) -> tuple[float, list[dict]]:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        records = run_job(job, Path(tmp) / "episodes.jsonl", num_procs=workers, progress=False, executor=executor)
+        records = run_job(job, Path(tmp) / RECORDS_FILE, num_procs=workers, progress=False, executor=executor)
         return time.perf_counter() - t0, records
 
 

@@ -35,6 +35,7 @@ from rsb_maniskill.evaluation import eval_seeds
 from rsb_maniskill.evaluation.jobs import EvalJob, make_env, run_job
 from rsb_maniskill.evaluation.policy import RandomPolicy
 from rsb_maniskill.evaluation.remote.vla_eval_layout import PRESETS
+from rsb_maniskill.evaluation.store import RECORDS_FILE
 
 
 class RandomChunks(PredictModelServer):
@@ -65,7 +66,7 @@ def random_policy(suite: str, chunk: int) -> RandomPolicy:
 
 def rsb_eval(job: EvalJob) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
-        return run_job(job, Path(tmp) / "episodes.jsonl", progress=False)
+        return run_job(job, Path(tmp) / RECORDS_FILE, progress=False)
 
 
 def run_rows(args: argparse.Namespace) -> list[tuple[str, list[float], list[int], float | None, list[dict]]]:

@@ -12,6 +12,11 @@ after a few dozen (``vk::createInstanceUnique: ErrorIncompatibleDriver`` from th
 lavapipe doesn't, but its loader log shows the same churn. :func:`hold_render_engine` makes one
 render system at first need (not at import: imports stay light and work without Vulkan) and
 keeps it for the life of the process, so every later render object reuses its instance.
+
+Software rendering shares the CPUs: lavapipe starts one raster thread per CPU in every process, so
+local worker processes each cap it to their share (:func:`limit_lavapipe_threads`).
+
+Stdlib only at import: ``rsb doctor`` loads this file on its own, without the package.
 """
 from __future__ import annotations
 
@@ -43,11 +48,42 @@ def select_vulkan_driver() -> str | None:
     icds = [f for d in ICD_DIRS for f in sorted(glob.glob(os.path.join(d, "*.json")))]
     if any("nvidia" in os.path.basename(f) for f in icds):
         return None
-    lavapipe = [f for f in icds if os.path.basename(f).startswith("lvp")]
+    lavapipe = [f for f in icds if _is_lavapipe(f)]
     if lavapipe:
         os.environ["VK_ICD_FILENAMES"] = lavapipe[0]
         return lavapipe[0]
     return None
+
+
+def _is_lavapipe(icd: str) -> bool:
+    return os.path.basename(icd).startswith("lvp")
+
+
+def software_rendering() -> bool:
+    """True when this process renders with Mesa's lavapipe (the Vulkan driver picked above)."""
+    return _is_lavapipe(select_vulkan_driver() or "")
+
+
+def limit_lavapipe_threads(threads: int | None) -> bool:
+    """Caps lavapipe's rasterizer threads in this process (Mesa's ``LP_NUM_THREADS``); True if set.
+
+    lavapipe starts one raster thread per CPU in every process, so N worker processes on N cores
+    would run N x N threads fighting for the cores; each worker takes its share instead. Must run
+    before this process's first Vulkan instance (lavapipe reads the variable then); left alone when
+    the user has set it, and on GPU drivers."""
+    if not threads or "LP_NUM_THREADS" in os.environ or not software_rendering():
+        return False
+    os.environ["LP_NUM_THREADS"] = str(threads)
+    return True
+
+
+def lavapipe_share(workers: int) -> int:
+    """Raster threads per worker when ``workers`` local processes share this machine's CPUs."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, cpus // max(1, workers))
 
 
 def ensure_renderer() -> None:
@@ -80,7 +116,9 @@ def hold_render_engine(device: object | None = None) -> bool:
             if device is None:
                 from mani_skill.envs.utils.system.backend import parse_sim_and_render_backend
 
-                device = parse_sim_and_render_backend("physx_cpu", "gpu").render_device
+                from rsb_maniskill.env_ids import CPU_SIM_BACKEND
+
+                device = parse_sim_and_render_backend(CPU_SIM_BACKEND, "gpu").render_device
             _HELD["engine"] = sapien.render.RenderSystem(device)
         except Exception:  # no usable Vulkan device here; rendering would fail the same way later
             _HELD["engine"] = None

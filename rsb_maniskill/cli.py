@@ -14,12 +14,12 @@ _COMMAND_MODULES = (
     "rsb_maniskill.demo",
     "rsb_maniskill.doctor",
     "rsb_maniskill.golden",
-    "rsb_maniskill.semantic.cli",
+    "rsb_maniskill.semantic_cli",
     "rsb_maniskill.audit.cli",
     "rsb_maniskill.motionplan.cli",
-    "rsb_maniskill.evaluation.cli",
-    "rsb_maniskill.evaluation.backbone",
-    "rsb_maniskill.evaluation.reporting.html_report",
+    "rsb_maniskill.evaluation.cli.eval",
+    "rsb_maniskill.evaluation.cli.backbone",
+    "rsb_maniskill.evaluation.cli.report",
     "rsb_maniskill.export.cli",
 )
 

@@ -54,9 +54,9 @@ def run(args: argparse.Namespace) -> int:
     from rsb_maniskill.env_ids import resolve_env_ids
     from rsb_maniskill.evaluation.jobs import EvalJob, run_job
     from rsb_maniskill.evaluation.protocol import eval_seeds
-    from rsb_maniskill.evaluation.records import RECORDS_FILE, read_records
-    from rsb_maniskill.evaluation.reporting.html_report import write_html_report
-    from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records, write_report
+    from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records
+    from rsb_maniskill.evaluation.reporting.writer import write_html_report, write_report
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_records
     from rsb_maniskill.motionplan.generate import GenerateConfig, describe, generate
     from rsb_maniskill.version import BENCHMARK_VERSION
 

@@ -9,13 +9,17 @@ takes a list of them. Nothing here imports torch, SAPIEN or ManiSkill.
 from __future__ import annotations
 
 import argparse
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from rsb_maniskill.objects.family import DEFAULT_TARGETS, FAMILIES, OBJECTS_SUFFIX, split_env_id
 from rsb_maniskill.semantic.suites import SUITE_IDS
 
 MODULE = "rsb_maniskill"
 SIM_FREQ, CONTROL_FREQ = 125, 25  # Hz: 5 physics steps per action, as ManiSkill's tabletop tasks
+# ManiSkill's sim_backend names of the two ways RSB runs: one env a process on the CPU (the expert's
+# demos, the golden digests, rendering demos) or parallel envs on the GPU. Here, beside the
+# frequencies, because every layer may import this leaf; physx_gpu.py only reads a backend's name.
+CPU_SIM_BACKEND, GPU_SIM_BACKEND = "physx_cpu", "physx_cuda"
 TASK_MAX_EPISODE_STEPS = 300  # 12 s at 25 Hz; the expert needs about 7 s (see docs/tasks.md)
 TABLETOP_ID = "RSB-TableTop-v1"
 TABLETOP_MAX_EPISODE_STEPS = 500
@@ -47,6 +51,21 @@ ENVS: dict[str, tuple[int, dict[str, Any]]] = {
     **{uid: (TASK_MAX_EPISODE_STEPS, kwargs) for uid, kwargs in TASK_ENVS.items()},
     TABLETOP_ID: (TABLETOP_MAX_EPISODE_STEPS, {}),
 }
+
+
+def serves(*env_ids: str) -> Callable[[type], type]:
+    """Class decorator: the ids of :data:`ENVS` a task class serves, read above the class as
+    ManiSkill's ``@register_env``. It only records them (``cls.ENV_IDS``); ``registration.py``
+    registers each id with the class that declares it. ValueError for an id not in ``ENVS``."""
+    unknown = [e for e in env_ids if e not in ENVS]
+    if unknown or not env_ids:
+        raise ValueError(f"@serves takes ids of env_ids.ENVS, got {', '.join(unknown) or 'none'}")
+
+    def declare(cls: type) -> type:
+        cls.ENV_IDS = tuple(env_ids)
+        return cls
+
+    return declare
 
 
 def qualified_id(env_id: str) -> str:

@@ -4,7 +4,8 @@
 points at :func:`_make`: the robot and the tasks (torch, SAPIEN, ManiSkill) load at the first
 ``gym.make`` (or ``gym.make_vec``), so ``import rsb_maniskill``, its semantic engine and the ``rsb``
 command line stay light. :func:`load_simulator` then registers the robot and the task classes with
-ManiSkill, whose ``register_env`` replaces the lazy entries with its own.
+ManiSkill, each under the ids it declares (``@env_ids.serves`` above the class), and ManiSkill's
+``register_env`` replaces the lazy entries with its own.
 
 The robot: ``import rsb_maniskill.agents`` registers ``aloha_agilex`` with ManiSkill; importing
 ``rsb_maniskill`` after ManiSkill does it too (ManiSkill is loaded already, so it costs nothing),
@@ -18,12 +19,12 @@ from __future__ import annotations
 
 import sys
 from functools import partial
-from typing import Any
+from typing import Any, Sequence
 
 import gymnasium as gym
 from gymnasium.envs.registration import WrapperSpec
 
-from rsb_maniskill.env_ids import ENVS, TASK_ENVS
+from rsb_maniskill.env_ids import ENVS
 
 _LOADED = False
 
@@ -36,13 +37,28 @@ def load_simulator() -> None:
     from mani_skill.utils.registration import register_env
 
     import rsb_maniskill.agents  # noqa: F401  (registers aloha_agilex)
-    from rsb_maniskill.tasks import AnswerSelectionEnv, TableTopEnv
+    from rsb_maniskill.tasks import TASK_CLASSES
 
+    classes = served_by(TASK_CLASSES)
     drop_lazy_entries()  # ManiSkill's register_env writes the gymnasium entries itself
     for uid, (steps, kwargs) in ENVS.items():
-        cls = AnswerSelectionEnv if uid in TASK_ENVS else TableTopEnv
-        register_env(uid, max_episode_steps=steps, **kwargs)(cls)
+        register_env(uid, max_episode_steps=steps, **kwargs)(classes[uid])
     _LOADED = True
+
+
+def served_by(classes: Sequence[type]) -> dict[str, type]:
+    """Each id of ``ENVS`` -> the one class of ``classes`` that declares it (``@env_ids.serves``);
+    RuntimeError when an id has no class or two."""
+    out: dict[str, type] = {}
+    for cls in classes:
+        for uid in cls.__dict__.get("ENV_IDS", ()):
+            if uid in out:
+                raise RuntimeError(f"{uid} is served by both {out[uid].__name__} and {cls.__name__}")
+            out[uid] = cls
+    missing = [uid for uid in ENVS if uid not in out]
+    if missing:
+        raise RuntimeError(f"no task class serves {', '.join(missing)}: add it to a class's @serves")
+    return out
 
 
 def register_agent_if_maniskill_loaded() -> None:

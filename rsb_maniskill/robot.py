@@ -35,6 +35,9 @@ FINGER_TRAVEL = 0.0476  # m, each finger's prismatic range: gripper fully open
 QPOS_JOINT_NAMES = (*(f"{PREFIX[a]}_joint{i}" for i in range(1, 7) for a in ARMS), *GRIPPER_JOINT_NAMES)
 
 ACTION_DIM = 14
+# The controller every RSB env, demo and policy uses unless told otherwise: absolute joint targets
+# (the agent lists it first, so it is ManiSkill's default); the delta modes are for replay conversion.
+CONTROL_MODE = "pd_joint_pos"
 ARM_ACTION_SLICE = {"left": slice(0, 6), "right": slice(6, 12)}
 GRIPPER_ACTION_INDEX = {"left": 12, "right": 13}
 

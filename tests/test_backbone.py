@@ -9,17 +9,12 @@ import textwrap
 import numpy as np
 import pytest
 
+from rsb_maniskill.audit.readers import SimilarityBackbone
 from rsb_maniskill.cli import main
-from rsb_maniskill.evaluation.backbone import (
-    BACKBONE_FILE,
-    ArithmeticBackbone,
-    SimilarityBackbone,
-    ask_episodes,
-    load_backbone,
-    read_backbone_records,
-)
+from rsb_maniskill.evaluation.backbone import ArithmeticBackbone, ask_episodes, load_backbone
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, eval_seeds, shuffled_instruction
 from rsb_maniskill.evaluation.reporting.gap import gap_markdown, gap_table
+from rsb_maniskill.evaluation.store import BACKBONE_FILE, read_backbone_records
 from rsb_maniskill.semantic import EpisodeSampler
 
 

@@ -151,7 +151,7 @@ def test_rsb_eval_on_gpu_parallel_envs_matches_cpu_episodes(tmp_path):
     import rsb_maniskill  # noqa: F401
     from rsb_maniskill.cli import main
     from rsb_maniskill.evaluation import EVAL_ENV_KWARGS, eval_seeds
-    from rsb_maniskill.evaluation.records import read_records
+    from rsb_maniskill.evaluation.store import read_records
 
     out = tmp_path / "gpu"
     assert main(["eval", "random", "--suites", "RSB-Math-4", "-n", "6", "--num-envs", "4", "--max-steps", "20",
@@ -224,7 +224,7 @@ def test_rsb_eval_num_envs_on_ray_gpu_task(tmp_path):
     """`rsb eval --num-envs 2 --executor ray`: one GPU task running 2 envs; the CPU episodes."""
     from rsb_maniskill.cli import main
     from rsb_maniskill.evaluation import eval_seeds
-    from rsb_maniskill.evaluation.records import read_records
+    from rsb_maniskill.evaluation.store import read_records
 
     out = tmp_path / "ray-gpu"
     assert main(["eval", "random", "--suites", "RSB-Math-4", "-n", "4", "--num-envs", "2", "--num-procs", "1",

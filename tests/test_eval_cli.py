@@ -17,9 +17,9 @@ import pytest
 import rsb_maniskill  # noqa: F401  (registers the suites)
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation import EVAL_ENV_KWARGS, eval_seeds, run_episodes
-from rsb_maniskill.evaluation.records import read_records
 from rsb_maniskill.evaluation.reference_policies import ExpertPolicy, blind_target
 from rsb_maniskill.evaluation.reporting.summary import results_from_records, summary_dict
+from rsb_maniskill.evaluation.store import read_records
 
 SUITE = "RSB-Math-4"
 

@@ -107,7 +107,8 @@ def test_builtin_table():
     with pytest.raises(ValueError, match="one env at a time"):
         load_policy("blind", env=_fake_env(space, num_envs=4))
     # and `rsb eval` says so before building anything
-    from rsb_maniskill.evaluation.cli import EvalError, check_policy_spec
+    from rsb_maniskill.evaluation.cli.args import EvalError
+    from rsb_maniskill.evaluation.cli.eval import check_policy_spec
 
     check_policy_spec("random", num_envs=4)
     with pytest.raises(EvalError, match="use --num-procs, not --num-envs"):

@@ -3,19 +3,14 @@ from __future__ import annotations
 
 import json
 import random
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from rsb_maniskill.evaluation.records import (
-    RECORD_FIELDS,
-    RecordWriter,
-    completed_seeds,
-    read_records,
-    repair_tail,
-    validate_record,
-)
+from rsb_maniskill.evaluation.records import RECORD_FIELDS, validate_record
 from rsb_maniskill.evaluation.reporting.summary import results_from_records, summary_dict
+from rsb_maniskill.evaluation.store import RecordWriter, completed_seeds, read_records, repair_tail, safe_name
 
 
 def episode(seed, suite="RSB-Math-4", policy="p", mode="normal"):
@@ -149,3 +144,42 @@ def test_resume_after_kill_gives_the_same_summary(tmp_path):
     changed = read_records(full)
     changed[0] = changed[0] | {"success": not changed[0]["success"], "grasped_any": True}
     assert summary_dict(results_from_records(changed)) != summary_dict(results_from_records(resumed))
+
+
+def test_safe_name_keeps_the_names_of_existing_labels():
+    """One sanitiser for results directories, summary charts and videos: the names each of the four
+    former ones gave these labels do not change."""
+    assert safe_name("oracle") == "oracle"
+    assert safe_name("my_policies:make_policy") == "my_policies_make_policy"  # results/<name> as before
+    assert safe_name("pkg/sub.mod:Make") == "pkg_sub.mod_Make"
+    assert safe_name("oracle (blank)") == "oracle_blank"  # summary_<row>.png as before
+    assert safe_name("blindcam [camera=2]") == "blindcam_camera_2"
+    assert safe_name("camera=2,noise=1") == "camera_2_noise_1"  # a video's perturbation suffix
+    assert safe_name("???") == "policy"
+
+
+def test_default_results_dir_is_made_and_named_from_the_label(tmp_path, monkeypatch):
+    from rsb_maniskill.evaluation.cli.args import EvalError, results_dir
+
+    monkeypatch.chdir(tmp_path)
+    assert results_dir(None, "my_policies:make_policy") == Path("results/my_policies_make_policy")
+    assert (tmp_path / "results/my_policies_make_policy").is_dir()
+    assert results_dir(str(tmp_path / "mine"), "x") == tmp_path / "mine"
+    (tmp_path / "file").write_text("")
+    with pytest.raises(EvalError, match="cannot write to results directory"):
+        results_dir(str(tmp_path / "file" / "sub"), "x")
+
+
+def test_locked_writers_share_a_file_and_repair_a_torn_tail(tmp_path):
+    """LeRobot's sub-envs append to one file from several writers (lock=True): each record whole,
+    a torn last line (a killed writer) cut off first."""
+    path = tmp_path / "episodes.jsonl"
+    with RecordWriter(path, lock=True) as a, RecordWriter(path, lock=True) as b:
+        a.write(episode(0))
+        with open(path, "a") as f:
+            f.write('{"suite_id": "RSB-Ma')  # torn by a killed process
+        b.write(episode(1))
+        a.write(episode(2))
+    assert [r["seed"] for r in read_records(path)] == [0, 1, 2]
+    with pytest.raises(ValueError, match="lacks fields"):
+        RecordWriter(path, lock=True).write({"seed": 3})

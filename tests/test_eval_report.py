@@ -7,13 +7,10 @@ import struct
 
 import pytest
 
-from rsb_maniskill.evaluation.metrics import PAPER_SUITES
-from rsb_maniskill.evaluation.reporting.summary import (
-    markdown_tables,
-    plot_summary,
-    results_from_records,
-    write_report,
-)
+from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate
+from rsb_maniskill.evaluation.reporting.cells import ci, delta, markdown_table, pct, rate_cell
+from rsb_maniskill.evaluation.reporting.summary import markdown_tables, plot_summary, results_from_records
+from rsb_maniskill.evaluation.reporting.writer import write_report
 
 
 def records(policy, suite, n_success, n_wrong, n_none, mode="normal"):
@@ -86,3 +83,11 @@ def test_plot_is_a_valid_png(tmp_path, results):
     assert 600 <= width <= 2000 and 300 <= height <= 1200
     assert 10_000 < len(data) < 2_000_000
     assert data.endswith(b"IEND\xaeB`\x82")
+
+
+def test_cells_read_the_same_in_every_table():
+    assert (pct(0.125), pct(0.125, 2), pct(0.125, unit="%"), pct(None)) == ("12.5", "12.50", "12.5%", "n/a")
+    assert ci(0.5, 0.25, 0.75) == "50.0 [25.0, 75.0]" and ci(None, None, None) == "n/a"
+    assert rate_cell(Rate.of(1, 2)) == "50.0 [9.5, 90.5]" and rate_cell(Rate.of(0, 0)) == "n/a"
+    assert (delta(0.5, 0.25), delta(0.25, 0.5), delta(None, 0.5)) == ("+25.0", "-25.0", "n/a")
+    assert markdown_table(["A", "B"], [["x", "1"]]) == "| A | B |\n|---|:---:|\n| x | 1 |"

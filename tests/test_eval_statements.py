@@ -173,8 +173,8 @@ def test_table5_in_the_summaries_and_the_report(tmp_path):
     import csv
     import json
 
-    from rsb_maniskill.evaluation.reporting.html_report import write_html_report
-    from rsb_maniskill.evaluation.reporting.summary import results_from_records, write_report
+    from rsb_maniskill.evaluation.reporting.summary import results_from_records
+    from rsb_maniskill.evaluation.reporting.writer import write_html_report, write_report
 
     records = []
     for label, policy in (("talker", Talker), ("quiet", lambda env: ScriptedPolicy())):

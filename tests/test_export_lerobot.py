@@ -62,7 +62,7 @@ def fingerprint(root: Path) -> dict[str, str]:
 
 def _head_frame(demos: Path, episode: int, t: int) -> np.ndarray:
     """The head camera at step t of a demo, rendered here from its recorded state."""
-    from rsb_maniskill.export.lerobot import render_episodes
+    from rsb_maniskill.export.render_demos import render_episodes
 
     for i, ep in enumerate(render_episodes(demos, ("head",), 1)):
         if i == episode:

@@ -13,8 +13,9 @@ import pytest
 
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.metrics import OUTCOMES
-from rsb_maniskill.evaluation.records import RecordWriter, read_records
-from rsb_maniskill.evaluation.reporting.html_report import episode_cards, markdown_to_html, write_html_report
+from rsb_maniskill.evaluation.reporting.page import episode_cards, markdown_to_html
+from rsb_maniskill.evaluation.reporting.writer import write_html_report
+from rsb_maniskill.evaluation.store import RecordWriter, read_records
 
 from cdp_browser import Browser, find_chromium
 
@@ -104,6 +105,27 @@ def test_markdown_tables_to_html():
     assert got == ("<h3>T</h3>\n<p class=\"note\">note *</p>\n<div class=\"scroll\"><table><thead><tr><th>a</th>"
                    "<th><strong>b</strong></th></tr></thead><tbody><tr><td>1</td><td>&lt;2&gt;</td></tr></tbody>"
                    "</table></div>")
+
+
+def test_page_escapes_plain_strings_and_keeps_its_fragments(results, tmp_path):
+    """The template escapes the title; the bars, tables and JSON built in Python arrive as markup."""
+    page = write_html_report(results, tmp_path / "p.html", title="<b>R&D</b>").read_text()
+    assert "<title>&lt;b&gt;R&amp;D&lt;/b&gt;</title>" in page and "<b>R&D</b>" not in page
+    assert page.count('<svg class="bars"') == 4  # one per row: oracle, blind (shuffled), random, synthetic
+    assert "<h3>Task Success Rate (TSR, %) (paper Table 3)</h3>" in page
+    data = re.search(r'<script id="episode-data" type="application/json">(.*?)</script>', page, re.S)[1]
+    assert "&#34;" not in data and "&quot;" not in data and len(json.loads(data)) == 6 + N_SYNTHETIC
+    # the page's styles and script are the templates', included whole
+    templates = Path(__file__).resolve().parents[1] / "rsb_maniskill/evaluation/reporting/templates"
+    assert (templates / "report.css").read_text() in page and (templates / "report.js").read_text() in page
+
+
+def test_no_markup_in_python():
+    """The page's HTML, CSS and JavaScript live in templates/, not in Python strings."""
+    package = Path(__file__).resolve().parents[1] / "rsb_maniskill"
+    found = [str(f.relative_to(package)) for f in package.rglob("*.py")
+             if re.search(r"<(style|script|html)\b", f.read_text(encoding="utf-8"))]
+    assert found == []
 
 
 # ------------------------------------------------------------ in a real browser

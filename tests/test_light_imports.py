@@ -26,7 +26,8 @@ def _run(code: str) -> dict:
                                   "import rsb_maniskill.env_ids",
                                   "from rsb_maniskill.semantic import EpisodeSampler; "
                                   "EpisodeSampler('RSB-Math-4').episode(0)",
-                                  "import rsb_maniskill.motionplan.generate, rsb_maniskill.evaluation.metrics"])
+                                  "import rsb_maniskill.motionplan.generate, rsb_maniskill.evaluation.metrics",
+                                  "import rsb_maniskill.export.lerobot, rsb_maniskill.export.merge"])
 def test_imports_are_light(stmt):
     got = _run(f"""
         import json, sys

@@ -8,7 +8,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from rsb_maniskill.objects import catalog
+from rsb_maniskill.objects import catalog, geometry
 from rsb_maniskill.objects import family as fam
 from rsb_maniskill.objects.family import BlockFamily, ObjectFamily, get_family
 from rsb_maniskill.objects.layout import CELL_MARGIN
@@ -34,7 +34,7 @@ def test_every_model_rests_fits_and_can_be_grasped(key):
     cx, cy = layout.pitch[0] / 2 - CELL_MARGIN, layout.pitch[1] / 2 - CELL_MARGIN
     assert m.half_extents[0] <= cx and m.half_extents[1] <= cy, f"{key} does not fit a layout cell"
     assert m.height <= catalog.MAX_HEIGHT
-    pts = np.concatenate([catalog.part_points(p) for p in m.parts if p.collide])
+    pts = np.concatenate([geometry.part_points(p) for p in m.parts if p.collide])
     assert abs(pts[:, 2].min()) < 2e-3, "rests on its bottom"
     assert m.grasps, "at least one grasp frame"
     for g in m.grasps:
@@ -128,7 +128,7 @@ def test_hull_meshes_are_cached_and_atomic(tmp_path, monkeypatch):
     from rsb_maniskill.objects.everyday import hull_file
 
     monkeypatch.setenv("RSB_CACHE_DIR", str(tmp_path))
-    pts = catalog._frustum(0.02, 0.03, 0.05)
+    pts = geometry.frustum(0.02, 0.03, 0.05)
     a = hull_file(pts)
     mtime = (tmp_path / "meshes").stat().st_mtime_ns
     assert hull_file(pts) == a and a.startswith(str(tmp_path))

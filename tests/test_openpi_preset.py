@@ -238,7 +238,7 @@ WebsocketPolicyServer(AlohaChecker(), host="127.0.0.1", port=port, metadata={"po
 @pytest.mark.timeout(900)
 def test_rsb_eval_remote_against_openpi_server(tmp_path):
     from rsb_maniskill.cli import main
-    from rsb_maniskill.evaluation.records import read_records
+    from rsb_maniskill.evaluation.store import read_records
 
     py = _openpi_python()
     (tmp_path / "server.py").write_text(OPENPI_SERVER)

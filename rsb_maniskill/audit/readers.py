@@ -10,6 +10,9 @@ plain callable ``reader(question, options)``. Optional attributes: ``name``, ``d
 batched ``score_batch(questions, option_sets) -> list[Sequence[float] | None]`` that the audit
 prefers (one model call for a whole suite). A reader that raises ImportError (a missing optional
 package) gets an "unavailable" row. ``rsb audit --reader module:factory`` calls ``factory()`` for one.
+
+The similarity reader also answers as a backbone (:class:`SimilarityBackbone`, ``rsb backbone
+similarity``), reading the question and options from the instruction a policy is given.
 """
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ import importlib
 import os
 import re
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -116,6 +119,26 @@ class SimilarityReader:
 
     def score(self, question: str, options: Sequence[str]) -> Scores:
         return self.score_batch([question], [options])[0]
+
+
+class SimilarityBackbone:
+    """The similarity reader as a backbone (``rsb backbone similarity``) on the question and options
+    the instruction shows: "option <letter>" of the option nearest the question; "" when it cannot
+    read them (Direct, blank)."""
+
+    name = "similarity"
+
+    def __init__(self) -> None:
+        self.reader = SimilarityReader()
+
+    def answer(self, instruction: str, images: Mapping[str, np.ndarray]) -> str:
+        from rsb_maniskill.semantic.answers import read_instruction
+
+        reading = read_instruction(instruction)
+        scores = None if reading is None else self.reader.score(reading.question, reading.options)
+        if scores is None:
+            return ""
+        return f"option {reading.letters[int(np.argmax(scores))]}"
 
 
 _QNUM = re.compile(r"(?<![\d.])-?\d[\d,]*(?:\.\d+)?")

@@ -9,6 +9,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+from rsb_maniskill.objects.family import DEFAULT_TARGETS
 from rsb_maniskill.semantic.normalize import option_key
 from rsb_maniskill.semantic.sampler import EpisodeSampler
 from rsb_maniskill.semantic.spec import EpisodeSpec
@@ -165,7 +166,7 @@ def suite_overlap(train: EpisodeSampler, test: EpisodeSampler) -> SplitOverlap:
 
 def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: int | None = None,
                 data_dir: str | os.PathLike | None = None, margin: float = MARGIN,
-                targets: str = "blocks", perturb: dict[str, int] | None = None,
+                targets: str = DEFAULT_TARGETS, perturb: dict[str, int] | None = None,
                 readers: Sequence[BoundReader] = ()) -> SuiteAudit:
     """Audit ``n`` episodes of ``split`` (the evaluation protocol's seeds) of a suite.
 
@@ -182,7 +183,7 @@ def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: i
     train = [train_s.episode(s) for s in range(n if n_train is None else n_train)]
     test = [test_s.episode(EVAL_SEED_BASE + i) for i in range(n)]
     overlap = suite_overlap(train_s, test_s if split == "test" else EpisodeSampler(suite_id, "test", data_dir=data_dir))
-    name = suite_id if targets == "blocks" else f"{suite_id}-{targets.capitalize()}"
+    name = suite_id if targets == DEFAULT_TARGETS else f"{suite_id}-{targets.capitalize()}"
     if perturb:
         from rsb_maniskill.perturb import label
 

@@ -2,6 +2,12 @@
 
 Simulator-independent: these modules see the env only through the task contract (see
 ``runner.py``), so they import fast and are tested without physics. See docs/evaluation.md.
+
+Layers, each importing only those below it: the commands (``cli/``: ``rsb eval``, ``rsb backbone``,
+``rsb report``) over the reports (``reporting/``: summaries, results.json, report.html) and the
+remote policies (``remote/``), over this library (the loops, the driver, policies, backbones, the
+protocol, metrics), over what a record is (``records.py``) and where records live (``store.py``).
+The reports are not re-exported here: import them from ``reporting/``.
 """
 from __future__ import annotations
 
@@ -40,10 +46,10 @@ from .protocol import (
     eval_seeds,
     shuffled_instruction,
 )
-from .records import INSTRUCTION_MODES, RECORD_FIELDS, RecordWriter, completed_seeds, read_records
-from .reporting.summary import markdown_tables, plot_summary, results_from_records, summary_dict, write_report
-from .runner import EpisodeSettings, batched_loop, build_record, episode_loop
+from .records import INSTRUCTION_MODES, RECORD_FIELDS, build_record
+from .runner import EpisodeSettings, batched_loop, episode_loop
 from .statements import MAX_TEXT_CHARS, reasoning_following
+from .store import RecordWriter, completed_seeds, read_records
 
 __all__ = [
     "Average", "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "EpisodeSettings", "ErrorAnalysis",
@@ -51,8 +57,8 @@ __all__ = [
     "RandomPolicy", "Rate",
     "RecordWriter", "SuiteMetrics", "apply_instruction_mode", "as_chunk", "average", "batched_loop", "build_record",
     "builtin_policies", "completed_seeds", "derangement", "drive", "episode_loop", "eval_seeds", "load_policy",
-    "markdown_tables", "nsg", "num_choices", "plot_summary", "policy_name", "read_records", "register_policy",
-    "results_from_records", "run_episodes", "run_job", "shuffled_instruction", "summarize", "suite_metrics",
-    "summary_dict", "wilson_interval", "write_report",
+    "nsg", "num_choices", "policy_name", "read_records", "register_policy",
+    "run_episodes", "run_job", "shuffled_instruction", "summarize", "suite_metrics",
+    "wilson_interval",
     "Backbone", "MAX_TEXT_CHARS", "ask_episodes", "load_backbone", "reasoning_following",
 ]

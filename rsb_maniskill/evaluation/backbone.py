@@ -1,4 +1,6 @@
-"""`rsb backbone`: ask a policy's backbone the protocol's questions, exactly as the policy gets them.
+"""Backbones: ask a policy's backbone the protocol's questions, exactly as the policy gets them.
+
+The library of ``rsb backbone`` (the command is ``evaluation/cli/backbone.py``):
 
     rsb backbone arithmetic --suites RSB-Math-4 RSB-Math-10 --out results/blind
     rsb backbone my_models:make_backbone -a path=ckpt --suites paper --images --out results/pi05
@@ -16,23 +18,19 @@ nSG on the same episodes (``reporting/gap.py``). Built in, as reference lines:
 
 - ``arithmetic`` solves RSB-Math exactly from the question's text and says nothing elsewhere: the
   upper line of a backbone on Math;
-- ``similarity`` is the audit's question-aware reader (``rsb audit``): the option whose sentence
-  embedding is nearest the question's, read from the instruction: the shallow line;
+- ``similarity`` is the audit's question-aware reader (``rsb audit``; the backbone lives beside it in
+  ``audit/readers.py``): the option whose sentence embedding is nearest the question's, read from
+  the instruction: the shallow line;
 - ``remote`` asks a backbone served over the websocket protocol of ``remote/`` (``RemoteBackbone``).
 """
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-BACKBONE_FILE = "backbone.jsonl"
-# Settings that change what a backbone row means: a resumed run must keep them.
-BACKBONE_KEYS = ("backbone", "backbone_kwargs", "images", "env_kwargs")
 IMAGE_CAMERA = "head"  # the camera whose first frame --images sends
 
 
@@ -60,31 +58,10 @@ class ArithmeticBackbone:
         return f"{a} {op} {b} equals {value}."
 
 
-class SimilarityBackbone:
-    """The audit's similarity reader on the question and options the instruction shows: "option
-    <letter>" of the option nearest the question; "" when it cannot read them (Direct, blank)."""
-
-    name = "similarity"
-
-    def __init__(self) -> None:
-        from rsb_maniskill.audit.readers import SimilarityReader
-
-        self.reader = SimilarityReader()
-
-    def answer(self, instruction: str, images: Mapping[str, np.ndarray]) -> str:
-        from rsb_maniskill.semantic.answers import read_instruction
-
-        reading = read_instruction(instruction)
-        scores = None if reading is None else self.reader.score(reading.question, reading.options)
-        if scores is None:
-            return ""
-        return f"option {reading.letters[int(np.argmax(scores))]}"
-
-
 # Built-in backbones; a "package.module:factory" spec names any other.
 BACKBONES: dict[str, str] = {
     "arithmetic": "rsb_maniskill.evaluation.backbone:ArithmeticBackbone",
-    "similarity": "rsb_maniskill.evaluation.backbone:SimilarityBackbone",
+    "similarity": "rsb_maniskill.audit.readers:SimilarityBackbone",
     "remote": "rsb_maniskill.evaluation.remote.client:RemoteBackbone",
 }
 
@@ -156,31 +133,14 @@ def _answer_text(answer: Any) -> str:
     return answer
 
 
-def record_key(record: Mapping[str, Any]) -> tuple:
-    """A backbone record's identity: the same question of the same backbone row."""
-    return record.get("backbone"), record.get("suite_id"), record.get("instruction_mode"), int(record["seed"])
-
-
-def read_backbone_records(path: str | Path) -> list[dict]:
-    """The records of ``path`` (a ``backbone.jsonl``), the first of each duplicate."""
-    from .records import iter_records
-
-    seen, out = set(), []
-    for r in iter_records(path):
-        if record_key(r) not in seen:
-            seen.add(record_key(r))
-            out.append(r)
-    return out
-
-
 def ask_episodes(backbone: Backbone, suite_id: str, seeds: Sequence[int], out_path: str | Path, *,
                  label: str, instruction_mode: str = "normal", images: bool = False,
                  env_kwargs: Mapping[str, Any] | None = None, progress: bool = True) -> list[dict]:
     """Ask ``backbone`` the episodes ``seeds`` of ``suite_id`` (those not yet in ``out_path``),
     appending one record each; returns every record of this row and suite, old and new."""
     from .protocol import SHUFFLE_SEED, ShuffledDonors, ablate
-    from .records import RecordWriter
     from .statements import EpisodeText
+    from .store import RecordWriter, read_backbone_records
 
     seeds = [int(s) for s in seeds]
     mine = [r for r in read_backbone_records(out_path)
@@ -221,110 +181,3 @@ def ask_episodes(backbone: Backbone, suite_id: str, seeds: Sequence[int], out_pa
         if bar is not None:
             bar.close()
     return mine
-
-
-# ---------------------------------------------------------------- command line
-def register(subparsers: argparse._SubParsersAction) -> None:
-    from rsb_maniskill.env_ids import add_suites_argument
-
-    from .protocol import EPISODES_PER_SUITE
-    from .records import INSTRUCTION_MODES
-
-    p = subparsers.add_parser(
-        "backbone", help="ask a backbone the protocol's questions as the policy gets them (the semantic gap)",
-        description="Asks MODEL the evaluation episodes of each suite (instruction after the same ablation as "
-                    "`rsb eval --instruction`; with --images also the head camera's first frame), parses its "
-                    "answers like a talking policy's text and writes OUT/backbone.jsonl beside an eval run's "
-                    "episodes.jsonl. With both, the summaries and report.html show the semantic gap.")
-    p.add_argument("backbone", metavar="MODEL", help=f"built-in ({', '.join(BACKBONES)}) or package.module:factory")
-    p.add_argument("-a", "--backbone-arg", action="append", default=[], metavar="KEY=VALUE",
-                   help="keyword argument of the backbone factory (VALUE parsed as JSON, else a string); repeatable")
-    add_suites_argument(p)
-    p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
-                   help=f"episodes per suite (default {EPISODES_PER_SUITE}); the same seeds as rsb eval -n")
-    p.add_argument("--instruction", nargs="+", default=["normal"], choices=INSTRUCTION_MODES,
-                   help="instruction given: normal, blank or shuffled (as rsb eval --instruction)")
-    p.add_argument("--images", action="store_true",
-                   help="also send the head camera's first frame (renders each episode's first observation)")
-    p.add_argument("--name", default=None, help="row label in records and tables (default: the backbone spec)")
-    p.add_argument("--out", default=None, help="results directory, e.g. the --out of an rsb eval run "
-                                               "(default: results/<name>)")
-    p.add_argument("-e", "--env-arg", action="append", default=[], metavar="KEY=VALUE",
-                   help="gym.make keyword of the eval run, e.g. camera_size=[224,224] (for --images)")
-    p.add_argument("--data-dir", default=None, help="GSM8K / MMLU-Pro directory (else $RSB_DATA_DIR)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=run_backbone)
-
-
-def run_backbone(args: argparse.Namespace) -> int:
-    from .cli import EvalError
-
-    try:
-        return _run_backbone(args)
-    except EvalError as err:
-        print(f"rsb backbone: error: {err}", file=sys.stderr)
-        return 2
-
-
-def _run_backbone(args: argparse.Namespace) -> int:
-    from .cli import PROTOCOL_KEYS, EvalError, check_data, check_manifest, parse_kv
-    from .protocol import eval_seeds
-    from .records import RECORDS_FILE, read_records
-    from .reporting.gap import backbone_markdown, gap_markdown, gap_table
-
-    suites = args.suites  # resolved at parse time (env_ids.add_suites_argument)
-    if args.num_episodes < 1:
-        raise EvalError(f"--num-episodes must be >= 1, got {args.num_episodes}")
-    kwargs = parse_kv(args.backbone_arg, "--backbone-arg")
-    env_kwargs = parse_kv(args.env_arg, "--env-arg")
-    fixed = [k for k in PROTOCOL_KEYS + ("perturb",) if k in env_kwargs]
-    if fixed:
-        raise EvalError(f"--env-arg cannot set {', '.join(fixed)}: the protocol fixes them")
-    if args.data_dir:
-        env_kwargs["data_dir"] = args.data_dir
-    try:
-        resolve_backbone(args.backbone)
-    except ImportError as err:
-        raise EvalError(f"{err}; is the module installed or on PYTHONPATH?") from err
-    except (ValueError, AttributeError, TypeError) as err:
-        raise EvalError(str(err)) from err
-    check_data(suites, env_kwargs.get("data_dir"))
-    label = args.name or args.backbone
-    out = Path(args.out or Path("results") / label.replace(":", "_").replace("/", "_"))
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise EvalError(f"cannot write to results directory {out}: {err.strerror or err}; "
-                        "choose another --out") from err
-    check_manifest(out, label, dict(backbone=args.backbone, backbone_kwargs=kwargs, images=args.images,
-                                    env_kwargs=env_kwargs), section="backbones", keys=BACKBONE_KEYS)
-    try:
-        backbone = load_backbone(args.backbone, **kwargs)
-    except (TypeError, ValueError, ImportError, ConnectionError) as err:
-        raise EvalError(f"cannot build backbone {args.backbone!r}: {err}") from err
-    path = out / BACKBONE_FILE
-    try:
-        for suite in suites:
-            for mode in args.instruction:
-                ask_episodes(backbone, suite, eval_seeds(suite, args.num_episodes), path, label=label,
-                             instruction_mode=mode, images=args.images, env_kwargs=env_kwargs, progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"rsb backbone: interrupted; answered questions are in {path}. Rerun to resume.", file=sys.stderr)
-        return 130
-    finally:
-        close = getattr(backbone, "close", None)
-        if callable(close):
-            close()
-    answers = read_backbone_records(path)
-    print(backbone_markdown(answers))
-    episodes = read_records(out / RECORDS_FILE) if (out / RECORDS_FILE).exists() else []
-    if episodes:
-        from .reporting.html_report import write_html_report
-        from .reporting.summary import results_from_records, write_report
-
-        paths = write_report(results_from_records(episodes), out, records=episodes)
-        print(gap_markdown(gap_table(episodes, answers)))
-        print(f"answers: {path}\nsummary: {paths['markdown']}\nreport: {write_html_report(out, records=episodes)}")
-    else:
-        print(f"answers: {path}\n(no {RECORDS_FILE} in {out}: run `rsb eval ... --out {out}` to see the gap)")
-    return 0

@@ -16,14 +16,15 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
+from rsb_maniskill.env_ids import CPU_SIM_BACKEND
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.workers import Executor, InProcess, Interrupted, ProcessPool, deal
 
 from .policy import is_batched, load_policy, policy_name, policy_spec
 from .protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED
-from .records import RecordWriter, read_records
 from .records import perturb_label as record_perturb
 from .runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
+from .store import RecordWriter, read_records
 
 Write = Callable[[dict], None]
 
@@ -36,7 +37,7 @@ class EvalJob(EpisodeSettings):
     policy_kwargs: Mapping[str, Any] = field(default_factory=dict)
     obs_mode: str = "rgb"
     control_mode: str | None = None
-    sim_backend: str = "physx_cpu"
+    sim_backend: str = CPU_SIM_BACKEND
     num_envs: int = 1
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)  # e.g. data_dir, camera_size
 

@@ -1,22 +1,19 @@
-"""Episode records: one JSON line per finished episode, written so that a killed run loses nothing.
+"""What an episode record is: its fields, its identity, its table row, and how one is built.
 
-A results directory (``rsb eval --out``, ``lerobot-eval``'s ``records_dir``) holds them in
-``RECORDS_FILE``, and ``rsb eval`` the settings of each policy row in ``MANIFEST_FILE``.
-
-Each record is appended, flushed and fsync'ed as its episode ends. A run killed mid-write leaves
-at most one partial last line; the reader skips it and the writer cuts it off before appending, so
-resuming (skip ``completed_seeds``, run the rest) yields the same records as an uninterrupted run.
+A record is one JSON object per finished episode (``store.py`` writes and reads the files). The
+runner builds it with :func:`build_record` from the episode spec and the env's last ``info``; the
+LeRobot env and the vla-eval benchmark build theirs with the same function, naming themselves in
+the ``runner`` field. Records carry the benchmark version of their episodes: records of two
+versions never share a table (:func:`one_version`).
 """
 from __future__ import annotations
 
-import json
-import os
-import warnings
-from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any, Iterable, Mapping
 
-RECORDS_FILE = "episodes.jsonl"
-MANIFEST_FILE = "run.json"
+from rsb_maniskill.batch import first_value
+from rsb_maniskill.perturb import label as axes_label
+from rsb_maniskill.version import BENCHMARK_VERSION
+
 # Fields every record carries (the runner fills them; extra fields are free).
 RECORD_FIELDS: tuple[str, ...] = (
     "suite_id", "seed", "question_id", "instruction", "instruction_mode", "target_block", "correct_letter",
@@ -31,6 +28,14 @@ KEY_DEFAULTS: dict[str, Any] = {"perturb": "none"}
 # The benchmark version of the episodes (rsb_maniskill.version): the runner writes it into every
 # record; records written before versions existed read as "unversioned".
 VERSION_FIELD = "benchmark_version"
+# info flags copied into every record, and extra ones kept when the env provides them.
+RECORD_FLAGS = ("grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success")
+EXTRA_FLAGS = ("grasped_wrong", "fail")
+# The ``runner`` field of records written by another harness than ``rsb eval`` (which writes none):
+# LeRobot's ``lerobot-eval`` (integrations/lerobot_env.py) and vla-eval (integrations/vla_eval.py,
+# whose RSBBenchmark and ``rsb eval remote -a protocol=vla-eval`` also take it as the policy name).
+LEROBOT_RUNNER = "lerobot-eval"
+VLA_EVAL_RUNNER = "vla-eval"
 
 
 class VersionMixError(ValueError):
@@ -67,119 +72,7 @@ def validate_record(record: Mapping[str, Any]) -> None:
         raise ValueError(f"instruction_mode must be one of {INSTRUCTION_MODES}, got {record['instruction_mode']!r}")
 
 
-def _json_default(obj: Any) -> Any:
-    # numpy / torch scalars and arrays coming straight from the env's info.
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    if hasattr(obj, "item"):
-        return obj.item()
-    if isinstance(obj, (set, tuple)):
-        return list(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-
-
-def _parse_tail(tail: bytes) -> dict | None:
-    try:
-        value = json.loads(tail.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError):
-        return None
-    return value if isinstance(value, dict) else None
-
-
-def repair_tail(path: str | os.PathLike) -> bool:
-    """Make ``path`` end at a line boundary; True if it was changed.
-
-    A last line without its newline is either complete JSON cut before the newline (kept: a newline
-    is added, the reader already counts it) or a torn write (cut off: the reader skips it).
-    """
-    path = Path(path)
-    if not path.exists() or path.stat().st_size == 0:
-        return False
-    with open(path, "rb+") as f:
-        f.seek(0, os.SEEK_END)
-        size = f.tell()
-        # Find the last newline, reading backwards in blocks (records are a few hundred bytes).
-        pos, block, last_nl = size, 1 << 14, -1
-        while pos > 0 and last_nl < 0:
-            start = max(0, pos - block)
-            f.seek(start)
-            chunk = f.read(pos - start)
-            i = chunk.rfind(b"\n")
-            if i >= 0:
-                last_nl = start + i
-            pos = start
-        if last_nl == size - 1:
-            return False
-        f.seek(last_nl + 1)
-        tail = f.read()
-        if _parse_tail(tail) is not None:
-            f.seek(0, os.SEEK_END)
-            f.write(b"\n")
-        else:
-            f.truncate(last_nl + 1)
-        f.flush()
-        os.fsync(f.fileno())
-    return True
-
-
-class RecordWriter:
-    """Appends records to a JSON-lines file, durable per record (flush + fsync).
-
-    One writer per file: parallel workers send their records to the process that owns it.
-    """
-
-    def __init__(self, path: str | os.PathLike, validate: bool = True) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        repair_tail(self.path)
-        self.validate = validate
-        self._f = open(self.path, "a", encoding="utf-8")
-
-    def write(self, record: Mapping[str, Any]) -> dict:
-        """Append ``record``; returns it as a reader will get it back (plain JSON values)."""
-        if self.validate:
-            validate_record(record)
-        line = json.dumps(dict(record), default=_json_default, ensure_ascii=False)
-        self._f.write(line + "\n")
-        self._f.flush()
-        os.fsync(self._f.fileno())
-        return json.loads(line)
-
-    def close(self) -> None:
-        if not self._f.closed:
-            self._f.close()
-
-    def __enter__(self) -> "RecordWriter":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-def iter_records(path: str | os.PathLike) -> Iterator[dict]:
-    """Records of ``path`` in file order; a torn last line is skipped with a warning.
-
-    A malformed line anywhere else means the file was edited or corrupted: ValueError with its
-    line number, rather than a silently wrong summary.
-    """
-    path = Path(path)
-    if not path.exists():
-        return
-    with open(path, "rb") as f:
-        lines = f.read().split(b"\n")
-    # After the last "\n" comes b"" (clean end) or an unterminated last line.
-    for lineno, raw in enumerate(lines, start=1):
-        if not raw.strip():
-            continue
-        record = _parse_tail(raw)
-        if record is None:
-            if lineno == len(lines):
-                warnings.warn(f"{path}: skipping a truncated last line (interrupted run)", stacklevel=2)
-                return
-            raise ValueError(f"{path}:{lineno}: not a JSON object record")
-        yield record
-
-
+# ---------------------------------------------------------------- identity and rows
 def _key(record: Mapping[str, Any]) -> tuple:
     return tuple(record.get(k, KEY_DEFAULTS.get(k)) for k in RECORD_KEY)
 
@@ -213,33 +106,50 @@ def dedupe(records: Iterable[Mapping[str, Any]]) -> list[dict]:
     return out
 
 
-def read_records(path: str | os.PathLike, unique: bool = True) -> list[dict]:
-    """All records of ``path`` (first of each duplicate when ``unique``)."""
-    records = list(iter_records(path))
-    return dedupe(records) if unique else records
-
-
-def read_manifest(results_dir: str | os.PathLike) -> dict[str, dict[str, Any]]:
-    """The settings of each policy row of a results directory (``MANIFEST_FILE``; ``rsb eval``
-    writes it), or nothing when it has none (``lerobot-eval``)."""
-    path = Path(results_dir) / MANIFEST_FILE
-    return json.loads(path.read_text()).get("runs", {}) if path.exists() else {}
-
-
-def completed_seeds(
-    path: str | os.PathLike,
-    suite_id: str | None = None,
-    instruction_mode: str | None = None,
-    policy: str | None = None,
-) -> set[int]:
-    """Seeds already recorded in ``path`` (optionally for one suite / mode / policy): skip them on resume."""
-    out = set()
-    for r in iter_records(path):
-        if suite_id is not None and r.get("suite_id") != suite_id:
-            continue
-        if instruction_mode is not None and r.get("instruction_mode") != instruction_mode:
-            continue
-        if policy is not None and r.get("policy") != policy:
-            continue
-        out.add(int(r["seed"]))
+# ---------------------------------------------------------------- building one
+def perturb_fields(perturb: Mapping[str, int]) -> dict[str, Any]:
+    """A perturbed episode's record fields: ``perturb`` ("camera=2"), and with one axis its
+    ``perturb_axis`` and ``perturb_level``."""
+    out: dict[str, Any] = {"perturb": axes_label(perturb)}
+    if len(perturb) == 1:
+        (axis, level), = perturb.items()
+        out.update(perturb_axis=axis, perturb_level=int(level))
     return out
+
+
+def info_flag(info: Mapping[str, Any], key: str, default: Any = False) -> Any:
+    return first_value(info[key]) if key in info else default
+
+
+def build_record(
+    *,
+    suite_id: str,
+    seed: int,
+    spec: Any,
+    instruction: str,
+    instruction_mode: str,
+    info: Mapping[str, Any],
+    steps: int,
+    policy: str,
+    extra: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The episode record (:data:`RECORD_FIELDS`, and the benchmark version) from the episode
+    spec and the last ``info``."""
+    record: dict[str, Any] = {
+        "suite_id": suite_id,
+        "seed": int(seed),
+        "question_id": int(spec.question_id),
+        "instruction": instruction,
+        "instruction_mode": instruction_mode,
+        "target_block": int(spec.target_block),
+        "correct_letter": str(spec.correct_letter),
+        "first_grasped": int(info_flag(info, "first_grasped", -1)),
+        **{k: bool(info_flag(info, k)) for k in RECORD_FLAGS},
+        "steps": int(steps),
+        "policy": policy,
+        VERSION_FIELD: BENCHMARK_VERSION,
+    }
+    record.update({k: bool(info_flag(info, k)) for k in EXTRA_FLAGS if k in info})
+    if extra:
+        record.update(extra)
+    return record

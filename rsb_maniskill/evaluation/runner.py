@@ -13,7 +13,6 @@ runs these loops in worker processes.
 from __future__ import annotations
 
 import os
-import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +25,6 @@ from rsb_maniskill.batch import env_row, first_value, single_env_obs
 from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.perturb import parse_perturb
-from rsb_maniskill.version import BENCHMARK_VERSION
 
 from .policy import (
     PerEnvPolicies,
@@ -39,12 +37,10 @@ from .policy import (
     split_outputs,
 )
 from .protocol import SHUFFLE_SEED, ShuffledDonors, ablate
-from .records import INSTRUCTION_MODES, VERSION_FIELD
+from .records import INSTRUCTION_MODES, build_record, perturb_fields
 from .statements import EpisodeText
+from .store import safe_name
 
-# info flags copied into every record, and extra ones kept when the env provides them.
-RECORD_FLAGS = ("grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success")
-EXTRA_FLAGS = ("grasped_wrong", "fail")
 DEFAULT_MAX_STEPS = TASK_MAX_EPISODE_STEPS  # the tasks' own limit
 
 
@@ -84,54 +80,6 @@ class EpisodeSettings:
             raise ValueError("seeds contain duplicates")
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
-
-
-def perturb_fields(perturb: Mapping[str, int]) -> dict[str, Any]:
-    """A perturbed episode's record fields: ``perturb`` ("camera=2"), and with one axis its
-    ``perturb_axis`` and ``perturb_level``."""
-    out: dict[str, Any] = {"perturb": perturb_label(perturb)}
-    if len(perturb) == 1:
-        (axis, level), = perturb.items()
-        out.update(perturb_axis=axis, perturb_level=int(level))
-    return out
-
-
-def info_flag(info: Mapping[str, Any], key: str, default: Any = False) -> Any:
-    return first_value(info[key]) if key in info else default
-
-
-def build_record(
-    *,
-    suite_id: str,
-    seed: int,
-    spec: Any,
-    instruction: str,
-    instruction_mode: str,
-    info: Mapping[str, Any],
-    steps: int,
-    policy: str,
-    extra: Mapping[str, Any] | None = None,
-) -> dict[str, Any]:
-    """The episode record (``records.RECORD_FIELDS``, and the benchmark version) from the episode
-    spec and the last ``info``."""
-    record: dict[str, Any] = {
-        "suite_id": suite_id,
-        "seed": int(seed),
-        "question_id": int(spec.question_id),
-        "instruction": instruction,
-        "instruction_mode": instruction_mode,
-        "target_block": int(spec.target_block),
-        "correct_letter": str(spec.correct_letter),
-        "first_grasped": int(info_flag(info, "first_grasped", -1)),
-        **{k: bool(info_flag(info, k)) for k in RECORD_FLAGS},
-        "steps": int(steps),
-        "policy": policy,
-        VERSION_FIELD: BENCHMARK_VERSION,
-    }
-    record.update({k: bool(info_flag(info, k)) for k in EXTRA_FLAGS if k in info})
-    if extra:
-        record.update(extra)
-    return record
 
 
 def default_instruction_lookup(env: Any, reset_options: Mapping[str, Any] | None = None) -> Callable[[int], str]:
@@ -187,9 +135,9 @@ class _Episodes:
             extra.update(perturb_fields(s.perturb))
         if frames is not None:
             # The policy label leads the name: rows of one results directory share videos/.
-            name = f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', s.label)}_{s.suite_id}_{s.instruction_mode}_seed{seed}"
+            name = f"{safe_name(s.label)}_{s.suite_id}_{s.instruction_mode}_seed{seed}"
             if s.perturb:
-                name += "_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", perturb_label(s.perturb))
+                name += "_" + safe_name(perturb_label(s.perturb))
             extra["video"] = write_video(frames, s.video_dir, name).name
         if s.keep_spec and hasattr(spec, "to_dict"):
             extra["episode"] = spec.to_dict()

@@ -3,15 +3,16 @@
 A build is cut into shards by arithmetic, never by timing: each suite's question range in chunks of
 ``shard_size`` questions (``rsb export lerobot``: each demo file's episodes in chunks). Workers
 (``rsb_maniskill.workers``: this process, spawned processes, or Ray tasks) take the shards dealt
-to them, and for each one run the scripted expert on its questions (``rsb generate``'s code, into a
-temporary demo file), render the kept demos' camera frames from their recorded states and write
-the shard as a small LeRobot dataset (``write_dataset``), renamed into ``<work>/shards/`` only when
-whole. A shard is therefore there completely or not at all: a run stopped in any way (Ctrl-C,
-SIGTERM, kill -9) loses only the shards in flight, and a rerun of the same command skips the
-finished ones. When every shard of a suite is there, they are merged (``export/merge.py``) into
-``OUT/<suite>`` with its dataset card. The shard list, hence every episode, does not depend on the
-number of workers. Local worker processes share the CPUs for software rendering: each caps
-lavapipe's raster threads to its share (``LP_NUM_THREADS``, unless the user set it).
+to them, and for each one (``export/shards.py``) run the scripted expert on its questions (``rsb
+generate``'s code, into a temporary demo file), render the kept demos' camera frames from their
+recorded states and write the shard as a small LeRobot dataset (``write_dataset``), renamed into
+``<work>/shards/`` only when whole. A shard is therefore there completely or not at all: a run
+stopped in any way (Ctrl-C, SIGTERM, kill -9) loses only the shards in flight, and a rerun of the
+same command skips the finished ones. When every shard of a suite is there, they are merged
+(``export/merge.py``) into ``OUT/<suite>`` with its dataset card. The shard list, hence every
+episode, does not depend on the number of workers. Local worker processes share the CPUs for
+software rendering: each caps lavapipe's raster threads to its share (``LP_NUM_THREADS``, unless
+the user set it; ``_render.py``).
 
 Layout: ``OUT/<suite>/`` (the dataset, ready for ``huggingface-cli upload``) and
 ``OUT/.work/<suite>/`` (``settings.json`` and ``shards/shard-NNNNN``; safe to delete after the build).
@@ -21,49 +22,34 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import signal
 import sys
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from rsb_maniskill.export.lerobot import DEFAULT_CAMERAS, ExportError
+from rsb_maniskill._render import lavapipe_share
+from rsb_maniskill.export.lerobot import INFO_FILE, ExportError
 from rsb_maniskill.export.naming import DEFAULT_NAMING
+from rsb_maniskill.export.shards import (
+    SHARD_META,
+    ExportShard,
+    SuiteShard,
+    clean_temps,
+    done_shards,
+    run_worker,
+    shard_dir,
+)
+from rsb_maniskill.objects.family import DEFAULT_TARGETS
+from rsb_maniskill.robot import CAMERAS
 
 WORK_DIR = ".work"
 SETTINGS_FILE = "settings.json"
 BUILD_META = "meta/rsb_build.json"  # the settings a dataset was built with, inside the dataset
 PROVENANCE = ("code_commit", "skipped_questions")  # also in BUILD_META; they decide no episode or file
 EXPORT_META = "meta/rsb_export.json"  # what an exported dataset's demos are (benchmark version, ...)
-SHARD_META = "meta/rsb_shard.json"
 DEFAULT_SHARD_SIZE = 25  # questions a shard: a kill loses at most this many demos per worker
-
-
-@dataclass(frozen=True)
-class ExportShard:
-    """Episodes of one demo file (``rsb export lerobot``)."""
-
-    demo: str
-    episode_ids: tuple[int, ...]
-
-    @property
-    def size(self) -> int:
-        return len(self.episode_ids)
-
-
-@dataclass(frozen=True)
-class SuiteShard:
-    """Questions ``start .. stop-1`` of a suite's split (``rsb dataset build``): one demo each."""
-
-    env_id: str
-    start: int
-    stop: int
-
-    @property
-    def size(self) -> int:
-        return self.stop - self.start
 
 
 @dataclass
@@ -72,60 +58,18 @@ class BuildConfig:
 
     suites: Sequence[str] = ("paper",)
     out: str = "datasets"
-    targets: str = "blocks"
+    targets: str = DEFAULT_TARGETS
     split: str = "train"
     questions: str = "all"
-    cameras: Sequence[str] = ("head", "left_wrist", "right_wrist")
+    cameras: Sequence[str] = CAMERAS
     fps: int | None = None
-    naming: str = "rsb"
+    naming: str = DEFAULT_NAMING
     num_procs: int = 1
     shard_size: int = DEFAULT_SHARD_SIZE
     data_dir: str | None = None
     max_attempts: int = 20
     progress: bool = True
     env_kwargs: dict = field(default_factory=dict)  # e.g. camera_size=(w, h)
-
-
-# ------------------------------------------------------------------ shards on disk
-
-
-def shard_dir(work: Path, k: int) -> Path:
-    return work / "shards" / f"shard-{k:05d}"
-
-
-def done_shards(work: Path, count: int) -> set[int]:
-    """Indices of the shards already written whole (a shard directory appears by rename only)."""
-    return {k for k in range(count) if (shard_dir(work, k) / SHARD_META).is_file()}
-
-
-def _clean_temps(work: Path) -> None:
-    """Removes temporary shard directories left by runs that were killed."""
-    tmp = work / "tmp"
-    if tmp.is_dir():
-        for d in tmp.iterdir():
-            pid = d.name.rsplit(".", 1)[-1]
-            if not (pid.isdigit() and _alive(int(pid))):
-                shutil.rmtree(d, ignore_errors=True)
-
-
-def _alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return False
-    try:
-        os.kill(pid, 0)
-    except OSError:
-        return False
-    return True
-
-
-def _publish(tmp: Path, final: Path) -> None:
-    """Renames a whole shard into place; a shard another process finished first wins."""
-    final.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        os.replace(tmp, final)
-    except OSError:
-        if not (final / SHARD_META).is_file():
-            raise
 
 
 def _check_settings(work: Path, dataset: Path | None, settings: dict) -> bool:
@@ -147,105 +91,6 @@ def _check_settings(work: Path, dataset: Path | None, settings: dict) -> bool:
     if dataset.exists() and not (dataset / BUILD_META).is_file():
         raise ExportError(f"{dataset} exists and is not an `rsb dataset build` output; use another --out")
     return (dataset / BUILD_META).is_file()
-
-
-# ------------------------------------------------------------------ worker side
-
-
-def _write_shard(work: Path, settings: dict, k: int, shard: ExportShard | SuiteShard, emit: Any) -> None:
-    """Makes shard ``k`` of ``work`` whole under a temporary name, then renames it into place."""
-    from rsb_maniskill.export.lerobot import check_fps, render_episodes, write_dataset
-    from rsb_maniskill.workers import Interrupted
-
-    final = shard_dir(work, k)
-    if (final / SHARD_META).is_file():
-        emit({"type": "shard", "expected": shard.size, "episodes": 0, "skipped": True})
-        return
-    tmp = work / "tmp" / f"shard-{k:05d}.{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)  # (exist_ok on the shared parents: workers create them at once)
-    fps, stride = check_fps(settings["fps"])
-    meta: dict[str, Any] = {"shard": k, **asdict(shard)}
-    try:
-        if isinstance(shard, SuiteShard):
-            demo, extra = _generate(shard, settings, tmp / "demos")
-            meta.update(extra)
-            ids = None
-        else:
-            demo, ids = Path(shard.demo), shard.episode_ids
-        episodes = 0
-        if demo is not None:
-            out = write_dataset(render_episodes(demo, settings["cameras"], stride, ids), tmp / "dataset", fps=fps,
-                                cameras=settings["cameras"], naming=settings["naming"],
-                                on_episode=lambda n: emit({"type": "episode", "frames": n}))
-            episodes = out["episodes"]
-        else:
-            (tmp / "dataset" / "meta").mkdir(parents=True)
-        meta["episodes"] = episodes
-        (tmp / "dataset" / SHARD_META).write_text(json.dumps(meta, indent=1))
-        _publish(tmp / "dataset", final)
-        emit({"type": "shard", "expected": shard.size, "episodes": episodes, "skipped": False})
-    except KeyboardInterrupt as err:
-        raise Interrupted(getattr(err, "signum", signal.SIGINT)) from None
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _generate(shard: SuiteShard, settings: dict, out: Path) -> tuple[Path | None, dict]:
-    """The expert's demos of the shard's questions (state only: frames are rendered afterwards)."""
-    from rsb_maniskill.motionplan.generate import GenerateConfig, generate
-    from rsb_maniskill.workers import InProcess, Interrupted
-
-    env_kwargs = dict(settings.get("env_kwargs") or {})
-    if settings.get("data_dir"):
-        env_kwargs["data_dir"] = settings["data_dir"]
-    cfg = GenerateConfig(env_id=shard.env_id, out=str(out), split=settings["split"],
-                         questions=f"{shard.start}:{shard.stop}", progress=False, overwrite=True,
-                         max_attempts=settings["max_attempts"], env_kwargs=env_kwargs)
-    summary = generate(cfg, executor=InProcess())
-    if summary.interrupted:
-        raise Interrupted(signal.Signals[summary.interrupted])
-    if summary.errors:
-        raise ExportError(f"{shard.env_id} questions {shard.start}:{shard.stop}: {summary.errors[0]}")
-    return summary.path, {"skipped_questions": summary.skipped_questions, "failures": summary.failures}
-
-
-def software_rendering() -> bool:
-    """True when this process renders with Mesa's lavapipe (the Vulkan driver `_render` picked)."""
-    from rsb_maniskill._render import select_vulkan_driver
-
-    icd = select_vulkan_driver() or ""
-    return os.path.basename(icd).startswith("lvp")
-
-
-def limit_lavapipe_threads(threads: int | None) -> bool:
-    """Caps lavapipe's rasterizer threads in this process (Mesa's ``LP_NUM_THREADS``); True if set.
-
-    lavapipe starts one raster thread per CPU in every process, so N worker processes on N cores
-    would run N x N threads fighting for the cores; each worker takes its share instead. Must run
-    before this process's first Vulkan instance (lavapipe reads the variable then); left alone when
-    the user has set it, and on GPU drivers."""
-    if not threads or "LP_NUM_THREADS" in os.environ or not software_rendering():
-        return False
-    os.environ["LP_NUM_THREADS"] = str(threads)
-    return True
-
-
-def lavapipe_share(workers: int) -> int:
-    """Raster threads per worker when ``workers`` local processes share this machine's CPUs."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cpus = os.cpu_count() or 1
-    return max(1, cpus // max(1, workers))
-
-
-def run_worker(task: dict, emit: Any) -> int:
-    """Executor target: the shards dealt to one worker (of any suites), one after the other."""
-    limit_lavapipe_threads(task.get("lp_threads"))  # before the first render env of this process
-    for work, settings, k, shard in task["items"]:
-        _write_shard(Path(work), settings, k, shard, emit)
-    return len(task["items"])
 
 
 # ------------------------------------------------------------------ driver side
@@ -309,7 +154,7 @@ def _run(shards: list[tuple[Path, dict, int, Any]], num_procs: int, executor: An
 
 
 def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *, fps: int | None = None,
-                   cameras: Sequence[str] = DEFAULT_CAMERAS, naming: str = DEFAULT_NAMING, overwrite: bool = False,
+                   cameras: Sequence[str] = CAMERAS, naming: str = DEFAULT_NAMING, overwrite: bool = False,
                    progress: bool = True, num_procs: int = 1, executor: Any = None,
                    shard_size: int | None = None) -> dict[str, Any]:
     """Writes the episodes of ``demos`` (``rsb generate`` files, merged or converted ones too) as
@@ -371,7 +216,7 @@ def run_export_shards(shards: list[ExportShard], out: Path, settings: dict, *, n
     _check_settings(work, None, settings)
     work.mkdir(parents=True, exist_ok=True)
     (work / SETTINGS_FILE).write_text(json.dumps(settings, indent=1))
-    _clean_temps(work)
+    clean_temps(work)
     done = done_shards(work, len(shards))
     todo = [(work, settings, k, s) for k, s in enumerate(shards) if k not in done]
     errors, interrupted, _ = _run(todo, min(num_procs, max(1, len(todo))), executor, progress)
@@ -392,7 +237,7 @@ def _suite_plan(cfg: BuildConfig) -> list[tuple[str, int, int, int]]:
     from rsb_maniskill.env_ids import resolve_env_ids
     from rsb_maniskill.motionplan.config import GenerateError
     from rsb_maniskill.motionplan.shards import question_list
-    from rsb_maniskill.objects.family import DEFAULT_TARGETS, join_env_id, split_env_id, target_names
+    from rsb_maniskill.objects.family import join_env_id, split_env_id, target_names
     from rsb_maniskill.semantic import EpisodeSampler, SemanticError
 
     if cfg.targets not in target_names():
@@ -458,7 +303,7 @@ def build_datasets(cfg: BuildConfig, executor: Any = None) -> list[dict[str, Any
             continue
         work.mkdir(parents=True, exist_ok=True)
         (work / SETTINGS_FILE).write_text(json.dumps({k: v for k, v in settings.items() if k != "data_dir"}, indent=1))
-        _clean_temps(work)
+        clean_temps(work)
         done = done_shards(work, len(shards))
         todo += [(work, settings, k, s) for k, s in enumerate(shards) if k not in done]
     t0 = time.perf_counter()
@@ -481,7 +326,7 @@ def build_datasets(cfg: BuildConfig, executor: Any = None) -> list[dict[str, Any
             info = merge_datasets(full, dataset, extra_files={BUILD_META: json.dumps(meta, indent=1)})
             card = dataset_card(dataset, meta)
             (dataset / "README.md").write_text(card)
-        info = json.loads((dataset / "meta/info.json").read_text())
+        info = json.loads((dataset / INFO_FILE).read_text())
         summaries.append({"env_id": env_id, "out": str(dataset), "episodes": info["total_episodes"],
                           "frames": info["total_frames"], "already_built": complete})
     summaries.append({"wall_s": time.perf_counter() - t0, "rendered_frames": bar.frames,

@@ -59,12 +59,15 @@ def _header(meta: dict[str, Any]) -> str:
 
 def dataset_card(dataset: str | Path, settings: dict[str, Any]) -> str:
     """The card of the dataset at ``dataset`` (its meta/ is read), built with ``settings``."""
+    from rsb_maniskill.export.lerobot import INFO_FILE
+    from rsb_maniskill.export.naming import camera_key
     from rsb_maniskill.objects.family import split_env_id
+    from rsb_maniskill.robot import CAMERAS
     from rsb_maniskill.semantic.suites import parse_suite_id, suite_source
     from rsb_maniskill.version import benchmark_label
 
     dataset = Path(dataset)
-    info = json.loads((dataset / "meta/info.json").read_text())
+    info = json.loads((dataset / INFO_FILE).read_text())
     env_id = settings["env_id"]
     suite_id, targets = split_env_id(env_id)
     family, n_choices = parse_suite_id(suite_id)
@@ -138,7 +141,7 @@ lerobot-train --dataset.repo_id={repo} --policy.type=act --output_dir=outputs/ac
 ```
 
 openpi: a LeRobot data config (`LeRobotAlohaDataConfig`) with `repo_id="{repo}"`; the camera keys are
-openpi's Aloha names when built with `--naming rsb` (`cam_high`, `cam_left_wrist`, `cam_right_wrist`).
+openpi's Aloha names when built with `--naming rsb` ({', '.join(f"`{camera_key(c, 'rsb')}`" for c in CAMERAS)}).
 
 Evaluate with the benchmark's protocol (500 held-out episodes per suite): `rsb eval` or, from
 LeRobot, `lerobot-eval --env.type=rsb --env.task={env_id}`.

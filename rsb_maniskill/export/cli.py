@@ -4,16 +4,27 @@ from __future__ import annotations
 import argparse
 import sys
 
+from rsb_maniskill.env_ids import CONTROL_FREQ
+from rsb_maniskill.export.build import BuildConfig
+from rsb_maniskill.export.naming import DEFAULT_NAMING, NAMINGS, camera_key
+from rsb_maniskill.robot import CAMERAS
 from rsb_maniskill.workers import add_executor_args
 
-CAMERAS_HELP = ("comma-separated: head, left_wrist, right_wrist (keys cam_high, cam_left_wrist, cam_right_wrist; "
-                "with --naming robotwin head_camera, left_camera, right_camera)")
+
+def _keys(naming: str) -> str:
+    return ", ".join(camera_key(c, naming) for c in CAMERAS)
+
+
+CAMERAS_HELP = (f"comma-separated: {', '.join(CAMERAS)} (keys {_keys(DEFAULT_NAMING)}; "
+                + "; ".join(f"with --naming {n} {_keys(n)}" for n in NAMINGS if n != DEFAULT_NAMING) + ")")
+BUILD = BuildConfig()  # the defaults of `rsb dataset build`
 
 
 def _add_format_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fps", type=int, default=None, help="frame rate; must divide the 25 Hz control rate (default 25)")
-    p.add_argument("--cameras", default="head,left_wrist,right_wrist", help=CAMERAS_HELP)
-    p.add_argument("--naming", choices=("rsb", "robotwin"), default="rsb",
+    p.add_argument("--fps", type=int, default=None,
+                   help=f"frame rate; must divide the {CONTROL_FREQ} Hz control rate (default {CONTROL_FREQ})")
+    p.add_argument("--cameras", default=",".join(CAMERAS), help=CAMERAS_HELP)
+    p.add_argument("--naming", choices=NAMINGS, default=DEFAULT_NAMING,
                    help="feature keys: rsb (LeRobot's Aloha names, openpi's) or robotwin (LeRobot's RoboTwin env)")
     p.add_argument("--num-procs", type=int, default=None,
                    help="worker processes (default 1; with --executor ray the cluster's CPUs)")
@@ -45,17 +56,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                     "states, in shards written whole by parallel workers; rerun the same command "
                                     "to resume. One dataset per suite at OUT/<suite> with its dataset card.")
     from rsb_maniskill.env_ids import add_suites_argument
-    from rsb_maniskill.objects.family import DEFAULT_TARGETS, target_names
+    from rsb_maniskill.objects.family import target_names
 
     add_suites_argument(b)
 
-    b.add_argument("--targets", choices=target_names(), default=DEFAULT_TARGETS,
+    b.add_argument("--targets", choices=target_names(), default=BUILD.targets,
                    help="blocks, or the Beyond Blocks everyday objects (the -Objects ids)")
-    b.add_argument("--split", default="train", help="question split (default train)")
-    b.add_argument("--questions", default="all", help="'all' or START:STOP of the split's questions (default all)")
+    b.add_argument("--split", default=BUILD.split, help=f"question split (default {BUILD.split})")
+    b.add_argument("--questions", default=BUILD.questions,
+                   help=f"'all' or START:STOP of the split's questions (default {BUILD.questions})")
     b.add_argument("--out", required=True, metavar="DIR", help="OUT/<suite> per suite; OUT/.work holds the shards")
-    b.add_argument("--shard-size", type=int, default=25,
-                   help="questions a shard (a stopped run loses at most the shards in flight; default 25)")
+    b.add_argument("--shard-size", type=int, default=BUILD.shard_size,
+                   help="questions a shard (a stopped run loses at most the shards in flight; "
+                        f"default {BUILD.shard_size})")
     b.add_argument("--data-dir", default=None, help="question data directory (default $RSB_DATA_DIR or the hub cache)")
     _add_format_args(b)
     b.set_defaults(func=cmd_build)

@@ -7,11 +7,11 @@ files and timestamps, per-episode statistics, and the RSB metadata as ``rsb/*`` 
 ``data/chunk-000/file-000.parquet`` (one row per frame) and ``videos/<camera>/chunk-CCC/file-FFF.mp4``
 (one file per episode and camera, MPEG-4 from OpenCV).
 
-Frames are rendered from the recorded env states (``rsb generate`` records states, so state-only
-demos get their camera streams here), ``observation.state`` and ``action`` use the Aloha 14-number
-layout (``to_aloha14``) and each episode's instruction is its task. Feature keys follow a naming
-(``export/naming.py``). LeRobot's own package is not imported: its pins (torch, numpy 2) clash with
-the project's.
+An :class:`Episode` holds camera frames (``export/render_demos.py`` renders them from the recorded
+env states of ``rsb generate``'s state-only demos), ``observation.state`` and ``action`` in the
+Aloha 14-number layout (``to_aloha14``) and the episode's instruction as its task. Feature keys
+follow a naming (``export/naming.py``). No simulator here, and LeRobot's own package is not
+imported either: its pins (torch, numpy 2) clash with the project's.
 
 :func:`write_dataset` writes one dataset from an iterable of episodes in this process (videos are
 encoded on a thread while the next episode renders). ``rsb export lerobot`` (``export/build.py``:
@@ -31,19 +31,21 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from rsb_maniskill.export.naming import DEFAULT_NAMING, NAMINGS, video_key
-from rsb_maniskill.robot import CAMERAS, sensor_uid
+from rsb_maniskill.robot import ALOHA14_NAMES, CAMERAS
 
 CODEBASE_VERSION = "v3.0"
 ROBOT_TYPE = "aloha"
-DEFAULT_CAMERAS = CAMERAS
+ALOHA14_DIM = len(ALOHA14_NAMES)  # observation.state and action
 CHUNKS_SIZE = 1000  # files per chunk directory, LeRobot's default
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 IMAGE_STATS_FRAMES = 20  # frames per episode sampled for image statistics ...
 IMAGE_STATS_STEP = 4  # ... every 4th pixel each way (LeRobot also samples and downsamples)
 VIDEO_FOURCC, VIDEO_CODEC = "mp4v", "mpeg4"
-DATA_FILE = "data/chunk-000/file-000.parquet"
+DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+DATA_FILE = DATA_PATH.format(chunk_index=0, file_index=0)  # a dataset written here has one data file
 EPISODES_FILE = "meta/episodes/chunk-000/file-000.parquet"
 VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+INFO_FILE, STATS_FILE, TASKS_FILE = "meta/info.json", "meta/stats.json", "meta/tasks.parquet"
 
 
 class ExportError(RuntimeError):
@@ -54,8 +56,8 @@ class ExportError(RuntimeError):
 class Episode:
     """One exported episode: Aloha-layout state and action, camera frames, task, RSB metadata."""
 
-    state: np.ndarray  # (T, 14) float32
-    action: np.ndarray  # (T, 14) float32
+    state: np.ndarray  # (T, 14) float32, Aloha-14
+    action: np.ndarray  # (T, 14) float32, Aloha-14
     frames: dict[str, np.ndarray]  # camera -> (T, H, W, 3) uint8
     task: str
     meta: dict[str, Any] = field(default_factory=dict)
@@ -103,97 +105,6 @@ def jsonable_stats(stats: dict[str, dict[str, np.ndarray]]) -> dict:
     return {f: {k: np.asarray(v).tolist() for k, v in s.items()} for f, s in stats.items()}
 
 
-# ------------------------------------------------------------------ rendering from demo files
-
-
-_RENDER_ENV: list = []  # (key, env): the last render env of this process, reused by the next shard
-
-
-def _env_for(env_info: dict):
-    """An rgb env for the demos' env (the same one for the next file of the same env: building one
-    costs seconds, a shard of demos little more)."""
-    import gymnasium as gym
-
-    import rsb_maniskill  # noqa: F401  (registers the ids)
-
-    kwargs = dict(env_info.get("env_kwargs") or {})
-    for k in ("render_mode", "num_envs", "sim_backend", "render_backend"):
-        kwargs.pop(k, None)
-    kwargs.update(obs_mode="rgb", sim_backend="physx_cpu")
-    key = json.dumps([env_info["env_id"], kwargs], sort_keys=True, default=str)
-    if _RENDER_ENV and _RENDER_ENV[0][0] == key:
-        return _RENDER_ENV[0][1]
-    close_render_env()
-    env = gym.make(env_info["env_id"], **kwargs)
-    _RENDER_ENV.append((key, env))
-    return env
-
-
-def close_render_env() -> None:
-    while _RENDER_ENV:
-        _RENDER_ENV.pop()[1].close()
-
-
-def _read_group(group) -> dict | np.ndarray:
-    """An h5 group as nested dicts of arrays, read at once (per-step h5 reads are slow)."""
-    import h5py
-
-    return {k: _read_group(v) if isinstance(v, h5py.Group) else v[()] for k, v in group.items()}
-
-
-def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int,
-                    episode_ids: Sequence[int] | None = None) -> Iterable[Episode]:
-    """Episodes of one demo file (those of ``episode_ids``, default all), camera frames rendered
-    from the recorded env states."""
-    import h5py
-
-    from mani_skill.trajectory.utils import dict_to_list_of_dicts
-
-    from rsb_maniskill.agents.aloha import to_aloha14
-    from rsb_maniskill.motionplan.dataset import json_path_of, load_json
-
-    data = load_json(json_path_of(h5_path))
-    env = _env_for(data["env_info"])
-    base = env.unwrapped
-    try:
-        with h5py.File(h5_path, "r") as f:
-            wanted = None if episode_ids is None else set(episode_ids)
-            for ep in data["episodes"]:
-                if wanted is not None and ep["episode_id"] not in wanted:
-                    continue
-                group = f[f"traj_{ep['episode_id']}"]
-                if "env_states" not in group:
-                    raise ExportError(f"{h5_path}: episode {ep['episode_id']} has no env states; record demos with "
-                                      "env states (rsb generate does) to export camera streams")
-                states = dict_to_list_of_dicts(_read_group(group["env_states"]))
-                actions = np.asarray(group["actions"][:], dtype=np.float32)
-                options = (ep.get("reset_kwargs") or {}).get("options")
-                env.reset(seed=ep["episode_seed"], options=options)
-                spec = base.episode_specs[0]  # the episode's semantics, also for files without RSB fields
-                state, frames = [], {c: [] for c in cameras}
-                for t in range(0, len(actions), stride):
-                    base.set_state_dict(states[t])
-                    obs = base.get_obs()
-                    state.append(base.agent.aloha14_state()[0].cpu().numpy())
-                    for c in cameras:
-                        frames[c].append(obs["sensor_data"][sensor_uid(c)]["rgb"][0].cpu().numpy())
-                meta = {
-                    "suite_id": spec.suite_id, "split": spec.split, "seed": int(ep["episode_seed"]),
-                    "question_id": spec.question_id, "question": spec.question,
-                    "options": [str(o) for o in spec.options], "correct_letter": spec.correct_letter,
-                    "correct_option": str(spec.correct_option), "rationale": spec.rationale,  # a CoT target
-                    "target_block": spec.target_block,
-                    "template_id": spec.template_id, "source_file": h5_path.name,
-                    "source_episode_id": int(ep["episode_id"]),
-                }
-                yield Episode(np.asarray(state, np.float32), to_aloha14(actions[::stride]).astype(np.float32),
-                              {c: np.stack(v) for c, v in frames.items()}, ep.get("instruction", spec.instruction),
-                              meta)
-    except BaseException:
-        close_render_env()  # an env left mid-episode by an error is not reused
-        raise
-
-
 # ------------------------------------------------------------------ writing
 
 
@@ -222,11 +133,9 @@ def _hf_metadata(features: dict) -> bytes:
 
 
 def _features(cameras: Sequence[str], shapes: dict[str, tuple[int, int]], fps: int, naming: str) -> dict:
-    from rsb_maniskill.robot import ALOHA14_NAMES
-
     feats: dict[str, Any] = {
-        "observation.state": {"dtype": "float32", "shape": [14], "names": list(ALOHA14_NAMES)},
-        "action": {"dtype": "float32", "shape": [14], "names": list(ALOHA14_NAMES)},
+        "observation.state": {"dtype": "float32", "shape": [ALOHA14_DIM], "names": list(ALOHA14_NAMES)},
+        "action": {"dtype": "float32", "shape": [ALOHA14_DIM], "names": list(ALOHA14_NAMES)},
     }
     for c in cameras:
         h, w = shapes[c]
@@ -277,26 +186,33 @@ def _frame_table(ep: Episode, episode_index: int, first_index: int, task_index: 
             "frame_index": frame_index, "episode_index": np.full(n, episode_index),
             "index": first_index + frame_index, "task_index": np.full(n, task_index)}
     table = pa.table({
-        "observation.state": pa.FixedSizeListArray.from_arrays(pa.array(ep.state.ravel(), pa.float32()), 14),
-        "action": pa.FixedSizeListArray.from_arrays(pa.array(ep.action.ravel(), pa.float32()), 14),
+        "observation.state": pa.FixedSizeListArray.from_arrays(pa.array(ep.state.ravel(), pa.float32()), ALOHA14_DIM),
+        "action": pa.FixedSizeListArray.from_arrays(pa.array(ep.action.ravel(), pa.float32()), ALOHA14_DIM),
         "timestamp": pa.array(cols["timestamp"], pa.float32()),
         **{k: pa.array(cols[k], pa.int64()) for k in ("frame_index", "episode_index", "index", "task_index")},
     })
     return table, cols
 
 
-def _write_videos(root: Path, ep: Episode, episode_index: int, cameras: Sequence[str], fps: int,
-                  naming: str) -> dict[str, Any]:
-    """One mp4 per camera; returns the episode row's video columns."""
-    n = len(ep.action)
+def _video_columns(episode_index: int, frames: int, cameras: Sequence[str], fps: int,
+                   naming: str) -> dict[str, Any]:
+    """The episode row's video columns: one mp4 per camera, in the chunk and file of the episode."""
     chunk, file = divmod(episode_index, CHUNKS_SIZE)
     row: dict[str, Any] = {}
     for c in cameras:
         key = video_key(c, naming)
-        _write_video(root / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=file), ep.frames[c], fps)
         row.update({f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": file,
-                    f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": n / fps})
+                    f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": frames / fps})
     return row
+
+
+def _write_videos(root: Path, ep: Episode, episode_index: int, cameras: Sequence[str], fps: int,
+                  naming: str) -> None:
+    """One mp4 per camera, at the path :func:`_video_columns` names."""
+    chunk, file = divmod(episode_index, CHUNKS_SIZE)
+    for c in cameras:
+        key = video_key(c, naming)
+        _write_video(root / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=file), ep.frames[c], fps)
 
 
 def _write_meta(root: Path, episodes: list[dict], tasks: dict[str, int], stats: list[dict], features: dict,
@@ -306,16 +222,16 @@ def _write_meta(root: Path, episodes: list[dict], tasks: dict[str, int], stats: 
 
     (root / EPISODES_FILE).parent.mkdir(parents=True)
     pq.write_table(pa.Table.from_pylist(episodes), root / EPISODES_FILE)
-    pq.write_table(tasks_table(tasks), root / "meta/tasks.parquet")
+    pq.write_table(tasks_table(tasks), root / TASKS_FILE)
     agg = {f: aggregate_stats([s[f] for s in stats]) for f in stats[0]}
-    (root / "meta/stats.json").write_text(json.dumps(jsonable_stats(agg), indent=1))
+    (root / STATS_FILE).write_text(json.dumps(jsonable_stats(agg), indent=1))
     info = {"codebase_version": CODEBASE_VERSION, "fps": fps, "features": features, "total_episodes": len(episodes),
             "total_frames": frames, "total_tasks": len(tasks), "chunks_size": CHUNKS_SIZE,
             "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
-            "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+            "data_path": DATA_PATH,
             "video_path": VIDEO_PATH,
             "robot_type": ROBOT_TYPE, "splits": {"train": f"0:{len(episodes)}"}}
-    (root / "meta/info.json").write_text(json.dumps(info, indent=4))
+    (root / INFO_FILE).write_text(json.dumps(info, indent=4))
 
 
 def check_fps(fps: int | None) -> tuple[int, int]:
@@ -402,11 +318,7 @@ def write_dataset(episodes: Iterable[Episode], out: str | os.PathLike, *, fps: i
             ep_stats.update({video_key(c, naming): image_stats(ep.frames[c]) for c in cameras})
             row: dict[str, Any] = {"episode_index": e, "tasks": [ep.task], "length": n, "data/chunk_index": 0,
                                    "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n}
-            chunk, file = divmod(e, CHUNKS_SIZE)
-            for c in cameras:
-                key = video_key(c, naming)
-                row.update({f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": file,
-                            f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": n / fps})
+            row.update(_video_columns(e, n, cameras, fps, naming))
             videos.submit(_write_videos, tmp, ep, e, cameras, fps, naming)
             row.update({"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0})
             row.update({f"stats/{f}/{k}": np.asarray(v).tolist() for f, st in ep_stats.items() for k, v in st.items()})

@@ -20,15 +20,17 @@ import numpy as np
 from rsb_maniskill.export.lerobot import (
     CHUNKS_SIZE,
     DATA_FILE,
+    DATA_PATH,
     EPISODES_FILE,
+    INFO_FILE,
+    STATS_FILE,
+    TASKS_FILE,
     VIDEO_PATH,
     ExportError,
     aggregate_stats,
     jsonable_stats,
     tasks_table,
 )
-
-DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 
 
 def _link(src: Path, dst: Path) -> None:
@@ -67,7 +69,7 @@ def merge_datasets(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
     out = Path(out)
     tmp = out.parent / f".{out.name}.merge{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
-    info0 = json.loads((shards[0] / "meta/info.json").read_text())
+    info0 = json.loads((shards[0] / INFO_FILE).read_text())
     keys = video_keys(info0)
     stat_features = [k for k, ft in info0["features"].items() if k not in ("index",)]
     tasks: dict[str, int] = {}
@@ -76,10 +78,10 @@ def merge_datasets(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
     frames = 0
     try:
         for k, shard in enumerate(shards):
-            info = json.loads((shard / "meta/info.json").read_text())
+            info = json.loads((shard / INFO_FILE).read_text())
             if info["features"] != info0["features"] or info["fps"] != info0["fps"]:
                 raise ExportError(f"{shard}: its features or fps differ from {shards[0]}'s; merge shards of one build")
-            local_tasks = pq.read_table(shard / "meta/tasks.parquet").to_pydict()
+            local_tasks = pq.read_table(shard / TASKS_FILE).to_pydict()
             task_map = {i: tasks.setdefault(t, len(tasks))
                         for i, t in zip(local_tasks["task_index"], local_tasks["task"])}
             data = pq.read_table(shard / DATA_FILE)
@@ -111,13 +113,13 @@ def merge_datasets(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
             frames += data.num_rows
         (tmp / EPISODES_FILE).parent.mkdir(parents=True, exist_ok=True)
         pq.write_table(pa.Table.from_pylist(rows), tmp / EPISODES_FILE)
-        pq.write_table(tasks_table(tasks), tmp / "meta/tasks.parquet")
+        pq.write_table(tasks_table(tasks), tmp / TASKS_FILE)
         features = [f for f in stat_features if all(stats_[f] for stats_ in stats)]
         agg = {f: aggregate_stats([s[f] for s in stats]) for f in features}
-        (tmp / "meta/stats.json").write_text(json.dumps(jsonable_stats(agg), indent=1))
+        (tmp / STATS_FILE).write_text(json.dumps(jsonable_stats(agg), indent=1))
         info = dict(info0, total_episodes=len(rows), total_frames=frames, total_tasks=len(tasks),
                     data_path=DATA_PATH, splits={"train": f"0:{len(rows)}"})
-        (tmp / "meta/info.json").write_text(json.dumps(info, indent=4))
+        (tmp / INFO_FILE).write_text(json.dumps(info, indent=4))
         for rel, text in (extra_files or {}).items():
             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
             (tmp / rel).write_text(text)

@@ -7,19 +7,18 @@ Two namings, so that a policy trained on one dataset evaluates on the env with n
 - ``"robotwin"``: the keys of LeRobot's RoboTwin 2.0 env and datasets (``head_camera``,
   ``left_camera``, ``right_camera``), the same Aloha-AgileX robot.
 
-Camera names on the RSB side are the task's sensors without ``_camera``: ``head``,
-``left_wrist``, ``right_wrist``. State and action are the Aloha 14-number layout in both
-namings (``rsb_maniskill.agents.to_aloha14``).
+Camera names on the RSB side are the robot's (``robot.CAMERAS``: the task's sensors without
+``_camera``). State and action are the Aloha 14-number layout in both namings
+(``rsb_maniskill.robot.to_aloha14``).
 """
 from __future__ import annotations
 
-NAMINGS = ("rsb", "robotwin")
-DEFAULT_NAMING = "rsb"
-RSB_CAMERAS = ("head", "left_wrist", "right_wrist")
-CAMERA_KEYS: dict[str, dict[str, str]] = {
+CAMERA_KEYS: dict[str, dict[str, str]] = {  # naming -> camera -> key
     "rsb": {"head": "cam_high", "left_wrist": "cam_left_wrist", "right_wrist": "cam_right_wrist"},
     "robotwin": {"head": "head_camera", "left_wrist": "left_camera", "right_wrist": "right_camera"},
 }
+NAMINGS = tuple(CAMERA_KEYS)
+DEFAULT_NAMING = "rsb"
 
 
 def check_naming(naming: str) -> str:

@@ -24,8 +24,6 @@ env is wrapped here, as LeRobot wraps RoboTwin 2.0 (the same robot). Nothing her
 """
 from __future__ import annotations
 
-import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -33,31 +31,21 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from rsb_maniskill.env_ids import CONTROL_FREQ, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.env_ids import CONTROL_FREQ, CPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, LEROBOT_SEED_BASE
-from rsb_maniskill.evaluation.records import RECORDS_FILE
+from rsb_maniskill.evaluation.records import INSTRUCTION_MODES, LEROBOT_RUNNER, build_record
+from rsb_maniskill.evaluation.store import RECORDS_FILE, RecordWriter
 from rsb_maniskill.export.naming import DEFAULT_NAMING, camera_key, check_naming
-from rsb_maniskill.robot import ACTION_DIM, CAMERA_SIZE, CAMERAS, from_aloha14, sensor_uid
+from rsb_maniskill.robot import ACTION_DIM, CAMERA_SIZE, CAMERAS, CONTROL_MODE, from_aloha14, sensor_uid
 
 OBS_TYPES = ("pixels_agent_pos", "pixels")
 
 
 def append_record(path: Path, record: dict[str, Any]) -> None:
-    """Appends one record line under an exclusive lock, durable (flush + fsync)."""
-    import fcntl
-
-    from rsb_maniskill.evaluation.records import validate_record
-
-    validate_record(record)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a", encoding="utf-8") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            f.write(json.dumps(record, ensure_ascii=False) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
+    """Appends one (validated) record line under an exclusive file lock, durable (flush + fsync):
+    the sub-envs of an async vector env share the file."""
+    with RecordWriter(path, lock=True) as writer:
+        writer.write(record)
 
 
 class RSBLeRobotEnv(gym.Env):
@@ -85,7 +73,6 @@ class RSBLeRobotEnv(gym.Env):
                  episodes: int = EPISODES_PER_SUITE, records_dir: str | None = None, policy_name: str = "lerobot",
                  data_dir: str | None = None) -> None:
         from rsb_maniskill.env_ids import resolve_env_ids
-        from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
 
         (self.env_id,) = resolve_env_ids([env_id])
         if instruction_mode not in INSTRUCTION_MODES:
@@ -126,8 +113,8 @@ class RSBLeRobotEnv(gym.Env):
         import rsb_maniskill  # noqa: F401  (registers the ids)
         from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
 
-        kwargs = dict(EVAL_ENV_KWARGS, obs_mode="rgb", control_mode="pd_joint_pos", camera_size=self.camera_size,
-                      sim_backend="physx_cpu")
+        kwargs = dict(EVAL_ENV_KWARGS, obs_mode="rgb", control_mode=CONTROL_MODE, camera_size=self.camera_size,
+                      sim_backend=CPU_SIM_BACKEND)
         if self.data_dir:
             kwargs["data_dir"] = self.data_dir
         self._env = gym.make(self.env_id, **kwargs)
@@ -205,14 +192,12 @@ class RSBLeRobotEnv(gym.Env):
     def _write_record(self, info: dict) -> None:
         if self.records is None:
             return
-        from rsb_maniskill.evaluation.runner import build_record
-
         record = build_record(suite_id=self.env_id, seed=self._seed, spec=self._env.unwrapped.episode_specs[0],
                               instruction=self.task_description, instruction_mode=self.instruction_mode, info=info,
                               steps=self._steps, policy=self.policy_name,
-                              extra={"original_instruction": self._instruction, "runner": "lerobot-eval",
+                              extra={"original_instruction": self._instruction, "runner": LEROBOT_RUNNER,
                                      **({"donor_seed": self._donor_seed} if self._donor_seed is not None else {})})
-        append_record(self.records, json.loads(json.dumps(record, default=_plain)))
+        append_record(self.records, record)
 
     def render(self) -> np.ndarray:
         """The head camera (LeRobot's eval videos)."""
@@ -224,14 +209,6 @@ class RSBLeRobotEnv(gym.Env):
         if self._env is not None:
             self._env.close()
             self._env = None
-
-
-def _plain(obj: Any) -> Any:
-    if hasattr(obj, "item"):
-        return obj.item()
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    raise TypeError(type(obj).__name__)
 
 
 def make_env_fns(env_id: str, n_envs: int, **kwargs: Any) -> list:

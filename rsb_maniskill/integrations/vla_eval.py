@@ -29,10 +29,8 @@ from rsb_maniskill.batch import single_env_obs
 from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS, resolve_env_ids
 from rsb_maniskill.evaluation.metrics import outcome
 from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, ShuffledDonors, apply_instruction_mode, eval_seeds
-from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
+from rsb_maniskill.evaluation.records import INSTRUCTION_MODES, RECORD_FLAGS, VLA_EVAL_RUNNER, build_record
 from rsb_maniskill.evaluation.remote.vla_eval_layout import make_layout
-from rsb_maniskill.evaluation.reporting.vla_eval_results import RUNNER
-from rsb_maniskill.evaluation.runner import RECORD_FLAGS, build_record
 from rsb_maniskill.robot import sensor_uid
 
 LAVAPIPE_ICD_ENV = "RSB_LAVAPIPE_ICD"  # `render: cpu`: a lavapipe ICD other than the system's
@@ -68,7 +66,7 @@ class RSBBenchmark(StepBenchmark):
                  preset: str = "lerobot", cameras: str | None = None, state_key: str | None = None,
                  gripper: str | None = None, joints: str | None = None, render_every: int = 1,
                  obs_mode: str = "rgb", camera_size: Sequence[int] | None = None, instruction_mode: str = "normal",
-                 policy_name: str = RUNNER, max_steps: int = TASK_MAX_EPISODE_STEPS,
+                 policy_name: str = VLA_EVAL_RUNNER, max_steps: int = TASK_MAX_EPISODE_STEPS,
                  data_dir: str | None = None) -> None:
         super().__init__()
         self.suites = resolve_env_ids([suites] if isinstance(suites, str) else list(suites))
@@ -167,7 +165,9 @@ class RSBBenchmark(StepBenchmark):
         return self.layout.observation(obs, self._given, images=rendered)
 
     def get_step_result(self, step_result: StepResult) -> dict[str, Any]:
-        extra = {"runner": RUNNER, **({"original_instruction": self._own} if self.instruction_mode != "normal" else {})}
+        extra: dict[str, Any] = {"runner": VLA_EVAL_RUNNER}
+        if self.instruction_mode != "normal":
+            extra["original_instruction"] = self._own
         if hasattr(self._spec, "to_dict"):
             extra["episode"] = self._spec.to_dict()
         record = build_record(suite_id=self._suite, seed=self._seed, spec=self._spec, instruction=self._given,

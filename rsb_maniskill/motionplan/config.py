@@ -4,8 +4,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-CONTROL_MODE = "pd_joint_pos"
-SIM_BACKEND = "physx_cpu"
+from rsb_maniskill.env_ids import CPU_SIM_BACKEND
+from rsb_maniskill.robot import CONTROL_MODE
+
+SIM_BACKEND = CPU_SIM_BACKEND  # demos run one env a process on the CPU
 DEFAULT_EXPERT = "rsb_maniskill.motionplan:ScriptedExpert"
 SOURCE_DESC = ("RSB scripted motion-planning expert (mplib): grasps the correct block with the arm "
                "on its side and places it in the answer zone; only successful episodes are kept")

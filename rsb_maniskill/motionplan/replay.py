@@ -18,6 +18,9 @@ import multiprocessing
 import sys
 from pathlib import Path
 
+from rsb_maniskill.env_ids import CPU_SIM_BACKEND
+from rsb_maniskill.robot import CONTROL_MODE
+
 from .dataset import json_path_of, load_json, write_json_atomic
 
 
@@ -43,10 +46,10 @@ def replayed_path(args) -> Path:
     src = Path(args.traj_path)
     env_kwargs = json.loads(src.with_suffix(".json").read_text())["env_info"]["env_kwargs"]
     obs = args.obs_mode or env_kwargs.get("obs_mode") or "none"
-    control = args.target_control_mode or env_kwargs.get("control_mode") or "pd_joint_pos"
-    backend = args.sim_backend or env_kwargs.get("sim_backend") or "physx_cpu"
+    control = args.target_control_mode or env_kwargs.get("control_mode") or CONTROL_MODE
+    backend = args.sim_backend or env_kwargs.get("sim_backend") or CPU_SIM_BACKEND
     if backend == "auto":
-        backend = "physx_cpu"
+        backend = CPU_SIM_BACKEND
     return src.with_name(f"{src.name.split('.')[0]}.{obs}.{control}.{backend}.h5")
 
 

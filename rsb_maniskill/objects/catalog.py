@@ -4,7 +4,7 @@ Each category builds a model from a variant index: size, colour and one shape pa
 with the variant. A model is authored at rest: z up, its bottom on z = 0, centred on the origin,
 its long side along x. Grasp frames say where the tool centre point (TCP) goes, in the object
 frame, and along which horizontal direction the fingers close; the expert may also close along
-the opposite direction (the gripper is symmetric).
+the opposite direction (the gripper is symmetric). Parts, grasps and models are ``geometry.py``'s.
 
 Sizes are toy-sized on purpose: every object fits the 11.2 x 9.7 cm inside a layout cell, stands
 at most 7.5 cm tall and is at most 6.5 cm wide where it is grasped, and rises at most 3 cm
@@ -12,11 +12,12 @@ above the TCP (the Aloha gripper opens 9.5 cm).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Callable
 
 import numpy as np
+
+from rsb_maniskill.objects.geometry import Q_Y, Q_Z, Grasp, ObjectModel, Part, box, ellipsoid, frustum, hull, ring
 
 NUM_VARIANTS = 3
 SCALES = (0.92, 1.0, 1.07)
@@ -25,110 +26,6 @@ MAX_GRASP_WIDTH = 0.065
 MAX_ABOVE_TCP = 0.030  # the fingers' base is 3.5 cm above the TCP
 TCP_BELOW_TOP = 0.015  # the pads take the top 1.5 cm and what lies below it
 MIN_TCP_Z = 0.030  # fingertips 2.46 cm below the TCP stay ~5 mm above the table
-DENSITY = 400.0  # kg/m^3: light enough for the gripper, heavy enough to rest
-
-_Q_Y = (0.70710678, 0.0, 0.0, 0.70710678)  # part x axis -> y (cylinders and capsules run along x)
-_Q_Z = (0.70710678, 0.0, -0.70710678, 0.0)  # part x axis -> z
-
-
-@dataclass(frozen=True)
-class Part:
-    """One convex piece. ``dims``: box half sizes; cylinder and capsule (radius, half length)
-    along the part's x axis; sphere (radius,); hull: flat xyz points of its vertices."""
-
-    shape: str
-    dims: tuple[float, ...]
-    pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
-    rgb: tuple[float, float, float] = (0.5, 0.5, 0.5)
-    collide: bool = True
-    visible: bool = True
-
-
-@dataclass(frozen=True)
-class Grasp:
-    """TCP position in the object frame and the fingers' closing direction (yaw in the object's
-    xy plane); ``width`` is the object's width between the pads."""
-
-    pos: tuple[float, float, float]
-    yaw: float
-    width: float
-
-
-@dataclass(frozen=True)
-class ObjectModel:
-    key: str  # "mug:1"
-    name: str  # "mug"
-    parts: tuple[Part, ...]
-    grasps: tuple[Grasp, ...]
-    density: float = DENSITY
-    half_extents: tuple[float, float] = field(init=False)  # footprint (x, y) half sizes
-    height: float = field(init=False)
-
-    def __post_init__(self) -> None:
-        pts = np.concatenate([part_points(p) for p in self.parts if p.collide])
-        lo, hi = pts.min(0), pts.max(0)
-        if abs(lo[2]) > 2e-3:
-            raise ValueError(f"{self.key}: collision bottom at z = {lo[2]:.4f}, must rest on z = 0")
-        object.__setattr__(self, "half_extents", (float(max(-lo[0], hi[0])), float(max(-lo[1], hi[1]))))
-        object.__setattr__(self, "height", float(hi[2]))
-
-
-# ---------------------------------------------------------------------- geometry helpers
-def _rot(q: tuple[float, ...]) -> np.ndarray:
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
-def part_points(p: Part) -> np.ndarray:
-    """Points on the part's surface (exact corners for boxes and hulls), in the object frame."""
-    if p.shape == "box":
-        local = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * p.dims
-    elif p.shape in ("cylinder", "capsule"):
-        r, h = p.dims
-        a = np.linspace(0, 2 * np.pi, 24, endpoint=False)
-        ring = np.stack([np.zeros_like(a), r * np.cos(a), r * np.sin(a)], 1)
-        local = np.concatenate([ring + [-h, 0, 0], ring + [h, 0, 0]])
-        if p.shape == "capsule":
-            local = np.concatenate([local, [[-h - r, 0, 0], [h + r, 0, 0]]])
-    elif p.shape == "sphere":
-        local = np.concatenate([np.eye(3), -np.eye(3)]) * p.dims[0]
-    elif p.shape == "hull":
-        local = np.asarray(p.dims, dtype=float).reshape(-1, 3)
-    else:
-        raise ValueError(f"unknown part shape {p.shape!r}")
-    return local @ _rot(p.quat).T + np.asarray(p.pos)
-
-
-def _ring(r: float, z: float, n: int = 24, sx: float = 1.0, sy: float = 1.0) -> np.ndarray:
-    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    return np.stack([sx * r * np.cos(a), sy * r * np.sin(a), np.full_like(a, z)], 1)
-
-
-def _hull(points: np.ndarray, rgb, pos=(0.0, 0.0, 0.0), collide=True, visible=True) -> Part:
-    return Part("hull", tuple(np.round(np.asarray(points, float).reshape(-1), 6)), pos, rgb=rgb,
-                collide=collide, visible=visible)
-
-
-def _frustum(r0: float, r1: float, h: float, z0: float = 0.0, n: int = 24, sx: float = 1.0) -> np.ndarray:
-    return np.concatenate([_ring(r0, z0, n, sx), _ring(r1, z0 + h, n, sx)])
-
-
-def _ellipsoid(ax: float, ay: float, az: float, z_floor: float = 0.0, n: int = 12) -> np.ndarray:
-    """Points of an ellipsoid resting on z = 0, its bottom cut flat ``z_floor`` up (so it does not roll)."""
-    pts = []
-    for t in np.linspace(0, np.pi, n):
-        for a in np.linspace(0, 2 * np.pi, 2 * n, endpoint=False):
-            pts.append((ax * np.sin(t) * np.cos(a), ay * np.sin(t) * np.sin(a), az + az * np.cos(t)))
-    pts = np.array(pts)
-    pts[:, 2] = np.maximum(pts[:, 2], z_floor) - z_floor
-    return pts
-
-
-def _box(hx, hy, hz, x=0.0, y=0.0, z=None, rgb=(0.5, 0.5, 0.5), **kw) -> Part:
-    return Part("box", (hx, hy, hz), (x, y, hz if z is None else z), rgb=rgb, **kw)
 
 
 def _grasp_across(width: float, top: float, x: float = 0.0, y: float = 0.0, yaw: float = np.pi / 2) -> Grasp:
@@ -153,73 +50,73 @@ def _toy_car(s, c, k):
     wheel_r = 0.009 * s
     body_h = 0.018 * s
     z0 = wheel_r * 0.9
-    parts = [_box(L / 2, W / 2, body_h / 2, z=z0 + body_h / 2, rgb=c)]
+    parts = [box(L / 2, W / 2, body_h / 2, z=z0 + body_h / 2, rgb=c)]
     cab = (0.35 + 0.2 * k) * L
-    parts.append(_box(cab / 2, W / 2 * 0.85, 0.008 * s, x=-0.05 * L, z=z0 + body_h + 0.008 * s, rgb=(0.6, 0.8, 0.95)))
+    parts.append(box(cab / 2, W / 2 * 0.85, 0.008 * s, x=-0.05 * L, z=z0 + body_h + 0.008 * s, rgb=(0.6, 0.8, 0.95)))
     for x in (-0.32 * L, 0.32 * L):
         for y in (-W / 2, W / 2):
-            parts.append(Part("cylinder", (wheel_r, 0.004 * s), (x, y, wheel_r), _Q_Y, BLACK, collide=False))
+            parts.append(Part("cylinder", (wheel_r, 0.004 * s), (x, y, wheel_r), Q_Y, BLACK, collide=False))
     # one collision box stands in for the four wheels (fewer contacts to solve each step); it
     # stays inside the body's width so the fingertips close on the body, not on it
-    parts.append(_box(0.32 * L + wheel_r, W / 2 * 0.9, z0 / 2, z=z0 / 2, visible=False))
+    parts.append(box(0.32 * L + wheel_r, W / 2 * 0.9, z0 / 2, z=z0 / 2, visible=False))
     return parts, (_grasp_across(W, z0 + body_h + 0.01 * s),)
 
 
 def _shoe(s, c, k):
     L, W = 0.088 * s, 0.036 * s
-    sole = _box(L / 2, W / 2, 0.005 * s, rgb=WHITE)
+    sole = box(L / 2, W / 2, 0.005 * s, rgb=WHITE)
     h = (0.040 + 0.010 * k) * s
-    upper = np.concatenate([_ring(W / 2, 0.010 * s, 16, sx=L / W / 2) + [0, 0, 0],
-                            _ring(W / 2 * 0.8, h * 0.55, 16, sx=L / W / 2 * 0.75) + [-0.1 * L, 0, 0],
-                            _ring(W / 2 * 0.75, h, 12, sx=1.0) + [-0.28 * L, 0, 0]])
-    parts = [sole, _hull(upper, c),
-             _box(0.012 * s, W / 2 * 0.7, 0.0015 * s, x=-0.28 * L, z=h, rgb=BLACK, collide=False)]
+    upper = np.concatenate([ring(W / 2, 0.010 * s, 16, sx=L / W / 2) + [0, 0, 0],
+                            ring(W / 2 * 0.8, h * 0.55, 16, sx=L / W / 2 * 0.75) + [-0.1 * L, 0, 0],
+                            ring(W / 2 * 0.75, h, 12, sx=1.0) + [-0.28 * L, 0, 0]])
+    parts = [sole, hull(upper, c),
+             box(0.012 * s, W / 2 * 0.7, 0.0015 * s, x=-0.28 * L, z=h, rgb=BLACK, collide=False)]
     return parts, (_grasp_across(W, h, x=-0.22 * L),)
 
 
 def _card_box(s, c, k):
     L, W, H = 0.066 * s, 0.046 * s, 0.020 * s
-    parts = [_box(L / 2, W / 2, H / 2, rgb=WHITE),
-             _box(L / 2 * 0.82, W / 2 * 0.78, 0.0008, z=H + 0.0008, rgb=c, collide=False),
-             Part("cylinder", (0.008 * s, 0.0008), (0, 0, H + 0.0017), _Q_Z, WHITE, collide=False),
+    parts = [box(L / 2, W / 2, H / 2, rgb=WHITE),
+             box(L / 2 * 0.82, W / 2 * 0.78, 0.0008, z=H + 0.0008, rgb=c, collide=False),
+             Part("cylinder", (0.008 * s, 0.0008), (0, 0, H + 0.0017), Q_Z, WHITE, collide=False),
              Part("sphere", (0.004 * s,), (0, 0, H + 0.001), rgb=(0.8, 0.05, 0.05), collide=False)]
     return parts, (_grasp_across(W, H),)
 
 
 def _mug(s, c, k):
     r, h = 0.026 * s, 0.060 * s
-    parts = [Part("cylinder", (r, h / 2), (0, 0, h / 2), _Q_Z, c),
-             Part("cylinder", (r * 0.85, 0.001), (0, 0, h + 0.0005), _Q_Z, (0.25, 0.15, 0.1), collide=False),
-             _box(0.004 * s, 0.004 * s, h * 0.3, x=r + 0.012 * s, z=h * 0.5, rgb=c),
-             _box(0.008 * s, 0.004 * s, 0.004 * s, x=r + 0.006 * s, z=h * (0.2 + 0.05 * k), rgb=c, collide=False),
-             _box(0.008 * s, 0.004 * s, 0.004 * s, x=r + 0.006 * s, z=h * 0.8, rgb=c, collide=False)]
+    parts = [Part("cylinder", (r, h / 2), (0, 0, h / 2), Q_Z, c),
+             Part("cylinder", (r * 0.85, 0.001), (0, 0, h + 0.0005), Q_Z, (0.25, 0.15, 0.1), collide=False),
+             box(0.004 * s, 0.004 * s, h * 0.3, x=r + 0.012 * s, z=h * 0.5, rgb=c),
+             box(0.008 * s, 0.004 * s, 0.004 * s, x=r + 0.006 * s, z=h * (0.2 + 0.05 * k), rgb=c, collide=False),
+             box(0.008 * s, 0.004 * s, 0.004 * s, x=r + 0.006 * s, z=h * 0.8, rgb=c, collide=False)]
     return parts, (_grasp_across(2 * r, h),)
 
 
 def _can(s, c, k):
     r, h = 0.024 * s, (0.060 + 0.006 * k) * s
-    parts = [Part("cylinder", (r, h / 2), (0, 0, h / 2), _Q_Z, c),
-             Part("cylinder", (r * 0.98, 0.004), (0, 0, h - 0.004), _Q_Z, SILVER, collide=False),
-             Part("cylinder", (r * 1.002, 0.006 * s), (0, 0, h * 0.5), _Q_Z, WHITE, collide=False)]
+    parts = [Part("cylinder", (r, h / 2), (0, 0, h / 2), Q_Z, c),
+             Part("cylinder", (r * 0.98, 0.004), (0, 0, h - 0.004), Q_Z, SILVER, collide=False),
+             Part("cylinder", (r * 1.002, 0.006 * s), (0, 0, h * 0.5), Q_Z, WHITE, collide=False)]
     return parts, _round_grasps(2 * r, h)
 
 
 def _bottle(s, c, k):
     r, hb = 0.021 * s, (0.040 + 0.006 * k) * s
-    neck = np.concatenate([_ring(r, hb, 16), _ring(0.008 * s, hb + 0.010 * s, 16)])
-    parts = [Part("cylinder", (r, hb / 2), (0, 0, hb / 2), _Q_Z, c),
-             _hull(neck, c),
-             Part("cylinder", (0.0085 * s, 0.004 * s), (0, 0, hb + 0.014 * s), _Q_Z, WHITE),
-             Part("cylinder", (r * 1.003, 0.008 * s), (0, 0, hb * 0.5), _Q_Z, WHITE, collide=False)]
+    neck = np.concatenate([ring(r, hb, 16), ring(0.008 * s, hb + 0.010 * s, 16)])
+    parts = [Part("cylinder", (r, hb / 2), (0, 0, hb / 2), Q_Z, c),
+             hull(neck, c),
+             Part("cylinder", (0.0085 * s, 0.004 * s), (0, 0, hb + 0.014 * s), Q_Z, WHITE),
+             Part("cylinder", (r * 1.003, 0.008 * s), (0, 0, hb * 0.5), Q_Z, WHITE, collide=False)]
     return parts, _round_grasps(2 * r, hb + 0.010)  # pads high on the body, the neck between them
 
 
 def _book(s, c, k):
     L, W, H = 0.074 * s, 0.054 * s, (0.016 + 0.006 * k) * s
-    parts = [_box(L / 2, W / 2, H / 2, rgb=(0.95, 0.93, 0.85)),
-             _box(L / 2 + 0.001, W / 2 + 0.001, 0.0015, z=0.0015, rgb=c, collide=False),
-             _box(L / 2 + 0.001, W / 2 + 0.001, 0.0015, z=H - 0.0015, rgb=c, collide=False),
-             _box(0.0015, W / 2 + 0.001, H / 2, x=-L / 2 - 0.0005, rgb=c, collide=False)]
+    parts = [box(L / 2, W / 2, H / 2, rgb=(0.95, 0.93, 0.85)),
+             box(L / 2 + 0.001, W / 2 + 0.001, 0.0015, z=0.0015, rgb=c, collide=False),
+             box(L / 2 + 0.001, W / 2 + 0.001, 0.0015, z=H - 0.0015, rgb=c, collide=False),
+             box(0.0015, W / 2 + 0.001, H / 2, x=-L / 2 - 0.0005, rgb=c, collide=False)]
     return parts, (_grasp_across(W, H),)
 
 
@@ -243,20 +140,20 @@ def _banana(s, c, k):
 
 def _apple(s, c, k):
     r = 0.027 * s
-    pts = _ellipsoid(r, r, r * 0.95, z_floor=0.004)
-    parts = [_hull(pts, c, visible=False),
+    pts = ellipsoid(r, r, r * 0.95, z_floor=0.004)
+    parts = [hull(pts, c, visible=False),
              Part("sphere", (r,), (0, 0, r * 0.95 - 0.004), rgb=c, collide=False),
-             Part("cylinder", (0.0015, 0.006), (0, 0, 1.9 * r), _Q_Z, (0.35, 0.22, 0.1), collide=False),
-             _box(0.006, 0.003, 0.0008, x=0.005, z=1.9 * r - 0.001, rgb=(0.2, 0.6, 0.15), collide=False)]
+             Part("cylinder", (0.0015, 0.006), (0, 0, 1.9 * r), Q_Z, (0.35, 0.22, 0.1), collide=False),
+             box(0.006, 0.003, 0.0008, x=0.005, z=1.9 * r - 0.001, rgb=(0.2, 0.6, 0.15), collide=False)]
     return parts, _round_grasps(2 * r, 1.9 * r - 0.004)
 
 
 def _toy_duck(s, c, k):
-    body = _ellipsoid(0.030 * s, 0.021 * s, 0.015 * s, z_floor=0.003)
-    head = _ellipsoid(0.012 * s, 0.012 * s, 0.012 * s) + [0.015 * s, 0, 0.022 * s]
+    body = ellipsoid(0.030 * s, 0.021 * s, 0.015 * s, z_floor=0.003)
+    head = ellipsoid(0.012 * s, 0.012 * s, 0.012 * s) + [0.015 * s, 0, 0.022 * s]
     beak_x = 0.015 * s + 0.012 * s
-    parts = [_hull(body, c), _hull(head, c),
-             _box(0.006 * s, 0.005 * s, 0.0025 * s, x=beak_x + 0.003 * s, z=0.034 * s, rgb=(0.95, 0.45, 0.05)),
+    parts = [hull(body, c), hull(head, c),
+             box(0.006 * s, 0.005 * s, 0.0025 * s, x=beak_x + 0.003 * s, z=0.034 * s, rgb=(0.95, 0.45, 0.05)),
              Part("sphere", (0.002 * s,), (0.022 * s, 0.008 * s, 0.04 * s), rgb=BLACK, collide=False),
              Part("sphere", (0.002 * s,), (0.022 * s, -0.008 * s, 0.04 * s), rgb=BLACK, collide=False)]
     return parts, (_grasp_across(0.042 * s, 0.030 * s, x=-0.010 * s),)
@@ -264,52 +161,52 @@ def _toy_duck(s, c, k):
 
 def _remote(s, c, k):
     L, W, H = (0.086 + 0.006 * k) * s, 0.034 * s, 0.016 * s
-    parts = [_box(L / 2, W / 2, H / 2, rgb=c)]
+    parts = [box(L / 2, W / 2, H / 2, rgb=c)]
     for i in range(3):
         for j in (-1, 1):
-            parts.append(_box(0.003, 0.004, 0.0008, x=-0.01 + 0.012 * i, y=0.007 * j, z=H + 0.0008,
+            parts.append(box(0.003, 0.004, 0.0008, x=-0.01 + 0.012 * i, y=0.007 * j, z=H + 0.0008,
                               rgb=(0.7, 0.7, 0.72), collide=False))
-    parts.append(Part("cylinder", (0.004, 0.0008), (0.03 * s, 0, H + 0.0008), _Q_Z, (0.85, 0.1, 0.1), collide=False))
+    parts.append(Part("cylinder", (0.004, 0.0008), (0.03 * s, 0, H + 0.0008), Q_Z, (0.85, 0.1, 0.1), collide=False))
     return parts, (_grasp_across(W, H),)
 
 
 def _sponge(s, c, k):
     L, W, H = 0.074 * s, 0.046 * s, (0.026 + 0.006 * k) * s
-    parts = [_box(L / 2, W / 2, H * 0.35, rgb=c),
-             _box(L / 2, W / 2, H * 0.15, z=H * 0.85, rgb=(0.15, 0.55, 0.2))]
+    parts = [box(L / 2, W / 2, H * 0.35, rgb=c),
+             box(L / 2, W / 2, H * 0.15, z=H * 0.85, rgb=(0.15, 0.55, 0.2))]
     return parts, (_grasp_across(W, H),)
 
 
 def _tennis_ball(s, c, k):
     r = 0.029 * s
-    pts = _ellipsoid(r, r, r, z_floor=0.003, n=8)
-    parts = [_hull(pts, c, visible=False), Part("sphere", (r,), (0, 0, r - 0.003), rgb=c, collide=False),
+    pts = ellipsoid(r, r, r, z_floor=0.003, n=8)
+    parts = [hull(pts, c, visible=False), Part("sphere", (r,), (0, 0, r - 0.003), rgb=c, collide=False),
              Part("capsule", (0.0015, r * 0.55), (0, 0, 2 * r - 0.0033), rgb=WHITE, collide=False)]
     return parts, _round_grasps(2 * r, 1.6 * r)
 
 
 def _cup(s, c, k):
     r0, r1, h = 0.021 * s, (0.027 + 0.002 * k) * s, 0.062 * s
-    parts = [_hull(_frustum(r0, r1, h), c),
-             Part("cylinder", (r1 * 0.9, 0.0006), (0, 0, h + 0.0004), _Q_Z, (0.95, 0.95, 0.95), collide=False)]
+    parts = [hull(frustum(r0, r1, h), c),
+             Part("cylinder", (r1 * 0.9, 0.0006), (0, 0, h + 0.0004), Q_Z, (0.95, 0.95, 0.95), collide=False)]
     return parts, _round_grasps(2 * r1, h)
 
 
 def _bowl(s, c, k):
     r0, r1, h = 0.018 * s, 0.030 * s, (0.026 + 0.004 * k) * s
-    parts = [_hull(_frustum(r0, r1, h), c),
-             Part("cylinder", (r1 * 0.88, 0.0006), (0, 0, h + 0.0004), _Q_Z, (0.97, 0.97, 0.95), collide=False)]
+    parts = [hull(frustum(r0, r1, h), c),
+             Part("cylinder", (r1 * 0.88, 0.0006), (0, 0, h + 0.0004), Q_Z, (0.97, 0.97, 0.95), collide=False)]
     return parts, _round_grasps(2 * r1, h)
 
 
 def _die(s, c, k):
     a = 0.016 * s
-    parts = [_box(a, a, a, rgb=c)]
+    parts = [box(a, a, a, rgb=c)]
     pip = dict(rgb=BLACK if c != BLACK else WHITE, collide=False)
     for dx, dy in ((0, 0), (-0.5, -0.5), (0.5, 0.5)):  # three on top
-        parts.append(Part("cylinder", (0.0028 * s, 0.0006), (dx * a, dy * a, 2 * a + 0.0003), _Q_Z, **pip))
+        parts.append(Part("cylinder", (0.0028 * s, 0.0006), (dx * a, dy * a, 2 * a + 0.0003), Q_Z, **pip))
     for dx, dy in ((-0.5, -0.5), (0.5, 0.5), (-0.5, 0.5), (0.5, -0.5)):  # four facing -y
-        parts.append(Part("cylinder", (0.0028 * s, 0.0006), (dx * a, -a - 0.0003, a + dy * a), _Q_Y, **pip))
+        parts.append(Part("cylinder", (0.0028 * s, 0.0006), (dx * a, -a - 0.0003, a + dy * a), Q_Y, **pip))
     for dx in (-0.5, 0.5):  # two facing -x
         parts.append(Part("cylinder", (0.0028 * s, 0.0006), (-a - 0.0003, dx * a, a + dx * a), (1, 0, 0, 0), **pip))
     return parts, (_grasp_across(2 * a, 2 * a), _grasp_across(2 * a, 2 * a, yaw=0.0))
@@ -318,80 +215,80 @@ def _die(s, c, k):
 def _stapler(s, c, k):
     L, W = 0.084 * s, 0.028 * s
     back = (0.028 + 0.004 * k) * s  # height of the arm's hinge end
-    parts = [_box(L / 2, W / 2, 0.005 * s, rgb=BLACK),
-             _hull(np.array([[-L / 2, -W / 2 * 0.9, 0.010 * s], [-L / 2, W / 2 * 0.9, 0.010 * s],
+    parts = [box(L / 2, W / 2, 0.005 * s, rgb=BLACK),
+             hull(np.array([[-L / 2, -W / 2 * 0.9, 0.010 * s], [-L / 2, W / 2 * 0.9, 0.010 * s],
                              [L / 2 * 0.95, -W / 2 * 0.9, 0.014 * s], [L / 2 * 0.95, W / 2 * 0.9, 0.014 * s],
                              [-L / 2, -W / 2 * 0.9, back], [-L / 2, W / 2 * 0.9, back],
                              [L / 2 * 0.95, -W / 2 * 0.9, 0.030 * s], [L / 2 * 0.95, W / 2 * 0.9, 0.030 * s]]), c),
-             _box(0.006 * s, W / 2 * 0.6, 0.0025 * s, x=-L / 2 + 0.006 * s, z=0.0075 * s, rgb=SILVER)]
+             box(0.006 * s, W / 2 * 0.6, 0.0025 * s, x=-L / 2 + 0.006 * s, z=0.0075 * s, rgb=SILVER)]
     return parts, (_grasp_across(W, 0.030 * s),)
 
 
 def _glasses_case(s, c, k):
     L, W, H = 0.082 * s, 0.034 * s, (0.028 + 0.004 * k) * s
-    pts = np.concatenate([_ring(W / 2, z, 20, sx=L / W) * [1, 1, 1] for z in (0.0,)] +
-                         [_ring(W / 2 * 0.98, H * f, 20, sx=L / W * 0.99) for f in (0.5,)] +
-                         [_ring(W / 2 * 0.7, H, 20, sx=L / W * 0.92)])
-    parts = [_hull(pts, c), _box(L / 2 * 0.9, 0.0008, 0.0008, y=-W / 2 * 0.98, z=H * 0.5, rgb=SILVER, collide=False)]
+    pts = np.concatenate([ring(W / 2, z, 20, sx=L / W) * [1, 1, 1] for z in (0.0,)] +
+                         [ring(W / 2 * 0.98, H * f, 20, sx=L / W * 0.99) for f in (0.5,)] +
+                         [ring(W / 2 * 0.7, H, 20, sx=L / W * 0.92)])
+    parts = [hull(pts, c), box(L / 2 * 0.9, 0.0008, 0.0008, y=-W / 2 * 0.98, z=H * 0.5, rgb=SILVER, collide=False)]
     return parts, (_grasp_across(W, H),)
 
 
 def _tape_roll(s, c, k):
     r, h = 0.028 * s, (0.022 + 0.004 * k) * s
-    parts = [Part("cylinder", (r, h / 2), (0, 0, h / 2), _Q_Z, c),
-             Part("cylinder", (r * 0.62, 0.0008), (0, 0, h + 0.0002), _Q_Z, (0.8, 0.68, 0.5), collide=False),
-             Part("cylinder", (r * 0.55, 0.0009), (0, 0, h + 0.0004), _Q_Z, (0.15, 0.15, 0.15), collide=False)]
+    parts = [Part("cylinder", (r, h / 2), (0, 0, h / 2), Q_Z, c),
+             Part("cylinder", (r * 0.62, 0.0008), (0, 0, h + 0.0002), Q_Z, (0.8, 0.68, 0.5), collide=False),
+             Part("cylinder", (r * 0.55, 0.0009), (0, 0, h + 0.0004), Q_Z, (0.15, 0.15, 0.15), collide=False)]
     return parts, _round_grasps(2 * r, h)
 
 
 def _toothpaste(s, c, k):
     L, W, H = 0.076 * s, 0.030 * s, 0.018 * s
-    pts = np.concatenate([_ring(W / 2, 0, 12, sx=1.0, sy=1.0) * [0.5, 1, 1] + [L / 2 - 0.005, 0, 0],
+    pts = np.concatenate([ring(W / 2, 0, 12, sx=1.0, sy=1.0) * [0.5, 1, 1] + [L / 2 - 0.005, 0, 0],
                           np.array([[-L / 2, -W / 2 * 1.1, 0.002], [-L / 2, W / 2 * 1.1, 0.002],
                                     [-L / 2, -W / 2 * 1.1, 0.006], [-L / 2, W / 2 * 1.1, 0.006]]),
-                          _ring(W / 2, H, 12, sx=1.0, sy=1.0) * [0.5, 1, 0] + [L / 2 - 0.005, 0, H],
-                          _ring(W / 2 * 0.9, H * 0.9, 12) * [0.5, 1, 0] + [0, 0, H * 0.9]])
+                          ring(W / 2, H, 12, sx=1.0, sy=1.0) * [0.5, 1, 0] + [L / 2 - 0.005, 0, H],
+                          ring(W / 2 * 0.9, H * 0.9, 12) * [0.5, 1, 0] + [0, 0, H * 0.9]])
     pts[:, 2] = np.maximum(pts[:, 2], 0.0)
-    parts = [_hull(pts, WHITE),
+    parts = [hull(pts, WHITE),
              Part("cylinder", (0.009 * s, 0.008 * s), (L / 2 + 0.008 * s - 0.004, 0, 0.009 * s), rgb=c),
-             _box(0.012 * s, W / 2 * 0.8, 0.0006, x=0.005, z=H + 0.0006, rgb=c, collide=False)]
+             box(0.012 * s, W / 2 * 0.8, 0.0006, x=0.005, z=H + 0.0006, rgb=c, collide=False)]
     return parts, (_grasp_across(W, H, x=0.005),)
 
 
 def _crayon_box(s, c, k):
     L, W, H = 0.070 * s, 0.042 * s, 0.022 * s
-    parts = [_box(L / 2, W / 2, H / 2, rgb=c)]
+    parts = [box(L / 2, W / 2, H / 2, rgb=c)]
     tips = ((0.9, 0.1, 0.1), (0.1, 0.3, 0.9), (0.1, 0.7, 0.2), (0.95, 0.5, 0.05), (0.6, 0.1, 0.7))
     for i, t in enumerate(tips):
         y = (-0.4 + 0.2 * i) * W
         parts.append(Part("capsule", (0.0035, 0.004), (L / 2 + 0.003, y, H * 0.55), rgb=t, collide=False))
-    parts.append(_box(L / 2 * 0.6, W / 2 * 0.6, 0.0006, z=H + 0.0006, rgb=(0.1, 0.4, 0.15), collide=False))
+    parts.append(box(L / 2 * 0.6, W / 2 * 0.6, 0.0006, z=H + 0.0006, rgb=(0.1, 0.4, 0.15), collide=False))
     return parts, (_grasp_across(W, H),)
 
 
 def _plant_pot(s, c, k):
     r0, r1, h = 0.020 * s, 0.027 * s, 0.036 * s
-    leaves = _ellipsoid(0.020 * s, 0.020 * s, (0.010 + 0.003 * k) * s) + [0, 0, h - 0.004 * s]
-    parts = [_hull(_frustum(r0, r1, h), c),
-             _hull(leaves, (0.15, 0.55 + 0.1 * k, 0.2))]
+    leaves = ellipsoid(0.020 * s, 0.020 * s, (0.010 + 0.003 * k) * s) + [0, 0, h - 0.004 * s]
+    parts = [hull(frustum(r0, r1, h), c),
+             hull(leaves, (0.15, 0.55 + 0.1 * k, 0.2))]
     return parts, _round_grasps(2 * r1, h + 0.010)
 
 
 def _spray_bottle(s, c, k):
     W, D, hb = 0.044 * s, 0.030 * s, 0.040 * s
-    body = np.concatenate([_ring(D / 2, 0, 16, sx=W / D) , _ring(D / 2, hb, 16, sx=W / D * 0.9)])
-    parts = [_hull(body, c),
-             Part("cylinder", (0.008 * s, 0.003 * s), (0, 0, hb + 0.003 * s), _Q_Z, WHITE),
-             _box(0.014 * s, 0.007 * s, 0.006 * s, x=0.006 * s, z=hb + 0.012 * s, rgb=WHITE),
-             _box(0.003 * s, 0.003 * s, 0.003 * s, x=0.021 * s, z=hb + 0.012 * s, rgb=(0.2, 0.2, 0.2), collide=False)]
+    body = np.concatenate([ring(D / 2, 0, 16, sx=W / D) , ring(D / 2, hb, 16, sx=W / D * 0.9)])
+    parts = [hull(body, c),
+             Part("cylinder", (0.008 * s, 0.003 * s), (0, 0, hb + 0.003 * s), Q_Z, WHITE),
+             box(0.014 * s, 0.007 * s, 0.006 * s, x=0.006 * s, z=hb + 0.012 * s, rgb=WHITE),
+             box(0.003 * s, 0.003 * s, 0.003 * s, x=0.021 * s, z=hb + 0.012 * s, rgb=(0.2, 0.2, 0.2), collide=False)]
     return parts, (_grasp_across(D, hb + 0.005),)
 
 
 def _wallet(s, c, k):
     L, W, H = 0.078 * s, (0.046 + 0.004 * k) * s, 0.014 * s
-    parts = [_box(L / 2, W / 2, H / 2, rgb=c),
-             _box(L / 2 * 0.94, 0.0006, 0.0006, y=-W / 2 * 0.9, z=H + 0.0006, rgb=(0.85, 0.8, 0.6), collide=False),
-             _box(0.006, 0.008, 0.0012, x=L / 2 * 0.7, z=H + 0.0008, rgb=SILVER, collide=False)]
+    parts = [box(L / 2, W / 2, H / 2, rgb=c),
+             box(L / 2 * 0.94, 0.0006, 0.0006, y=-W / 2 * 0.9, z=H + 0.0006, rgb=(0.85, 0.8, 0.6), collide=False),
+             box(0.006, 0.008, 0.0012, x=L / 2 * 0.7, z=H + 0.0008, rgb=SILVER, collide=False)]
     return parts, (_grasp_across(W, H),)
 
 

@@ -11,7 +11,8 @@ import sapien
 from mani_skill.envs.scene import ManiSkillScene
 from mani_skill.utils.structs.actor import Actor
 
-from rsb_maniskill.objects.catalog import ObjectModel, Part, model
+from rsb_maniskill.objects.catalog import model
+from rsb_maniskill.objects.geometry import ObjectModel, Part
 
 FRICTION = 1.0  # rubber-ish against the fingers' 2.0: held objects do not slip
 

@@ -19,7 +19,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from rsb_maniskill.objects import catalog
-from rsb_maniskill.objects.catalog import Grasp
+from rsb_maniskill.objects.geometry import Grasp
 
 BLOCK_HALF = 0.02  # 4 cm cubes
 BLOCK_COLORS: dict[str, tuple[float, float, float]] = {  # RGB of the 4-choice blocks, in block-index order

@@ -6,7 +6,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..objects.family import get_family
+from ..objects.family import DEFAULT_TARGETS, get_family
 from ..perturb import language, parse_perturb
 from . import mmlu_pro, wording
 from .distractors import numeric_options, weighted_options
@@ -42,7 +42,7 @@ class EpisodeSampler:
 
     def __init__(self, suite_id: str, split: str = "train", instructions: str | None = None,
                  color_map: str = "fixed", data_dir: str | os.PathLike | None = None,
-                 targets: str = "blocks", perturb: Mapping[str, int] | str | None = None) -> None:
+                 targets: str = DEFAULT_TARGETS, perturb: Mapping[str, int] | str | None = None) -> None:
         self.suite_id = suite_id
         # the language robustness axes (rsb_maniskill.perturb); visual ones are the simulator's
         self.perturb = language(parse_perturb(perturb))

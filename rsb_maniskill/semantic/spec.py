@@ -6,6 +6,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from ..objects.family import DEFAULT_TARGETS
+
 _TUPLE_FIELDS = ("options", "letters", "block_of_option", "block_names", "candidates")
 
 
@@ -37,7 +39,7 @@ class EpisodeSpec:
     instruction: str
     template_id: int
     rationale: str
-    targets: str = "blocks"  # last, with a default: positional construction keeps working
+    targets: str = DEFAULT_TARGETS  # last, with a default: positional construction keeps working
 
     def __post_init__(self) -> None:
         n = self.n_choices

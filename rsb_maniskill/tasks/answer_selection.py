@@ -9,7 +9,8 @@ Determinism: everything about an episode is a function of its episode seed. The 
 ``seed mod pool size`` of the split's pool (so seeds 0..P-1 visit every question once), the rest
 of the semantic draw (options, colour map, template) comes from the semantic engine seeded with
 the same seed, and the layout from ManiSkill's batched episode RNG (``objects/layout.py``), identical on CPU and
-GPU and under ``replay_trajectory``.
+GPU and under ``replay_trajectory``. On the CPU backend so is the physics that follows: every reset
+builds a fresh scene (``CPU_RECONFIGURATION_FREQ``), whatever ran before in the process.
 """
 from __future__ import annotations
 
@@ -21,12 +22,13 @@ from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from rsb_maniskill import compat
 from rsb_maniskill.agents.aloha import AlohaAgilex
-from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ, TASK_MAX_EPISODE_STEPS
+from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ, TASK_ENVS, serves
 from rsb_maniskill.objects import layout
-from rsb_maniskill.objects.family import get_family
+from rsb_maniskill.objects.family import DEFAULT_TARGETS, get_family
 from rsb_maniskill.objects.pool import CandidatePool
 from rsb_maniskill.perturb import language as perturb_language
 from rsb_maniskill.perturb import parse_perturb
+from rsb_maniskill.robot import ROBOT_UID
 from rsb_maniskill.semantic import EpisodeSampler, EpisodeSpec, parse_suite_id
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.contacts import PairContacts
@@ -50,9 +52,14 @@ LIFT_HEIGHT = 0.01  # m above its resting height
 HOLD_STEPS = 8  # consecutive control steps of closed-gripper contact
 REST_SPEED = 0.05  # m/s: a placed candidate must be at rest
 
-MAX_EPISODE_STEPS = TASK_MAX_EPISODE_STEPS
+# CPU physics: a fresh PhysX scene at every reset (ManiSkill's reconfiguration_freq). A reset only
+# teleports bodies, and PhysX keeps history no reset reaches (contact caches of pairs that survive
+# a teleport, the order its scene visits new contacts in), so the same seed would otherwise play
+# out differently after different episodes (docs/expert.md, "Reproducibility").
+CPU_RECONFIGURATION_FREQ = 1
 
 
+@serves(*TASK_ENVS)  # every suite with every candidate family: RSB-Math-4, RSB-Math-4-Objects, ...
 class AnswerSelectionEnv(RSBEnv):
     """Aloha-AgileX at a table with N candidates (blocks or everyday objects) and a gray answer zone.
 
@@ -66,17 +73,19 @@ class AnswerSelectionEnv(RSBEnv):
         targets: ``"blocks"`` or ``"objects"`` (everyday objects; the ``-Objects`` ids set it).
         perturb: robustness axes and their levels 0-3, e.g. ``{"camera": 2, "lang_layout": 1}``
             (``rsb_maniskill.perturb.AXES``; level 0 is today's episode). See docs/robustness.md.
+        reconfiguration_freq: ManiSkill's; default here 1 on the CPU backend (a fresh scene every
+            episode: ``CPU_RECONFIGURATION_FREQ``), ManiSkill's 0 on the GPU.
     """
 
-    SUPPORTED_ROBOTS = ["aloha_agilex"]
+    SUPPORTED_ROBOTS = [ROBOT_UID]
     SUPPORTED_REWARD_MODES = ["normalized_dense", "dense", "sparse", "none"]
     agent: AlohaAgilex
     pool: CandidatePool
 
     def __init__(self, *args, suite_id: str, split: str = "train", instructions: str | None = None,
                  color_map: str = "fixed", data_dir: str | None = None,
-                 camera_size: tuple[int, int] | None = None, targets: str = "blocks",
-                 perturb: dict[str, int] | str | None = None, robot_uids: str = "aloha_agilex", **kwargs):
+                 camera_size: tuple[int, int] | None = None, targets: str = DEFAULT_TARGETS,
+                 perturb: dict[str, int] | str | None = None, robot_uids: str = ROBOT_UID, **kwargs):
         self.suite_id = suite_id
         self.perturb = parse_perturb(perturb)  # first: a bad axis or level fails before anything is built
         self.suite, self.n_choices = parse_suite_id(suite_id)
@@ -92,6 +101,8 @@ class AnswerSelectionEnv(RSBEnv):
             kwargs["sensor_configs"] = {**kwargs.get("sensor_configs", {}), "width": int(w), "height": int(h)}
         self.episode_specs: list[EpisodeSpec | None] = []
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
+        if kwargs.get("reconfiguration_freq") is None and not self.gpu_sim_enabled:
+            self.reconfiguration_freq = CPU_RECONFIGURATION_FREQ
 
     # ------------------------------------------------------------------ configuration
     @property

@@ -9,19 +9,21 @@ import torch
 from mani_skill.utils.structs.types import SimConfig
 
 from rsb_maniskill.agents.aloha import AlohaAgilex
-from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ
+from rsb_maniskill.env_ids import CONTROL_FREQ, SIM_FREQ, TABLETOP_ID, serves
+from rsb_maniskill.robot import ARMS, ROBOT_UID
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.scene import TableSceneBuilder, human_camera_config
 
 
+@serves(TABLETOP_ID)
 class TableTopEnv(RSBEnv):
     """The Aloha-AgileX robot at the RSB table (no task: reward and success are empty)."""
 
-    SUPPORTED_ROBOTS = ["aloha_agilex"]
+    SUPPORTED_ROBOTS = [ROBOT_UID]
     SUPPORTED_REWARD_MODES = ["none"]
     agent: AlohaAgilex
 
-    def __init__(self, *args, robot_uids="aloha_agilex", **kwargs):
+    def __init__(self, *args, robot_uids=ROBOT_UID, **kwargs):
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
 
     @property
@@ -50,4 +52,4 @@ class TableTopEnv(RSBEnv):
         return {}
 
     def _get_obs_extra(self, info: dict):
-        return {f"{arm}_tcp_pose": self.agent.tcp_pose(arm).raw_pose for arm in ("left", "right")}
+        return {f"{arm}_tcp_pose": self.agent.tcp_pose(arm).raw_pose for arm in ARMS}

@@ -13,7 +13,7 @@ from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
 from rsb_maniskill.env_ids import CONTROL_FREQ, TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, LEROBOT_SEED_BASE
-from rsb_maniskill.export.naming import camera_key
+from rsb_maniskill.export.naming import DEFAULT_NAMING, camera_key
 from rsb_maniskill.robot import ACTION_DIM, CAMERA_SIZE, CAMERAS
 
 __all__ = ["RSBEnvConfig"]
@@ -36,7 +36,7 @@ class RSBEnvConfig(EnvConfig):
     fps: int = CONTROL_FREQ
     episode_length: int = TASK_MAX_EPISODE_STEPS
     obs_type: str = "pixels_agent_pos"
-    naming: str = "rsb"
+    naming: str = DEFAULT_NAMING
     instruction_mode: str = "normal"
     camera_width: int = CAMERA_SIZE[0]
     camera_height: int = CAMERA_SIZE[1]

@@ -1,8 +1,9 @@
 """Policies over the network. Two protocols, picked by the ``remote`` policy's ``protocol`` argument:
 
 - ``openpi`` (default): openpi's websocket protocol. The client policy (``client.py``), a server for
-  any RSB policy (``server.py``, ``python -m rsb_maniskill.evaluation.remote.server``) and the
-  ``openpi-aloha`` preset (``openpi.py``). Needs the ``eval`` extra (websockets, msgpack).
+  any RSB policy (``server.py``, ``python -m rsb_maniskill.evaluation.remote.server``), the wire
+  codec both use (``wire.py``) and the ``openpi-aloha`` preset (``openpi.py``). Needs the ``eval``
+  extra (websockets, msgpack).
 - ``vla-eval``: the protocol of allenai's vla-evaluation-harness model servers (``vla_eval.py``, its
   observation / action layout in ``vla_eval_layout.py``). Needs the ``vla_eval`` extra.
 

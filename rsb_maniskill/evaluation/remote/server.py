@@ -3,7 +3,7 @@
 Serves either an openpi-style object (``infer(obs: dict) -> dict`` with ``"actions"``) or an RSB
 :class:`~rsb_maniskill.evaluation.policy.Policy` (``reset``/``act``), the latter through
 :class:`PolicyAdapter`. Same wire protocol as openpi's ``WebsocketPolicyServer`` (see
-``client.py``), so openpi's client can talk to it and :class:`RemotePolicy` can talk to openpi.
+``wire.py``), so openpi's client can talk to it and :class:`RemotePolicy` can talk to openpi.
 
 Run one from the shell: ``python -m rsb_maniskill.evaluation.remote.server pkg.mod:make_policy --port 8000``.
 """
@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from ..policy import as_chunk, as_chunks, is_batched, load_policy, split_output, split_outputs
-from .client import INSTALL_HINT, packb, unflatten_obs, unpackb
 from .openpi import PRESETS, make_preset
+from .wire import INSTALL_HINT, packb, unflatten_obs, unpackb
 
 logger = logging.getLogger(__name__)
 
@@ -33,7 +33,7 @@ class PolicyAdapter:
     into the nested obs. The policy is reset on a connection's first request, when the request
     carries ``episode_start`` (``RemotePolicy(mark_episode_start=True)``), or when the prompt changes.
     With a ``preset`` (``openpi.OpenpiAloha``) the request is in openpi's Aloha layout instead,
-    and so is the reply. A batched request (the prompt a list, see ``client.py``) goes to the
+    and so is the reply. A batched request (the prompt a list, see ``wire.py``) goes to the
     policy's batched form (``reset_batch`` / ``act_batch``), reset on the same rule. A policy that
     talks (returns ``{"actions": ..., "text": ...}``) gets its text sent as the reply's ``"text"``.
     """

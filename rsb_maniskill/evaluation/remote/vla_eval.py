@@ -36,8 +36,9 @@ import numpy as np
 from rsb_maniskill.batch import env_row
 
 from ..policy import as_chunk
-from .client import open_websocket
+from ..records import VLA_EVAL_RUNNER
 from .vla_eval_layout import VlaEvalLayout, check_server_spec, make_layout, vla_eval_module
+from .wire import open_websocket
 
 TASK = {"name": "RSB", "suite": "RSB"}  # the episode_start task: the policy is not told the suite or seed
 
@@ -124,7 +125,8 @@ class VlaEvalPolicy:
     def __init__(self, host: str = "127.0.0.1", port: int | None = 8000, preset: str = "lerobot",
                  cameras: str | None = None, state_key: str | None = None, gripper: str | None = None,
                  joints: str | None = None, chunk_size: int | None = None, image_format: str = "png",
-                 connect_timeout: float = 60.0, request_timeout: float | None = 300.0, name: str = "vla-eval") -> None:
+                 connect_timeout: float = 60.0, request_timeout: float | None = 300.0,
+                 name: str = VLA_EVAL_RUNNER) -> None:
         self.layout: VlaEvalLayout = make_layout(preset, cameras=cameras, state_key=state_key, gripper=gripper,
                                                  joints=joints)
         if chunk_size is not None and (not isinstance(chunk_size, int) or chunk_size < 1):

@@ -20,8 +20,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from ..metrics import Rate, outcome, suite_metrics, suite_order
 from ..records import dedupe, perturb_label, row_label
-from .reasoning import rate_cell
-from .summary import _table
+from .cells import markdown_table, rate_cell
 
 CROSSING = ("right/right", "right/wrong", "wrong/right", "wrong/wrong")  # backbone / arm, over grasped episodes
 
@@ -141,7 +140,7 @@ def backbone_markdown(answers: Iterable[Mapping[str, Any]]) -> str:
                          rate_cell(Rate.of(sum(r.get("stated_letter") is None for r in recs), n))])
     return ("### Backbone accuracy (%, Wilson 95% intervals)\n\n"
             "Right: the answer states the correct option; no option: it states none, or several.\n\n"
-            + _table(["Backbone", "Suite", "Episodes", "Right", "No option"], rows) + "\n")
+            + markdown_table(["Backbone", "Suite", "Episodes", "Right", "No option"], rows) + "\n")
 
 
 def gap_markdown(table: tuple[Sequence[Gap], Sequence[NotJoined]]) -> str:
@@ -155,8 +154,9 @@ def gap_markdown(table: tuple[Sequence[Gap], Sequence[NotJoined]]) -> str:
                      "The backbone's answers beside the policy's actions on the same episodes. Over the grasped "
                      "episodes: backbone right, arm wrong (a wrong block grasped) is the semantic gap; backbone "
                      "wrong, arm right (the correct block grasped) is a shortcut or luck.\n\n"
-                     + _table(["Backbone", "Policy", "Suite", "Episodes", "Backbone right", "TSR", "TSR/GSR", "nSG",
-                               "Backbone right, arm wrong", "Backbone wrong, arm right", "Grasped"], rows))
+                     + markdown_table(["Backbone", "Policy", "Suite", "Episodes", "Backbone right", "TSR", "TSR/GSR",
+                                       "nSG", "Backbone right, arm wrong", "Backbone wrong, arm right", "Grasped"],
+                                      rows))
     if skipped:
         parts.append("Not joined (their episodes differ):\n\n"
                      + "\n".join(f"- {s.backbone} / {s.policy} / {s.suite_id}: {s.reason}" for s in skipped))

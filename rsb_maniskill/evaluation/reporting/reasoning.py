@@ -13,7 +13,7 @@ from typing import Any, Iterable, Mapping
 from ..metrics import Rate, group_by_suite, suite_order
 from ..records import dedupe, perturb_label, row_label
 from ..statements import FAILURE_LABELS, FAILURES, STATEMENTS, ReasoningFollowing, reasoning_following, talks
-from .summary import _ci, _table
+from .cells import markdown_table, rate_cell
 
 Table = Mapping[str, Mapping[str, ReasoningFollowing]]
 STATED = {"right": "Stated right", "wrong": "Stated wrong", "none": "No statement"}
@@ -33,11 +33,6 @@ def reasoning_table(records: Iterable[Mapping[str, Any]]) -> dict[str, dict[str,
     return out
 
 
-def rate_cell(rate: Rate) -> str:
-    """"12.5 [3.5, 36.0]": a share and its interval in percent, as the summary tables write them."""
-    return _ci(rate.value, rate.low, rate.high)
-
-
 def reasoning_markdown(table: Table) -> str:
     """Per suite, Table 5 (error types x policies), then the statement x grasp crossing."""
     if not table:
@@ -53,7 +48,7 @@ def reasoning_markdown(table: Table) -> str:
                                                                  for label in present])
         parts.append(f"### Reasoning following on {s} (%, paper Table 5)\n\n"
                      "Shares of the grasped-but-failed episodes: what the policy's text stated against the "
-                     "block it grasped.\n\n" + _table(["Error type"] + present, rows))
+                     "block it grasped.\n\n" + markdown_table(["Error type"] + present, rows))
     cells = [(said, grasp) for said in STATEMENTS for grasp in ("right", "wrong")]
     header = ["Policy", "Suite"] + [f"{STATED[said]} · grasped {grasp}" for said, grasp in cells] + [
         "Grasped episodes", "Stated right (% of episodes)"]
@@ -62,7 +57,7 @@ def reasoning_markdown(table: Table) -> str:
             for label in labels for s, t in table[label].items()]
     parts.append("### Statement and grasp (% of grasped episodes)\n\n"
                  "Grasped right: the correct block was grasped (placed or not); grasped wrong: only wrong blocks.\n\n"
-                 + _table(header, rows))
+                 + markdown_table(header, rows))
     return "\n\n".join(parts) + "\n"
 
 

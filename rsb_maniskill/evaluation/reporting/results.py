@@ -18,7 +18,9 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from ..metrics import PAPER_SUITES, Rate, SuiteMetrics, average, summarize
-from ..records import RECORDS_FILE, dedupe, one_version, perturb_label, read_manifest, read_records, row_label
+from ..records import dedupe, one_version, perturb_label, row_label
+from ..store import RECORDS_FILE, read_manifest, read_records
+from .cells import NA, ci, delta, pct
 
 RESULTS_FILE = "results.json"
 SCHEMA_FILE = Path(__file__).with_name("results.schema.json")
@@ -103,12 +105,8 @@ def load_results(results_dir: str | os.PathLike) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------------- --compare
-def _pct(x: float | None) -> str:
-    return "n/a" if x is None else f"{100 * x:.1f}"
-
-
 def _ci(r: Mapping[str, float | None]) -> str:
-    return "n/a" if r["value"] is None else f"{_pct(r['value'])} [{_pct(r['low'])}, {_pct(r['high'])}]"
+    return ci(r["value"], r["low"], r["high"])
 
 
 def separate(a: Mapping[str, float | None], b: Mapping[str, float | None]) -> bool | None:
@@ -146,14 +144,13 @@ def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] =
             sa, sb = ra["suites"][suite], rb["suites"][suite]
             for key in ("gsr", "tsr", "nsg"):
                 x, y = sa[key], sb[key]
-                diff = "n/a" if x["value"] is None or y["value"] is None else f"{100 * (y['value'] - x['value']):+.1f}"
-                sep = {None: "n/a", True: "separate", False: "overlap"}[separate(x, y)]
+                diff = delta(y["value"], x["value"])
+                sep = {None: NA, True: "separate", False: "overlap"}[separate(x, y)]
                 lines.append(f"| {suite} | {key.upper()} | {_ci(x)} ({sa['n']}) | {_ci(y)} ({sb['n']}) | {diff} | "
                              f"{sep} |")
         for key in ("gsr", "tsr", "nsg"):
             x, y = ra["average"][key], rb["average"][key]
-            diff = "n/a" if x is None or y is None else f"{100 * (y - x):+.1f}"
-            lines.append(f"| Avg | {key.upper()} | {_pct(x)} | {_pct(y)} | {diff} | |")
+            lines.append(f"| Avg | {key.upper()} | {pct(x)} | {pct(y)} | {delta(y, x)} | |")
         only = sorted(set(ra["suites"]) ^ set(rb["suites"]))
         note = f"\n\nIn one run only: {', '.join(only)}." if only else ""
         out.append(f"### {ra['row']} (A) vs {rb['row']} (B), %\n\n" + "\n".join(lines) + note)

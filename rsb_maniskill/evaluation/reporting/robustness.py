@@ -13,15 +13,10 @@ from typing import Any, Iterable, Mapping
 from rsb_maniskill.perturb import AXES
 
 from ..metrics import SuiteMetrics, summarize
-from ..records import dedupe, perturb_label
+from ..records import dedupe, perturb_label, row_label
+from .cells import NA, delta, markdown_table, rate_cell
 
 Table = dict[str, dict[str, dict[str, dict[int, SuiteMetrics]]]]  # row -> suite -> axis -> level -> metrics
-
-
-def _row(record: Mapping[str, Any]) -> str:
-    mode = record.get("instruction_mode", "normal")
-    policy = str(record.get("policy", "?"))
-    return policy if mode == "normal" else f"{policy} ({mode})"
 
 
 def robustness_table(records: Iterable[Mapping[str, Any]]) -> Table:
@@ -36,7 +31,8 @@ def robustness_table(records: Iterable[Mapping[str, Any]]) -> Table:
             axis, level = str(r["perturb_axis"]), int(r["perturb_level"])
         else:  # several axes at once: not a row of this table
             continue
-        by.setdefault((_row(r), axis or ""), []).append((level, r))
+        row = row_label(str(r.get("policy", "?")), r.get("instruction_mode", "normal"))  # levels 0-3 share the row
+        by.setdefault((row, axis or ""), []).append((level, r))
     out: Table = {}
     for (row, axis), items in by.items():
         if not axis:
@@ -63,20 +59,8 @@ def breaks(m: SuiteMetrics, base: SuiteMetrics) -> str:
     return ", ".join(out) or "-"
 
 
-def _pct(x: float | None) -> str:
-    return "n/a" if x is None else f"{100 * x:.1f}"
-
-
-def _ci(r: Any) -> str:
-    return "n/a" if r.value is None else f"{_pct(r.value)} [{_pct(r.low)}, {_pct(r.high)}]"
-
-
 def _diff(a: float | None, b: float | None) -> float | None:
     return None if a is None or b is None else a - b
-
-
-def _delta(a: float | None, b: float | None) -> str:
-    return "n/a" if a is None or b is None else f"{100 * (a - b):+.1f}"
 
 
 def robustness_rows(table: Table) -> list[dict[str, Any]]:
@@ -106,14 +90,14 @@ def robustness_markdown(table: Table) -> str:
     head = ["Axis", "Level", "Episodes", "GSR", "TSR", "nSG", "ΔGSR", "ΔTSR", "ΔnSG", "Breaks"]
     for row, suites in table.items():
         for suite, axes in suites.items():
-            lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] + [":---:"] * (len(head) - 1)) + "|"]
+            rows = []
             for axis, levels in axes.items():
                 base = levels.get(0)
                 for level, m in levels.items():
-                    d = [_delta(getattr(m, k).value, getattr(base, k).value) if base else "n/a"
+                    d = [delta(getattr(m, k).value, getattr(base, k).value) if base else NA
                          for k in ("gsr", "tsr", "nsg")]
-                    lines.append("| " + " | ".join([axis, str(level), str(m.n_episodes), _ci(m.gsr), _ci(m.tsr),
-                                                    _ci(m.nsg), *d, "-" if base is None else breaks(m, base)]) + " |")
+                    rows.append([axis, str(level), str(m.n_episodes), rate_cell(m.gsr), rate_cell(m.tsr),
+                                 rate_cell(m.nsg), *d, "-" if base is None else breaks(m, base)])
             parts.append(f"### Robustness: {row} on {suite} (%, Wilson 95% intervals; Δ in points from level 0)\n\n"
-                         + "\n".join(lines))
+                         + markdown_table(head, rows))
     return "\n\n".join(parts) + ("\n" if parts else "")

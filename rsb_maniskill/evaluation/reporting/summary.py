@@ -3,14 +3,14 @@
 ``results`` everywhere is ``{row label: {suite_id: SuiteMetrics}}``: one row per policy (and
 instruction mode, for the language ablations), built from records by :func:`results_from_records`.
 Markdown tables follow the paper: Table 3 (TSR), Table 4 (nSG), Table 6 (GSR/TSR), Table 7 (error
-analysis), with suites as columns and Avg over the paper's six suites.
+analysis), with suites as columns and Avg over the paper's six suites. ``writer.write_report``
+writes them into a results directory with the other sections.
 """
 from __future__ import annotations
 
 import csv
 import json
 import os
-import re
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -18,6 +18,7 @@ from rsb_maniskill.objects.family import OBJECTS_SUFFIX
 
 from ..metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, SuiteMetrics, average, suite_order, summarize
 from ..records import dedupe, one_version, record_row
+from .cells import ci, markdown_table, pct
 
 Results = Mapping[str, Mapping[str, SuiteMetrics]]
 
@@ -99,20 +100,6 @@ def write_csv(results: Results, path: str | os.PathLike, benchmark_version: str 
 
 
 # ---------------------------------------------------------------- Markdown
-def _pct(x: float | None, digits: int = 1) -> str:
-    return "n/a" if x is None else f"{100.0 * x:.{digits}f}"
-
-
-def _ci(value: float | None, low: float | None, high: float | None) -> str:
-    return "n/a" if value is None else f"{_pct(value)} [{_pct(low)}, {_pct(high)}]"
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
 def _avg_label(avgs: Sequence[Average]) -> tuple[str, str]:
     # The paper reports Avg only over all six suites; mark a partial Avg instead of hiding it.
     if all(a.complete for a in avgs):
@@ -130,27 +117,27 @@ def markdown_tables(results: Results, benchmark_version: str | None = None) -> s
 
     def cell(label: str, s: str, attr: str) -> str:
         m = results[label].get(s)
-        return "" if m is None else _pct(getattr(m, attr).value)
+        return "" if m is None else pct(getattr(m, attr).value)
 
     parts = []
     for title, attr in (("Task Success Rate (TSR, %) (paper Table 3)", "tsr"),
                         ("Normalized Semantic Grounding (nSG, %) (paper Table 4)", "nsg")):
-        rows = [[label] + [cell(label, s, attr) for s in suites] + [f"**{_pct(getattr(avgs[label], attr))}**"]
+        rows = [[label] + [cell(label, s, attr) for s in suites] + [f"**{pct(getattr(avgs[label], attr))}**"]
                 for label in labels]
-        parts.append(f"### {title}\n\n" + _table(["Policy"] + suites + [avg_head], rows) + avg_note)
+        parts.append(f"### {title}\n\n" + markdown_table(["Policy"] + suites + [avg_head], rows) + avg_note)
 
     header = ["Policy"] + [f"{s} {k}" for s in suites for k in ("GSR", "TSR")] + [f"{avg_head} GSR", f"{avg_head} TSR"]
     rows = [[label] + [cell(label, s, k) for s in suites for k in ("gsr", "tsr")]
-            + [f"**{_pct(avgs[label].gsr)}**", f"**{_pct(avgs[label].tsr)}**"] for label in labels]
-    parts.append("### Full GSR/TSR decomposition (%) (paper Table 6)\n\n" + _table(header, rows) + avg_note)
+            + [f"**{pct(avgs[label].gsr)}**", f"**{pct(avgs[label].tsr)}**"] for label in labels]
+    parts.append("### Full GSR/TSR decomposition (%) (paper Table 6)\n\n" + markdown_table(header, rows) + avg_note)
 
     for label in labels:
         row = results[label]
-        detail = [[s, str(m.n_episodes), _ci(m.gsr.value, m.gsr.low, m.gsr.high),
-                   _ci(m.tsr.value, m.tsr.low, m.tsr.high), _ci(m.nsg.value, m.nsg.low, m.nsg.high),
+        detail = [[s, str(m.n_episodes), ci(m.gsr.value, m.gsr.low, m.gsr.high),
+                   ci(m.tsr.value, m.tsr.low, m.tsr.high), ci(m.nsg.value, m.nsg.low, m.nsg.high),
                    f"{100 / m.n_choices:.1f}"] for s, m in row.items()]
         parts.append(f"### {label}: per suite with Wilson 95% intervals (%)\n\n"
-                     + _table(["Suite", "Episodes", "GSR", "TSR", "nSG", "Random TSR (1/N)"], detail))
+                     + markdown_table(["Suite", "Episodes", "GSR", "TSR", "nSG", "Random TSR (1/N)"], detail))
 
     err_rows = []
     for key, name in (("not_placed", "Grasped correct block but not placed"),
@@ -160,14 +147,14 @@ def markdown_tables(results: Results, benchmark_version: str | None = None) -> s
         for label in labels:
             errs = [m.errors for m in results[label].values()]
             pooled = _pool_errors(errs)
-            vals.append(_pct(pooled[key], 2))
+            vals.append(pct(pooled[key], 2))
         err_rows.append([name] + vals)
     parts += _beyond_blocks_tables(results)
     n_failed = [str(sum(m.errors.n_grasped_failed for m in results[label].values())) for label in labels]
     err_rows.append(["Grasped-but-failed episodes (count)"] + n_failed)
     parts.append("### Error analysis, all suites pooled (%, paper Table 7)\n\n"
                  "Shares of the grasped-but-failed episodes, except no-grasp (share of all episodes).\n\n"
-                 + _table(["Error type"] + labels, err_rows))
+                 + markdown_table(["Error type"] + labels, err_rows))
     if benchmark_version:
         from rsb_maniskill.version import benchmark_label
 
@@ -184,10 +171,10 @@ def _beyond_blocks_tables(results: Results) -> list[str]:
             continue
         avg = average(row, PAPER_OBJECT_SUITES)
         head, note = _avg_label([avg])
-        rows = [[s.removesuffix(OBJECTS_SUFFIX), _pct(row[s].gsr.value), _pct(row[s].tsr.value)] for s in suites]
-        rows.append([head, f"**{_pct(avg.gsr)}**", f"**{_pct(avg.tsr)}**"])
+        rows = [[s.removesuffix(OBJECTS_SUFFIX), pct(row[s].gsr.value), pct(row[s].tsr.value)] for s in suites]
+        rows.append([head, f"**{pct(avg.gsr)}**", f"**{pct(avg.tsr)}**"])
         out.append(f"### Beyond Blocks: {label} (everyday objects, paper appendix tables)\n\n"
-                   + _table(["Scene", "GSR", "TSR"], rows) + note)
+                   + markdown_table(["Scene", "GSR", "TSR"], rows) + note)
     return out
 
 
@@ -252,87 +239,5 @@ def plot_summary(metrics: Mapping[str, SuiteMetrics], path: str | os.PathLike, t
     return path
 
 
-def _write_gap(paths: Mapping[str, Path], out: Path, stem: str, records: Sequence[Mapping[str, Any]]
-               ) -> dict[str, Path]:
-    """The backbone section when ``out`` holds ``rsb backbone`` answers; the gap's CSV and plot."""
-    from ..backbone import BACKBONE_FILE, read_backbone_records
-    from .gap import backbone_markdown, gap_json, gap_markdown, gap_rows, gap_table, plot_gap
-
-    if not (out / BACKBONE_FILE).exists():
-        return {}
-    answers = read_backbone_records(out / BACKBONE_FILE)
-    table = gap_table(records, answers)
-    append_section(paths, "backbone", gap_json(answers, table), backbone_markdown(answers) + "\n" + gap_markdown(table))
-    if not table[0]:
-        return {}
-    png = out / f"{stem}_gap.png"
-    png.write_bytes(plot_gap(table[0]))
-    return {"csv:gap": write_rows(gap_rows(table[0]), out / f"{stem}_gap.csv"), "png:gap": png}
-
-
-def append_section(paths: Mapping[str, Path], key: str, data: Any, markdown: str) -> None:
-    """Add ``data`` under ``key`` to the summary JSON and ``markdown`` to the end of its Markdown."""
-    summary = json.loads(paths["json"].read_text(encoding="utf-8"))
-    summary[key] = data
-    paths["json"].write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    with open(paths["markdown"], "a", encoding="utf-8") as f:
-        f.write("\n" + markdown)
-
-
-def write_rows(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> Path:
-    """Rows of plain values as a CSV file, columns in the first row's order (None as empty)."""
-    path = Path(path)
-    with open(path, "w", newline="", encoding="utf-8") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else [])
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: "" if v is None else v for k, v in r.items()})
-    return path
-
-
 def _nan(x: float | None) -> float:
     return float("nan") if x is None else float(x)
-
-
-def _slug(label: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", label).strip("_") or "policy"
-
-
-def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summary",
-                 records: Iterable[Mapping[str, Any]] | None = None) -> dict[str, Path]:
-    """Write ``<stem>.json``, ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<row>.png`` per row,
-    each naming the benchmark version (of ``records``, else this code's); with ``records``, also
-    ``results.json`` (``results.py``); when they hold perturbed episodes, the robustness tables go
-    into the JSON (``robustness``) and the Markdown too; with records of a policy that talks, Table 5
-    goes into them (``reasoning_following``) and into ``<stem>_reasoning.csv``; with ``rsb backbone``
-    answers in ``out_dir``, the backbone's accuracy and the semantic gap (``backbone``,
-    ``<stem>_gap.csv``, ``<stem>_gap.png``)."""
-    from rsb_maniskill.version import BENCHMARK_VERSION
-
-    from .reasoning import reasoning_json, reasoning_markdown, reasoning_rows, reasoning_table
-    from .results import write_results
-    from .robustness import robustness_markdown, robustness_rows, robustness_table
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    records = list(records) if records is not None else []
-    version = one_version(records) or BENCHMARK_VERSION
-    paths = {
-        "json": write_json(results, out / f"{stem}.json", version),
-        "csv": write_csv(results, out / f"{stem}.csv", version),
-        "markdown": write_markdown(results, out / f"{stem}.md", version),
-    }
-    if records:
-        paths["results"] = write_results(out, records)
-    table = robustness_table(records)
-    if table:
-        append_section(paths, "robustness", robustness_rows(table), robustness_markdown(table))
-    reasoning = reasoning_table(records)
-    if reasoning:
-        append_section(paths, "reasoning_following", reasoning_json(reasoning), reasoning_markdown(reasoning))
-        paths["csv:reasoning"] = write_rows(reasoning_rows(reasoning), out / f"{stem}_reasoning.csv")
-    paths.update(_write_gap(paths, out, stem, records))
-    for label, row in results.items():
-        if row:
-            paths[f"png:{label}"] = plot_summary(row, out / f"{stem}_{_slug(label)}.png", title=f"{label}: GSR and TSR")
-    return paths

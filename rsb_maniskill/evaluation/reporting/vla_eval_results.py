@@ -4,7 +4,7 @@ vla-eval writes ``<output_dir>/<benchmark>_aggregate.json`` (``vla_eval/results/
 benchmark's tasks, each with its episodes, each with the ``metrics`` RSBBenchmark returned, which
 are the episode's ``rsb eval`` record plus ``gsr`` / ``tsr``. From those records come the paper's
 tables with Wilson intervals and nSG (vla-eval reports ``mean_<key>`` only), ``summary.*`` and
-``report.html``, as for an ``rsb eval`` run.
+``report.html``, as for an ``rsb eval`` run (``rsb report``, ``evaluation/cli/report.py``, writes them).
 
 An episode vla-eval ended with an error (``failure_reason``: server unreachable, timeout, ...) has
 no RSB record; vla-eval counts it as a failure, and so does the reader (no grasp, no success),
@@ -18,8 +18,10 @@ import warnings
 from pathlib import Path
 from typing import Any, Mapping
 
+from ..records import VLA_EVAL_RUNNER
+from ..store import RECORDS_FILE
+
 AGGREGATE_GLOB = "*_aggregate.json"  # vla-eval's results files
-RUNNER = "vla-eval"  # the records' ``runner`` field, and RSBBenchmark's default policy name
 
 
 class NotRSBResults(ValueError):
@@ -38,16 +40,18 @@ def is_vla_eval_results(path: str | os.PathLike) -> bool:
     """Whether ``rsb report PATH`` means vla-eval results: a results file, or a directory of them that
     holds no ``rsb eval`` records."""
     path = Path(path)
-    return bool(results_files(path)) and not (path / "episodes.jsonl").exists()
+    return bool(results_files(path)) and not (path / RECORDS_FILE).exists()
 
 
 def _failed_record(episode: Mapping[str, Any], task: str, params: Mapping[str, Any]) -> dict[str, Any]:
     from rsb_maniskill.evaluation.protocol import eval_seeds
 
     suite, i = str(episode.get("suite") or task), int(episode.get("episode_idx", episode.get("episode_id", 0)))
-    return {"suite_id": suite, "seed": eval_seeds(suite, i + 1)[i], "policy": params.get("policy_name", RUNNER),
+    return {"suite_id": suite, "seed": eval_seeds(suite, i + 1)[i],
+            "policy": params.get("policy_name", VLA_EVAL_RUNNER),
             "instruction_mode": params.get("instruction_mode", "normal"), "grasped_any": False, "success": False,
-            "steps": episode.get("steps", 0), "runner": RUNNER, "failure_reason": episode.get("failure_reason")}
+            "steps": episode.get("steps", 0), "runner": VLA_EVAL_RUNNER,
+            "failure_reason": episode.get("failure_reason")}
 
 
 def records_from_results(results: Mapping[str, Any], source: str = "results") -> list[dict[str, Any]]:
@@ -78,18 +82,3 @@ def read_vla_eval_records(path: str | os.PathLike) -> list[dict[str, Any]]:
     if not files:
         raise FileNotFoundError(f"{path}: no vla-eval results ({AGGREGATE_GLOB}) there")
     return [r for f in files for r in records_from_results(json.loads(f.read_text(encoding="utf-8")), str(f))]
-
-
-def report_vla_eval(path: str | os.PathLike, out: str | os.PathLike | None = None,
-                    title: str | None = None) -> Path:
-    """Write ``summary.{md,json,csv}``, the charts and ``report.html`` (or ``out``) beside the results and
-    print the paper's tables; returns the page."""
-    from .html_report import write_html_report
-    from .summary import markdown_tables, results_from_records, write_report
-
-    records = read_vla_eval_records(path)
-    results_dir = Path(path) if Path(path).is_dir() else Path(path).parent
-    results = results_from_records(records)
-    write_report(results, results_dir, records=records)
-    print(markdown_tables(results))
-    return write_html_report(results_dir, out, records=records, title=title)

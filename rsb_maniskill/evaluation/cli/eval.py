@@ -16,38 +16,33 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
-import os
 import signal
 import sys
 from pathlib import Path
 from typing import Any
 
-# Settings that change what an episode of a row means: a resumed run must keep them.
-MANIFEST_KEYS = ("policy", "policy_kwargs", "obs_mode", "control_mode", "max_steps", "env_kwargs", "benchmark_version",
-                 "checkpoint")
-PROTOCOL_KEYS = ("split", "instructions")  # fixed by the protocol; not settable with --env-arg
+from ..store import ManifestError
+from .args import MANIFEST_KEYS, SEEDS_TEXT, EvalError, check_data, check_env_args, parse_kv, results_dir
+
 SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0: the unperturbed run)
 
 
-class EvalError(RuntimeError):
-    """Bad arguments or a results directory that does not fit this run."""
-
-
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS, add_suites_argument
-    from rsb_maniskill.evaluation.policy import POLICIES
-    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
-    from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
+    from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS, add_suites_argument
     from rsb_maniskill.perturb import AXES
+    from rsb_maniskill.robot import CONTROL_MODE
     from rsb_maniskill.workers import add_executor_args
+
+    from ..policy import POLICIES
+    from ..protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS
+    from ..records import INSTRUCTION_MODES
 
     state_only = [name for name, spec in POLICIES.items() if spec.obs_mode == "state"]
 
     p = subparsers.add_parser(
         "eval", help="evaluate a policy: GSR / TSR / nSG per suite (paper protocol)",
-        description="Runs POLICY on the evaluation split (unseen instructions, fixed seeds 10,000,000 + i) "
-                    "of each suite and writes per-episode records and GSR / TSR / nSG summaries. "
+        description=f"Runs POLICY on the evaluation split ({EVAL_ENV_KWARGS['instructions']} instructions, fixed "
+                    f"seeds {SEEDS_TEXT}) of each suite and writes per-episode records and GSR / TSR / nSG summaries. "
                     "Rerunning the same command resumes an interrupted run.")
     p.add_argument("policy", help=f"built-in ({', '.join(POLICIES)}) or package.module:factory")
     p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
@@ -71,7 +66,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=None, help="results directory (default: results/<name>)")
     p.add_argument("-o", "--obs-mode", default=None,
                    help=f"observations (default: rgb; state for {', '.join(state_only)})")
-    p.add_argument("-c", "--control-mode", default=None, help="controller (default: the robot's pd_joint_pos)")
+    p.add_argument("-c", "--control-mode", default=None, help=f"controller (default: the robot's {CONTROL_MODE})")
     p.add_argument("-e", "--env-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="extra gym.make keyword, e.g. camera_size=[224,224] (VALUE as JSON, else a string)")
     p.add_argument("--data-dir", default=None,
@@ -79,7 +74,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--num-procs", type=int, default=None,
                    help="CPU worker processes (default 1), or Ray tasks (default: the cluster's CPUs)")
     p.add_argument("--num-envs", type=int, default=1,
-                   help="parallel envs on the GPU backend (physx_cuda), driven by one batched policy "
+                   help=f"parallel envs on the GPU backend ({GPU_SIM_BACKEND}), driven by one batched policy "
                         "(reset_batch / act_batch; e.g. remote: one request per step) or one policy "
                         "instance each (default 1)")
     p.add_argument("--max-steps", type=int, default=None,
@@ -88,19 +83,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     add_executor_args(p)
     p.set_defaults(func=run_eval)
-
-
-def parse_kv(items: list[str], what: str) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise EvalError(f"{what} {item!r} must look like KEY=VALUE")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
 
 
 def perturbations(perturb: list[str], sweep: list[str]) -> list[dict[str, int]]:
@@ -122,7 +104,7 @@ def perturbations(perturb: list[str], sweep: list[str]) -> list[dict[str, int]]:
 
 def check_policy_spec(spec: str, num_envs: int = 1) -> None:
     """Fail before any env is built when a spec cannot resolve, or cannot run on parallel envs."""
-    from rsb_maniskill.evaluation.policy import policy_spec, resolve_factory
+    from ..policy import policy_spec, resolve_factory
 
     if num_envs > 1 and policy_spec(spec).single_env:
         raise EvalError(f"policy {spec!r} drives one env at a time: use --num-procs, not --num-envs")
@@ -134,48 +116,6 @@ def check_policy_spec(spec: str, num_envs: int = 1) -> None:
         raise EvalError(str(err)) from err
 
 
-def check_data(suites: list[str], data_dir: str | None) -> None:
-    """Load each suite's evaluation pool now: missing GSM8K / MMLU-Pro fails before any episode runs."""
-    from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
-    from rsb_maniskill.objects.family import split_env_id
-    from rsb_maniskill.semantic import EpisodeSampler
-    from rsb_maniskill.semantic.errors import SemanticError
-
-    for suite in suites:
-        try:
-            EpisodeSampler(split_env_id(suite)[0], data_dir=data_dir, **EVAL_ENV_KWARGS)
-        except SemanticError as err:
-            raise EvalError(f"{suite}: {err}") from err
-
-
-def check_manifest(out: Path, label: str, settings: dict[str, Any], section: str = "runs",
-                   keys: tuple[str, ...] = MANIFEST_KEYS) -> None:
-    """Record this row's settings in run.json (under ``section``: ``runs`` for policies,
-    ``backbones`` for ``rsb backbone``), or check that ``keys`` match those it was started with; the
-    directory's records must be of this benchmark version (a table holds one)."""
-    from rsb_maniskill.evaluation.records import MANIFEST_FILE, RECORDS_FILE, VERSION_FIELD, one_version, read_records
-    from rsb_maniskill.version import BENCHMARK_VERSION, code_commit, package_version
-
-    try:
-        one_version([*read_records(out / RECORDS_FILE), {VERSION_FIELD: BENCHMARK_VERSION}])
-    except ValueError as err:
-        raise EvalError(f"{out / RECORDS_FILE}: {err}. Use another --out for this version's run.") from None
-    path = out / MANIFEST_FILE
-    manifest = json.loads(path.read_text()) if path.exists() else {"runs": {}}
-    old = manifest.setdefault(section, {}).get(label)
-    if old is not None:
-        diff = [k for k in keys if old.get(k) != settings.get(k)]
-        if diff:
-            shown = ", ".join(f"{k}: {old.get(k)!r} before, {settings.get(k)!r} now" for k in diff)
-            raise EvalError(f"{out} already holds episodes of {label!r} run with other settings ({shown}). "
-                            "Use the same settings to resume, or another --out / --name for a new run.")
-        return
-    manifest[section][label] = {**settings, "rsb_version": package_version(), "code_commit": code_commit()}
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(manifest, indent=2) + "\n")
-    os.replace(tmp, path)
-
-
 def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
@@ -185,7 +125,7 @@ def run_eval(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         return _run_eval(args)
-    except EvalError as err:
+    except (EvalError, ManifestError) as err:
         print(f"rsb eval: error: {err}", file=sys.stderr)
         return 2
     finally:
@@ -196,8 +136,10 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
               max_steps: int, env_kwargs: dict, out: Path, records_path: Path, num_procs: int,
               executor: Any, perturbs: list[dict[str, int]]) -> None:
     """Every suite x instruction mode x perturbation, one after the other."""
-    from rsb_maniskill.evaluation.jobs import EvalJob, run_job
-    from rsb_maniskill.evaluation.protocol import eval_seeds
+    from rsb_maniskill.env_ids import CPU_SIM_BACKEND, GPU_SIM_BACKEND
+
+    from ..jobs import EvalJob, run_job
+    from ..protocol import eval_seeds
 
     for suite in suites:
         for mode, perturb in ((m, p) for m in args.instruction for p in perturbs):
@@ -205,20 +147,20 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
                 suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
                 label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
                 control_mode=args.control_mode, num_envs=args.num_envs,
-                sim_backend="physx_cuda" if args.num_envs > 1 else "physx_cpu", max_steps=max_steps,
+                sim_backend=GPU_SIM_BACKEND if args.num_envs > 1 else CPU_SIM_BACKEND, max_steps=max_steps,
                 env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
                 num_videos=args.videos)
             run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor)
 
 
 def _run_eval(args: argparse.Namespace) -> int:
-    from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
-    from rsb_maniskill.evaluation.policy import policy_spec
-    from rsb_maniskill.evaluation.protocol import eval_seeds
-    from rsb_maniskill.evaluation.records import RECORDS_FILE, read_records
-    from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records, write_report
+    from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.version import BENCHMARK_VERSION
     from rsb_maniskill.workers import executor_from_args
+
+    from ..policy import policy_spec
+    from ..protocol import eval_seeds
+    from ..store import RECORDS_FILE, check_manifest, read_records
 
     suites = args.suites
     for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-procs", args.num_procs or 1, 1),
@@ -239,26 +181,22 @@ def _run_eval(args: argparse.Namespace) -> int:
         from rsb_maniskill.physx_gpu import PhysXGpuLibraryMissing, check_for_sim_backend
 
         if not torch.cuda.is_available():
-            raise EvalError("--num-envs > 1 runs the GPU backend (physx_cuda), and no CUDA device is visible; "
+            raise EvalError(f"--num-envs > 1 runs the GPU backend ({GPU_SIM_BACKEND}), and no CUDA device is visible; "
                             "use --num-procs on a CPU machine")
         try:
-            check_for_sim_backend("physx_cuda", args.num_envs)  # before any episode, not in a worker
+            check_for_sim_backend(GPU_SIM_BACKEND, args.num_envs)  # before any episode, not in a worker
         except PhysXGpuLibraryMissing as err:
             raise EvalError(str(err)) from err
     policy_kwargs = parse_kv(args.policy_arg, "--policy-arg")
     env_kwargs = parse_kv(args.env_arg, "--env-arg")
-    fixed = [k for k in PROTOCOL_KEYS if k in env_kwargs]
-    if fixed:
-        raise EvalError(f"--env-arg cannot set {', '.join(fixed)}: the protocol fixes split=test, instructions=unseen")
-    if "perturb" in env_kwargs:
-        raise EvalError("--env-arg cannot set perturb: use --perturb AXIS=LEVEL or --sweep AXIS (records carry them)")
+    check_env_args(env_kwargs, "use --perturb AXIS=LEVEL or --sweep AXIS (records carry them)")
     perturbs = perturbations(args.perturb, args.sweep)
     if args.data_dir:
         env_kwargs["data_dir"] = args.data_dir
     check_policy_spec(args.policy, args.num_envs)
     check_data(suites, env_kwargs.get("data_dir"))
     if args.policy == "remote":
-        from rsb_maniskill.evaluation.remote import check_remote_args
+        from ..remote import check_remote_args
 
         try:
             check_remote_args(policy_kwargs, args.obs_mode or "rgb")
@@ -266,21 +204,13 @@ def _run_eval(args: argparse.Namespace) -> int:
             raise EvalError(str(err)) from err
 
     label = args.name or args.policy
-    out = Path(args.out or Path("results") / label.replace(":", "_").replace("/", "_"))
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".write-probe{os.getpid()}"
-        probe.touch()
-        probe.unlink()
-    except OSError as err:
-        raise EvalError(f"cannot write to results directory {out}: {err.strerror or err}; "
-                        "choose another --out") from err
+    out = results_dir(args.out, label)
     obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
     max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
     settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
                     control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs,
                     benchmark_version=BENCHMARK_VERSION, checkpoint=args.checkpoint)
-    check_manifest(out, label, settings)
+    check_manifest(out, label, settings, keys=MANIFEST_KEYS)
 
     records_path = out / RECORDS_FILE
     interrupted = False
@@ -295,25 +225,24 @@ def _run_eval(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             interrupted = True
 
-    from rsb_maniskill.evaluation.records import perturb_label as record_perturb
     from rsb_maniskill.perturb import label as perturb_label
+
+    from ..records import perturb_label as record_perturb
+    from ..reporting.reasoning import reasoning_markdown, reasoning_table
+    from ..reporting.robustness import robustness_markdown, robustness_table
+    from ..reporting.summary import markdown_tables, results_from_records
+    from ..reporting.writer import write_html_report, write_report
 
     wanted = {(s, m, perturb_label(p)) for s in suites for m in args.instruction for p in perturbs}
     all_records = read_records(records_path)
     results = results_from_records(all_records)
     if results:
-        from rsb_maniskill.evaluation.reporting.html_report import write_html_report
-
         paths = write_report(results, out, records=all_records)
         page = write_html_report(out, records=all_records)
         print(markdown_tables(results, BENCHMARK_VERSION))
-        from rsb_maniskill.evaluation.reporting.robustness import robustness_markdown, robustness_table
-
         robust = robustness_table(all_records)
         if robust:
             print(robustness_markdown(robust))
-        from rsb_maniskill.evaluation.reporting.reasoning import reasoning_markdown, reasoning_table
-
         print(reasoning_markdown(reasoning_table(all_records)), end="")  # nothing unless a policy talked
         print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\n"
               f"results: {paths['results']}\nreport: {page}")

@@ -1,4 +1,8 @@
-"""`rsb questions`, `rsb stats` and `rsb data download` (no simulator imports)."""
+"""`rsb questions`, `rsb stats` and `rsb data download`: the semantic engine's commands (no simulator imports).
+
+A top-level command module, as ``demo.py`` and ``golden.py``: it takes suites the way every command
+does (``env_ids.add_suites_argument``), which the engine itself (``semantic/``) never imports.
+"""
 from __future__ import annotations
 
 import argparse
@@ -9,8 +13,7 @@ import sys
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the semantic engine's sub-commands to the `rsb` dispatcher."""
     from rsb_maniskill.env_ids import add_suites_argument
-
-    from .suites import COLOR_MAPS, INSTRUCTION_SETS, SPLITS
+    from rsb_maniskill.semantic.suites import COLOR_MAPS, INSTRUCTION_SETS, SPLITS
 
     p = subparsers.add_parser(
         "questions", help="print sample episodes of a suite",
@@ -49,9 +52,8 @@ def _fail(err: Exception) -> int:
 def cmd_questions(args: argparse.Namespace) -> int:
     """Print ``-n`` episodes of each suite named."""
     from rsb_maniskill.objects.family import split_env_id
-
-    from .errors import SemanticError
-    from .sampler import EpisodeSampler
+    from rsb_maniskill.semantic.errors import SemanticError
+    from rsb_maniskill.semantic.sampler import EpisodeSampler
 
     if not args.suites:
         return _fail(ValueError("name at least one SUITE (e.g. RSB-Math-4)"))
@@ -82,11 +84,10 @@ def cmd_questions(args: argparse.Namespace) -> int:
 def cmd_stats(args: argparse.Namespace) -> int:
     """Pool sizes per suite and split (reads like the paper's Table 2, plus evaluation pools)."""
     from rsb_maniskill.objects.family import split_env_id
-
-    from .data import data_source_label
-    from .errors import DataNotFoundError
-    from .pools import get_pool
-    from .suites import parse_suite_id, suite_source
+    from rsb_maniskill.semantic.data import data_source_label
+    from rsb_maniskill.semantic.errors import DataNotFoundError
+    from rsb_maniskill.semantic.pools import get_pool
+    from rsb_maniskill.semantic.suites import parse_suite_id, suite_source
 
     print(f"data: {data_source_label(args.data_dir)}")
     print(f"{'suite':<18}{'source':<32}{'choices':>8}{'train':>9}{'test':>9}")
@@ -120,8 +121,8 @@ def cmd_stats(args: argparse.Namespace) -> int:
 
 def cmd_data_download(args: argparse.Namespace) -> int:
     """Fetch the pinned GSM8K / MMLU-Pro hub files into the huggingface_hub cache."""
-    from .data import download_hub_data
-    from .errors import SemanticError
+    from rsb_maniskill.semantic.data import download_hub_data
+    from rsb_maniskill.semantic.errors import SemanticError
 
     try:
         paths = download_hub_data(args.export)

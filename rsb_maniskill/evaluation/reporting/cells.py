@@ -1,0 +1,38 @@
+"""How a number is written in the reports: percentages, intervals, changes, Markdown tables.
+
+Every table of ``summary.md``, ``report.html`` and ``rsb report --compare`` writes its cells with
+these, so a rate reads the same everywhere: ``12.5`` in a table whose header says %, ``12.5 [3.5,
+36.0]`` with its Wilson 95 % interval, ``+4.2`` for a change in points, ``n/a`` when undefined.
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+NA = "n/a"  # an undefined rate (nSG without a grasp, a share of nothing)
+
+
+def pct(x: float | None, digits: int = 1, unit: str = "") -> str:
+    """A fraction as a percentage: ``0.125`` -> ``"12.5"`` (``unit="%"``: ``"12.5%"``)."""
+    return NA if x is None else f"{100.0 * x:.{digits}f}{unit}"
+
+
+def ci(value: float | None, low: float | None, high: float | None) -> str:
+    """A rate with its interval in percent: ``"12.5 [3.5, 36.0]"``."""
+    return NA if value is None else f"{pct(value)} [{pct(low)}, {pct(high)}]"
+
+
+def rate_cell(rate: Any) -> str:
+    """:func:`ci` of a ``metrics.Rate`` (anything with ``value``, ``low`` and ``high``)."""
+    return ci(rate.value, rate.low, rate.high)
+
+
+def delta(a: float | None, b: float | None) -> str:
+    """``a - b`` in percentage points, signed: ``"+4.2"``."""
+    return NA if a is None or b is None else f"{100 * (a - b):+.1f}"
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A Markdown pipe table: the first column left-aligned, the others centred."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)

@@ -1,0 +1,122 @@
+"""Writing a results directory's reports: the summary files with every section, and report.html.
+
+:func:`write_report` writes ``summary.{json,csv,md}`` (``summary.py``: the paper's tables), then
+appends the sections the records call for: robustness (``robustness.py``), reasoning following
+(``reasoning.py``) and, with ``rsb backbone`` answers beside the records, the semantic gap
+(``gap.py``); and ``results.json`` (``results.py``). :func:`write_html_report` writes the page
+``page.py`` builds. Both write from the records alone, so they always agree.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+from ..records import one_version
+from ..store import BACKBONE_FILE, RECORDS_FILE, read_backbone_records, read_records, safe_name
+from .reasoning import reasoning_json, reasoning_markdown, reasoning_rows, reasoning_table
+from .results import write_results
+from .robustness import robustness_markdown, robustness_rows, robustness_table
+from .summary import Results, plot_summary, write_csv, write_json, write_markdown
+
+REPORT_FILE = "report.html"
+
+
+class ReportError(RuntimeError):
+    """The results directory holds nothing to report."""
+
+
+def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summary",
+                 records: Iterable[Mapping[str, Any]] | None = None) -> dict[str, Path]:
+    """Write ``<stem>.json``, ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<row>.png`` per row,
+    each naming the benchmark version (of ``records``, else this code's); with ``records``, also
+    ``results.json`` (``results.py``); when they hold perturbed episodes, the robustness tables go
+    into the JSON (``robustness``) and the Markdown too; with records of a policy that talks, Table 5
+    goes into them (``reasoning_following``) and into ``<stem>_reasoning.csv``; with ``rsb backbone``
+    answers in ``out_dir``, the backbone's accuracy and the semantic gap (``backbone``,
+    ``<stem>_gap.csv``, ``<stem>_gap.png``)."""
+    from rsb_maniskill.version import BENCHMARK_VERSION
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    records = list(records) if records is not None else []
+    version = one_version(records) or BENCHMARK_VERSION
+    paths = {
+        "json": write_json(results, out / f"{stem}.json", version),
+        "csv": write_csv(results, out / f"{stem}.csv", version),
+        "markdown": write_markdown(results, out / f"{stem}.md", version),
+    }
+    if records:
+        paths["results"] = write_results(out, records)
+    table = robustness_table(records)
+    if table:
+        append_section(paths, "robustness", robustness_rows(table), robustness_markdown(table))
+    reasoning = reasoning_table(records)
+    if reasoning:
+        append_section(paths, "reasoning_following", reasoning_json(reasoning), reasoning_markdown(reasoning))
+        paths["csv:reasoning"] = write_rows(reasoning_rows(reasoning), out / f"{stem}_reasoning.csv")
+    paths.update(_write_gap(paths, out, stem, records))
+    for label, row in results.items():
+        if row:
+            png = out / f"{stem}_{safe_name(label)}.png"
+            paths[f"png:{label}"] = plot_summary(row, png, title=f"{label}: GSR and TSR")
+    return paths
+
+
+def _write_gap(paths: Mapping[str, Path], out: Path, stem: str, records: Sequence[Mapping[str, Any]]
+               ) -> dict[str, Path]:
+    """The backbone section when ``out`` holds ``rsb backbone`` answers; the gap's CSV and plot."""
+    from .gap import backbone_markdown, gap_json, gap_markdown, gap_rows, gap_table, plot_gap
+
+    if not (out / BACKBONE_FILE).exists():
+        return {}
+    answers = read_backbone_records(out / BACKBONE_FILE)
+    table = gap_table(records, answers)
+    append_section(paths, "backbone", gap_json(answers, table), backbone_markdown(answers) + "\n" + gap_markdown(table))
+    if not table[0]:
+        return {}
+    png = out / f"{stem}_gap.png"
+    png.write_bytes(plot_gap(table[0]))
+    return {"csv:gap": write_rows(gap_rows(table[0]), out / f"{stem}_gap.csv"), "png:gap": png}
+
+
+def append_section(paths: Mapping[str, Path], key: str, data: Any, markdown: str) -> None:
+    """Add ``data`` under ``key`` to the summary JSON and ``markdown`` to the end of its Markdown."""
+    summary = json.loads(paths["json"].read_text(encoding="utf-8"))
+    summary[key] = data
+    paths["json"].write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    with open(paths["markdown"], "a", encoding="utf-8") as f:
+        f.write("\n" + markdown)
+
+
+def write_rows(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> Path:
+    """Rows of plain values as a CSV file, columns in the first row's order (None as empty)."""
+    path = Path(path)
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else [])
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: "" if v is None else v for k, v in r.items()})
+    return path
+
+
+def write_html_report(results_dir: str | os.PathLike, out: str | os.PathLike | None = None,
+                      records: Sequence[Mapping[str, Any]] | None = None, title: str | None = None) -> Path:
+    """Write ``report.html`` for the episodes of ``results_dir`` (or ``records``); returns its path."""
+    from .page import build_html
+
+    results_dir = Path(results_dir)
+    if records is None:
+        if not (results_dir / RECORDS_FILE).exists():
+            raise ReportError(f"{results_dir} has no {RECORDS_FILE}: give the --out directory of an `rsb eval` run")
+        records = read_records(results_dir / RECORDS_FILE)
+    if not records:
+        raise ReportError(f"{results_dir / RECORDS_FILE} holds no episode records yet")
+    path = Path(out) if out is not None else results_dir / REPORT_FILE
+    page = build_html(records, results_dir, title)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(page, encoding="utf-8")
+    os.replace(tmp, path)  # a reader never sees half a page
+    return path

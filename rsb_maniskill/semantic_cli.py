@@ -85,7 +85,7 @@ def cmd_stats(args: argparse.Namespace) -> int:
     """Pool sizes per suite and split (reads like the paper's Table 2, plus evaluation pools)."""
     from rsb_maniskill.objects.family import split_env_id
     from rsb_maniskill.semantic.data import data_source_label
-    from rsb_maniskill.semantic.errors import DataNotFoundError
+    from rsb_maniskill.semantic.errors import DataNotFoundError, EmptyDataError
     from rsb_maniskill.semantic.pools import get_pool
     from rsb_maniskill.semantic.suites import parse_suite_id, suite_source
 
@@ -104,7 +104,7 @@ def cmd_stats(args: argparse.Namespace) -> int:
             try:
                 pool = get_pool(suite, split, args.data_dir)
             except DataNotFoundError as err:
-                sizes.append("n/a")
+                sizes.append("empty" if isinstance(err, EmptyDataError) else "n/a")
                 if not status:  # one message: every source it lacks is found the same ways
                     notes.append(str(err))
                 status = 1

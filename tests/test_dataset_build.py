@@ -25,8 +25,8 @@ SUITE = "RSB-Math-4"
 SMALL = {"camera_size": (64, 48)}  # the pipeline is the same at 320x240, only slower
 
 
-def build(out: Path, num_procs: int, **kw) -> list[dict]:
-    cfg = BuildConfig(suites=[SUITE], out=str(out), questions="0:4", shard_size=2, num_procs=num_procs,
+def build(out: Path, num_procs: int, shard_size: int = 2, **kw) -> list[dict]:
+    cfg = BuildConfig(suites=[SUITE], out=str(out), questions="0:4", shard_size=shard_size, num_procs=num_procs,
                       progress=False, env_kwargs=dict(SMALL), **kw)
     return build_datasets(cfg)
 
@@ -45,6 +45,25 @@ def test_two_workers_build_the_same_dataset(one_proc, tmp_path):
     # a rerun finds the dataset built with the same settings and does nothing
     again = build(tmp_path, 2)
     assert again[0]["already_built"] and again[1]["rendered_frames"] == 0
+
+
+def test_shard_size_changes_no_episode(one_proc, tmp_path):
+    """One shard of the four questions (seed 3 played after seeds 0-2 in one env) and two shards of
+    two (each in a new env): the same frames and videos, byte for byte; only how the frames are
+    filed (one data file per shard) and the recorded setting differ."""
+    build(tmp_path, 1, shard_size=4)
+    one_shard, videos = tmp_path / SUITE, lambda fp: {k: v for k, v in fp.items() if k.startswith("videos/")}
+    assert read_data(one_shard) == read_data(one_proc)
+    assert len(videos(fingerprint(one_proc))) == 12 and videos(fingerprint(one_shard)) == videos(fingerprint(one_proc))
+    # the episodes' rows but for where their frames are filed, which episode of its shard's demo
+    # file each was, and the per-episode stats of the columns the merge renumbers (it keeps the
+    # shards' own, shard-local values)
+    filed = ("data/", "rsb/source_episode_id", "stats/episode_index/", "stats/index/", "stats/task_index/")
+    episodes = []
+    for root in (one_shard, one_proc):
+        table = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet")
+        episodes.append(table.drop_columns([c for c in table.column_names if c.startswith(filed)]).to_pylist())
+    assert episodes[0] == episodes[1] and len(episodes[0]) == 4
 
 
 def test_dataset_contents_and_card(one_proc):
@@ -264,7 +283,8 @@ def test_lerobot_loads_the_merged_dataset(one_proc):
 
 def test_workers_get_one_task_each_whatever_the_suites():
     """--num-procs N starts N workers: shards of several suites are dealt to them, not one per suite."""
-    from rsb_maniskill.export.build import SuiteShard, _run
+    from rsb_maniskill.export.build import _run
+    from rsb_maniskill.export.shards import SuiteShard
     from rsb_maniskill.workers import RunOutcome
 
     class Recorder:
@@ -285,20 +305,20 @@ def test_workers_get_one_task_each_whatever_the_suites():
 def test_workers_share_lavapipe_threads_unless_told(monkeypatch):
     """Each local worker caps lavapipe's raster threads to its share of the CPUs (software rendering
     only; a user's LP_NUM_THREADS wins)."""
-    from rsb_maniskill.export import build as b
+    from rsb_maniskill import _render
 
     monkeypatch.delenv("LP_NUM_THREADS", raising=False)
     cpus = len(os.sched_getaffinity(0))
-    assert b.lavapipe_share(2) == max(1, cpus // 2) and b.lavapipe_share(4 * cpus) == 1
-    monkeypatch.setattr(b, "software_rendering", lambda: False)
-    assert not b.limit_lavapipe_threads(1) and "LP_NUM_THREADS" not in os.environ  # a GPU driver: left alone
-    monkeypatch.setattr(b, "software_rendering", lambda: True)
-    assert not b.limit_lavapipe_threads(None) and "LP_NUM_THREADS" not in os.environ  # one worker: all threads
-    assert b.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "1"
+    assert _render.lavapipe_share(2) == max(1, cpus // 2) and _render.lavapipe_share(4 * cpus) == 1
+    monkeypatch.setattr(_render, "software_rendering", lambda: False)
+    assert not _render.limit_lavapipe_threads(1) and "LP_NUM_THREADS" not in os.environ  # a GPU driver: left alone
+    monkeypatch.setattr(_render, "software_rendering", lambda: True)
+    assert not _render.limit_lavapipe_threads(None) and "LP_NUM_THREADS" not in os.environ  # one worker: all threads
+    assert _render.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "1"
     monkeypatch.setenv("LP_NUM_THREADS", "3")
-    assert not b.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "3"
+    assert not _render.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "3"
     monkeypatch.undo()
     monkeypatch.setenv("VK_ICD_FILENAMES", "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
-    assert b.software_rendering()
+    assert _render.software_rendering()
     monkeypatch.setenv("VK_ICD_FILENAMES", "/usr/share/vulkan/icd.d/nvidia_icd.json")
-    assert not b.software_rendering()
+    assert not _render.software_rendering()

@@ -148,7 +148,7 @@ def test_hub_path_uses_pinned_revisions(monkeypatch, tmp_path):
     def fake_cache(repo_id, filename, revision=None, repo_type=None):
         calls.append(("cache", repo_id, filename, repo_type, revision))
 
-    def fake_read(path):
+    def fake_read(path, what=""):
         p = str(path)
         if "gsm8k" in p:
             return gsm_rows["train" if "train" in p else "test"]

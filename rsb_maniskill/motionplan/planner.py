@@ -23,6 +23,8 @@ from rsb_maniskill.agents.aloha import GRIPPER_CLOSED, GRIPPER_OPEN
 from rsb_maniskill.agents.aloha_urdf import ASSET_DIR, MPLIB_SRDF_NAME, URDF_NAME
 from rsb_maniskill.robot import ARM_ACTION_SLICE, ARM_JOINT_NAMES, GRIPPER_ACTION_INDEX, TCP_LINKS
 
+from .rng import reseed_planners
+
 # Trajectory limits for the move group (rad/s, rad/s^2). mplib's default is 1 and 1; the PD
 # drives (stiffness 2e3, damping 2e2) track 1.6 rad/s without a visible lag at 25 Hz.
 JOINT_VEL_LIMIT = 1.6
@@ -117,6 +119,7 @@ class ArmPlanner:
         qpos = self.qpos() if qpos is None else qpos
         self.rrt_calls += 1
         t0 = time.perf_counter()
+        reseed_planners()
         try:
             res = self.planner.plan_qpos_to_pose(
                 np.asarray(pose, np.float64), qpos.copy(), time_step=self.time_step,
@@ -167,9 +170,12 @@ class ArmPlanner:
             return path
         if not allow_rrt:
             return None
+        full = qpos.copy()  # mplib takes whole configurations as goals and reads the move group's joints
+        full[self.index] = goal
         t0 = time.perf_counter()
+        reseed_planners()
         try:
-            res = self.planner.plan_qpos_to_qpos([goal], qpos.copy(), time_step=self.time_step,
+            res = self.planner.plan_qpos_to_qpos([full], qpos.copy(), time_step=self.time_step,
                                                  planning_time=RRT_PLANNING_TIME)
         except RuntimeError:
             res = {"status": "topp failed"}

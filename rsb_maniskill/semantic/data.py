@@ -18,7 +18,7 @@ from typing import Any
 
 from rsb_maniskill import network
 
-from .errors import DataNotFoundError, SemanticDataError
+from .errors import DataNotFoundError, EmptyDataError, SemanticDataError
 
 ENV_VAR = "RSB_DATA_DIR"
 
@@ -53,6 +53,24 @@ def _how_to_provide(what: str) -> str:
             f"`rsb doctor` shows what this machine has.")
 
 
+REFILL_HINT = (f"fetch a full copy with `rsb data download --export DIR` and pass --data-dir DIR (or set "
+               f"{ENV_VAR}=DIR), or point --data-dir / {ENV_VAR} at another full copy (a broken file in the hub "
+               f"cache: delete it, then `rsb data download`)")
+
+
+def empty_data_error(path: str | os.PathLike, why: str, what: str = "") -> EmptyDataError:
+    """The error for a data file that is there but holds no usable question (``why``: what is
+    wrong with it): it names the file and how to replace it, on one line."""
+    what = f"{what} " if what else ""
+    return EmptyDataError(f"{path} holds no usable {what}questions ({why}), so the pools built from it would be "
+                          f"empty: {REFILL_HINT}")
+
+
+def _no_rows(path: Path) -> str:
+    """Why a file gave no record: nothing in it at all, or blank lines only."""
+    return "the file is empty" if path.stat().st_size == 0 else "no record in it, only blank lines"
+
+
 # ---------------------------------------------------------------------------------------------
 # data directory readers (original formats)
 
@@ -74,6 +92,8 @@ def read_gsm8k_jsonl(path: Path) -> list[Row]:
                 if not isinstance(obj.get(key), str) or not obj[key].strip():
                     raise SemanticDataError(path, lineno, f"missing or empty field {key!r}")
             rows.append({"question": obj["question"], "answer": obj["answer"], "origin": f"{path}, line {lineno}"})
+    if not rows:
+        raise empty_data_error(path, _no_rows(path), "GSM8K")
     return rows
 
 
@@ -81,7 +101,7 @@ def read_mmlu_pro_rows(path: Path) -> list[Row]:
     """MMLU-Pro rows ``{"question", "choices", "answer", "subject", "src", "id", "origin"}`` from the hub's
     parquet file; a malformed row raises with file and row."""
     rows: list[Row] = []
-    for i, rec in enumerate(read_parquet_rows(path), 1):
+    for i, rec in enumerate(read_parquet_rows(path, "MMLU-Pro"), 1):
         q, opts, ans = rec.get("question"), rec.get("options"), rec.get("answer_index")
         if not isinstance(q, str) or not q.strip():
             raise SemanticDataError(path, i, f"row {i}: missing or empty question")
@@ -94,6 +114,8 @@ def read_mmlu_pro_rows(path: Path) -> list[Row]:
             raise SemanticDataError(path, i, f"row {i}: answer {letter!r} disagrees with answer_index {ans}")
         rows.append({"question": q, "choices": opts, "answer": ans, "subject": str(rec.get("category", "")),
                      "src": str(rec.get("src", "")), "id": rec.get("question_id"), "origin": f"{path}, row {i}"})
+    if not rows:
+        raise empty_data_error(path, "a parquet table without rows", "MMLU-Pro")
     return rows
 
 
@@ -137,24 +159,32 @@ def hub_file(repo: str, filename: str, revision: str, *, allow_network: bool = T
                                 f"{type(err).__name__}: {err})") from None
 
 
-def read_parquet_rows(path: Path) -> list[Row]:
-    """Rows of a parquet file as dicts (needs the optional ``hub`` extra: pyarrow)."""
+def read_parquet_rows(path: Path, what: str = "") -> list[Row]:
+    """Rows of a parquet file as dicts (needs the optional ``hub`` extra: pyarrow); an empty or
+    unreadable file (a cut download) raises :class:`EmptyDataError`."""
     try:
+        import pyarrow as pa
         import pyarrow.parquet as pq
     except ImportError:
         raise DataNotFoundError(f"reading the hub file {path} needs pyarrow: pip install 'rsb_maniskill[hub]', "
                                 f"or use a data directory via ${ENV_VAR}.") from None
-    return pq.read_table(path).to_pylist()
+    try:
+        return pq.read_table(path).to_pylist()
+    except (pa.ArrowException, OSError):
+        why = _no_rows(path) if path.stat().st_size == 0 else "not a readable parquet file: a cut download?"
+        raise empty_data_error(path, why, what) from None
 
 
 def _gsm8k_hub_rows(split: str) -> list[Row]:
     path = hub_file(GSM8K_REPO, GSM8K_FILES[split], GSM8K_REVISION)
     rows = []
-    for i, rec in enumerate(read_parquet_rows(path), 1):
+    for i, rec in enumerate(read_parquet_rows(path, "GSM8K"), 1):
         for key in ("question", "answer"):
             if not isinstance(rec.get(key), str) or not rec[key].strip():
                 raise SemanticDataError(path, i, f"row {i}: missing or empty field {key!r}")
         rows.append({"question": rec["question"], "answer": rec["answer"], "origin": f"{path}, row {i}"})
+    if not rows:
+        raise empty_data_error(path, "a parquet table without rows", "GSM8K")
     return rows
 
 

@@ -1,7 +1,9 @@
 """Errors raised by the semantic engine.
 
 Two kinds, because callers react differently: missing data is an installation problem
-(tell the user how to provide it), malformed data is a data problem (name file and line).
+(tell the user how to provide it), malformed data is a data problem (name file and line). A file
+that is there but holds no usable question (empty, unreadable, every record left out) is missing
+data: the fix is the same, a full copy.
 """
 from __future__ import annotations
 
@@ -14,6 +16,11 @@ class SemanticError(Exception):
 
 class DataNotFoundError(SemanticError, FileNotFoundError):
     """GSM8K / MMLU-Pro data could be found neither in a data directory nor in the hub cache."""
+
+
+class EmptyDataError(DataNotFoundError):
+    """A GSM8K / MMLU-Pro file (or a question pool) that holds no usable question; the message names
+    it and how to replace it (``data.empty_data_error``)."""
 
 
 class SemanticDataError(SemanticError, ValueError):

@@ -21,6 +21,7 @@ from typing import Collection, Iterable, Sequence
 import numpy as np
 
 from ..objects.family import BLOCK_COLORS
+from .data import empty_data_error
 from .duplicates import duplicate_groups
 from .normalize import leading_numbers, option_key, question_key, similarity_matrix
 from .records import Question, normalize_text
@@ -205,12 +206,18 @@ def split_questions(rows: Iterable[dict], filtered: Collection[str] | None = Non
     :func:`filtered_out`). A question's ``fact`` names its group (``_facts``); the split
     hashes the fact, so the two splits share no question, near-duplicate or option text.
     """
+    rows = list(rows)
     kept, excluded = eligible(rows)
     drop = filtered_out() if filtered is None else filtered
     n = len(kept)
     kept = [r for r in kept if content_key(r) not in drop]
     if n > len(kept):
         excluded["answer found from the options alone (adversarial filter)"] += n - len(kept)
+    if rows and not kept:
+        files = sorted({str(r.get("origin", "")).rpartition(", row ")[0] for r in rows} - {""})
+        why = ", ".join(f"{count} {reason}" for reason, count in excluded.most_common(3))
+        raise empty_data_error(", ".join(files) or "the MMLU-Pro rows", f"all {len(rows)} rows left out: {why}",
+                               "MMLU-Pro")
     out: dict[str, list[tuple[bytes, Question]]] = {"train": [], "test": []}
     for row, fact in zip(kept, _facts(kept)):
         q = to_question(row, fact)

@@ -11,8 +11,9 @@ import sys
 from collections import Counter
 from dataclasses import dataclass, field
 
-from .data import resolve_data_dir
+from .data import REFILL_HINT, data_source_label, resolve_data_dir
 from .distractors import Bins, value_bins
+from .errors import EmptyDataError
 from .records import Question
 from .suites import SOURCES, check_split, suite_source
 
@@ -57,7 +58,8 @@ def data_key(data_dir: str | os.PathLike | None) -> str:
 
 def get_pool(suite: str, split: str, data_dir: str | os.PathLike | None = None) -> Pool:
     """The cached pool of ``suite`` (a registered source with questions: "Math", "HardMath",
-    "General") and ``split``."""
+    "General") and ``split``; never empty (an episode's question is its seed modulo the pool's
+    size): :class:`~.errors.EmptyDataError` instead."""
     check_split(split)
     try:
         source = suite_source(suite)
@@ -69,7 +71,11 @@ def get_pool(suite: str, split: str, data_dir: str | os.PathLike | None = None) 
     key = (suite, split, data_key(data_dir) if source.reads_data else "")
     if key not in _POOLS:
         module, _, func = source.pool.partition(":")
-        _POOLS[key] = getattr(importlib.import_module(module), func)(split, data_dir)
+        pool = getattr(importlib.import_module(module), func)(split, data_dir)
+        if not len(pool):  # GSM8K's and MMLU-Pro's readers name the file at fault; this catches any source
+            where = f"data: {data_source_label(data_dir)}" if source.reads_data else f"built by {source.pool}"
+            raise EmptyDataError(f"the {suite} {split} question pool ({where}) holds no question: {REFILL_HINT}")
+        _POOLS[key] = pool
     return _POOLS[key]
 
 

@@ -178,15 +178,18 @@ def check_gpu() -> list[Check]:
         out.append(Check("gpu", "CUDA (torch)", "info", f"torch {torch.__version__}, {build}; "
                          f"{'GPUs: ' + gpus if gpus else 'no NVIDIA GPU'}: physx_cpu only (num_envs=1 per process)"))
     lib = physx_gpu.library_path()
-    if lib.is_file():
-        out.append(Check("gpu", "PhysX GPU library", "ok", str(lib)))
-    else:
-        status = "warn" if torch.cuda.is_available() else "info"
-        out.append(Check("gpu", "PhysX GPU library", status,
-                         f"missing ({lib}); needed for sim_backend='physx_cuda' / num_envs > 1"
-                         + (" (offline: RSB_OFFLINE or HF_HUB_OFFLINE set)" if physx_gpu.offline() else ""),
-                         f"with network: `{physx_gpu.SETUP_COMMAND}`; offline: unzip {physx_gpu.library_url()} "
-                         f"into {lib.parent}/"))
+    out.append(Check("gpu", "PhysX GPU library", "ok" if lib.is_file() else "info",
+                     str(lib) if lib.is_file() else f"missing ({lib})"))
+    # the rule the GPU-physics tests skip by; no network here: a missing library is reported as such
+    reason = physx_gpu.gpu_physics_unavailable(probe_network=False)
+    status = "ok" if reason is None else "warn" if torch.cuda.is_available() else "info"
+    out.append(Check("gpu", "GPU physics", status, reason or "physx_cuda, num_envs > 1 and `rsb eval --num-envs` "
+                                                            "can run here"))
+    from rsb_maniskill.workers_plan import nvidia_gpus, plan_workers, usable_cpus
+
+    cpus, n_gpus = usable_cpus(), len(nvidia_gpus())
+    rgb, state = (plan_workers(cpus, n_gpus, renders) for renders in (True, False))
+    out.append(Check("gpu", "--num-procs auto", "info", f"cameras: {rgb.line()}; state: {state.line()}"))
     return out
 
 

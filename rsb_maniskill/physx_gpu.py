@@ -107,6 +107,33 @@ def check_for_sim_backend(sim_backend: str, num_envs: int) -> None:
         fetch()
 
 
+def gpu_physics_unavailable(probe_network: bool = True) -> str | None:
+    """Why GPU physics (``physx_cuda``, ``num_envs > 1``) can't run on this machine now, or None
+    when it can: the one rule the GPU-physics tests skip by and ``rsb doctor`` reports.
+
+    It needs a CUDA device and the library. A missing library is fetched at the first GPU env, so
+    it counts against GPU physics only where it can't be: offline, or (``probe_network``) when
+    GitHub does not answer within seconds. Without ``probe_network`` (``rsb doctor``: no network)
+    a missing library is reason enough."""
+    import torch
+
+    from rsb_maniskill.network import unreachable
+
+    if not torch.cuda.is_available():
+        return "GPU physics (sim_backend='physx_cuda') needs a CUDA device, and torch sees none"
+    if library_path().is_file():
+        return None
+    if offline():
+        return str(_missing(f"offline ({' or '.join(OFFLINE_VARS)} is set)"))
+    if not probe_network:
+        lib = library_path()
+        return (f"GPU physics (sim_backend='physx_cuda') needs SAPIEN's PhysX GPU library {lib}, which is not "
+                f"installed yet: it is fetched at the first GPU env if GitHub answers; `{SETUP_COMMAND}` fetches it "
+                f"now, or download {library_url()} and unzip it into {lib.parent}/")
+    why = unreachable(library_url())
+    return None if why is None else str(_missing(why))
+
+
 def main() -> int:
     try:
         lib = fetch()

@@ -1,8 +1,8 @@
-"""Running a job's tasks in this process or in worker processes, and stopping them cleanly.
+"""Running a job's tasks in this process or in worker processes, how many, and stopping them cleanly.
 
-Demonstration generation and evaluation both split their work into tasks (a worker's seeds),
-run ``target(task, emit)`` for each, and handle every ``emit(message)`` in this process, which
-alone writes the output files. An :class:`Executor` hides where the tasks run:
+Demonstration generation, evaluation and dataset builds split their work into tasks (a worker's
+seeds), run ``target(task, emit)`` for each, and handle every ``emit(message)`` in this process,
+which alone writes the output files. An :class:`Executor` hides where the tasks run:
 
 - :class:`InProcess` runs them one after the other here; exceptions and Ctrl-C reach the caller
   as they are.
@@ -10,13 +10,14 @@ alone writes the output files. An :class:`Executor` hides where the tasks run:
   :attr:`TaskOutcome.error` (with its traceback), a worker that dies without a word as an error
   naming its exit code. On SIGINT / SIGTERM it asks the workers to stop (SIGTERM: each raises
   :class:`Interrupted` between two critical sections), keeps handling their messages until they
-  are done, and reports which signal it got.
-
-- :class:`RayExecutor` runs one Ray task per task, on a Ray cluster (``address``) or on a local
-  one it starts; messages come back through a Ray queue, and a signal cancels the tasks.
+  are done, and reports which signal it got. Given GPUs, it deals its workers over them.
+- ``RayExecutor`` (:mod:`rsb_maniskill.workers_ray`, the ``ray`` extra) runs one Ray task per
+  task, on a Ray cluster or on a local one it starts.
 
 :class:`InterruptGuard` turns SIGINT / SIGTERM into :class:`Interrupted`, never inside a
 ``critical()`` block (writing an episode or a record), so a stopped run never leaves half of one.
+
+How many workers, and on which GPUs (``--num-procs auto``): :mod:`rsb_maniskill.workers_plan`.
 """
 from __future__ import annotations
 
@@ -27,10 +28,15 @@ import time
 import traceback
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Protocol, Sequence
+
+if TYPE_CHECKING:
+    from rsb_maniskill.workers_ray import RayExecutor
 
 Emit = Callable[[Any], None]
 Target = Callable[[Any, Emit], Any]
+
+EXECUTORS = ("local", "ray")
 
 
 class Interrupted(KeyboardInterrupt):
@@ -128,11 +134,19 @@ class ProcessPool:
 
     ``target`` and the tasks must be picklable (a module-level function and plain data).
     ``grace_s``: how long stopping workers may take after a signal before they are killed.
+    ``devices``: GPUs as ``CUDA_VISIBLE_DEVICES`` names them; worker k starts with
+    ``CUDA_VISIBLE_DEVICES=devices[k % len(devices)]``, so it renders (and runs CUDA) on that one
+    GPU: set in its environment before its interpreter starts, hence before the simulator loads.
     """
 
-    def __init__(self, grace_s: float = 120.0, poll_s: float = 0.5) -> None:
+    def __init__(self, grace_s: float = 120.0, poll_s: float = 0.5, devices: Sequence[str] = ()) -> None:
         self.grace_s = grace_s
         self.poll_s = poll_s
+        self.devices = tuple(devices)
+
+    def device_of(self, index: int) -> str | None:
+        """The ``CUDA_VISIBLE_DEVICES`` of worker ``index`` (None: inherited as it is)."""
+        return self.devices[index % len(self.devices)] if self.devices else None
 
     def run(self, target: Target, tasks: Sequence[Any], on_message: Emit) -> RunOutcome:
         import multiprocessing as mp
@@ -145,8 +159,9 @@ class ProcessPool:
         silent_polls = [0] * len(procs)
         with InterruptGuard() as guard:
             try:
-                for p in procs:
-                    p.start()
+                for k, p in enumerate(procs):
+                    with _environ(CUDA_VISIBLE_DEVICES=self.device_of(k)):  # the child inherits it
+                        p.start()
                 deadline = None
                 while len(done) < len(procs):
                     try:
@@ -196,147 +211,19 @@ class ProcessPool:
                 done[k] = TaskOutcome(k, error=why)
 
 
-RAY_HINT = "the Ray executor needs `pip install 'rsb_maniskill[ray]'` (ray on every machine of the cluster)"
-
-
-class RayExecutor:
-    """One Ray task per task, on the cluster at ``address`` or, without one, a local cluster.
-
-    The local cluster (``num_cpus`` CPUs, bound to 127.0.0.1, no dashboard) is started on first
-    use and shut down by :meth:`close` (or at the end of a ``with`` block); a cluster that was
-    already connected is left as it is. Each task asks for ``cpus_per_task`` CPUs and
-    ``gpus_per_task`` GPUs and is never retried (its messages would repeat). ``emit`` puts
-    messages on a Ray queue that :meth:`run` drains here, so each reaches ``on_message`` in this
-    process, in the order its task sent them. On SIGINT / SIGTERM the tasks are cancelled (a
-    KeyboardInterrupt in each, which their own guards defer past critical blocks), their last
-    messages are still handled, and tasks not done ``grace_s`` later are killed.
-    ``target`` and the tasks must be picklable and importable on every machine (install
-    rsb_maniskill there); files a task writes are on its machine (use a shared filesystem).
-    """
-
-    def __init__(self, address: str | None = None, num_cpus: int = 2, cpus_per_task: float = 1,
-                 gpus_per_task: float = 0, grace_s: float = 120.0, poll_s: float = 0.2) -> None:
-        self.address = address
-        self.num_cpus = num_cpus
-        self.cpus_per_task = cpus_per_task
-        self.gpus_per_task = gpus_per_task
-        self.grace_s = grace_s
-        self.poll_s = poll_s
-        self._started = False
-
-    @staticmethod
-    def _ray() -> Any:
-        try:
-            import ray
-        except ImportError as err:
-            raise ImportError(RAY_HINT) from err
-        return ray
-
-    def start(self) -> Any:
-        """Connect to the cluster (or start the local one) unless this process already is; returns ray."""
-        import logging
-
-        ray = self._ray()
-        if not ray.is_initialized():
-            # workers import the code the driver runs: pass on its import path and data directory
-            env_vars = {k: os.environ[k] for k in ("PYTHONPATH", "RSB_DATA_DIR") if k in os.environ}
-            common = dict(include_dashboard=False, logging_level=logging.WARNING, log_to_driver=True,
-                          runtime_env={"env_vars": env_vars} if env_vars else None)
-            if self.address:
-                ray.init(address=self.address, **common)
-            else:
-                ray.init(num_cpus=self.num_cpus, _node_ip_address="127.0.0.1", **common)
-            self._started = True
-        return ray
-
-    def workers(self) -> int:
-        """How many tasks the cluster runs at once (its CPUs, or GPUs, over what a task asks)."""
-        res = self.start().cluster_resources()
-        if self.gpus_per_task:
-            return max(1, int(res.get("GPU", 0) // self.gpus_per_task))
-        return max(1, int(res.get("CPU", 1) // self.cpus_per_task))
-
-    def close(self) -> None:
-        """Shut the local cluster down (a cluster this executor did not connect to is left alone)."""
-        if self._started:
-            self._ray().shutdown()
-            self._started = False
-
-    def __enter__(self) -> "RayExecutor":
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def run(self, target: Target, tasks: Sequence[Any], on_message: Emit) -> RunOutcome:
-        ray = self.start()
-        from ray.util.queue import Queue
-
-        q = Queue(actor_options={"num_cpus": 0})
-        remote = ray.remote(num_cpus=self.cpus_per_task, num_gpus=self.gpus_per_task, max_retries=0)(_ray_task)
-        refs = [remote.remote(target, task, i, q) for i, task in enumerate(tasks)]
-        index = {ref: i for i, ref in enumerate(refs)}
-        done: dict[int, TaskOutcome] = {}
-        with InterruptGuard() as guard:
-            try:
-                deadline = None
-                while len(done) < len(refs):
-                    try:
-                        pending = [r for r in refs if index[r] not in done]
-                        ready, _ = ray.wait(pending, num_returns=len(pending), timeout=self.poll_s)
-                        # a task's messages are queued before it returns: drain, then mark it done
-                        self._drain(q, on_message, guard)
-                        for ref in ready:
-                            done[index[ref]] = self._outcome(ray, ref, index[ref])
-                        if deadline is not None and time.monotonic() > deadline:
-                            for ref in pending:
-                                ray.cancel(ref, force=True)
-                            deadline = None
-                    except Interrupted:
-                        guard.disarm()
-                        for ref in refs:
-                            if index[ref] not in done:
-                                ray.cancel(ref)
-                        deadline = time.monotonic() + self.grace_s
-            finally:
-                guard.disarm()
-                for ref in refs:
-                    if index[ref] not in done:  # leaving early (an error here): stop it
-                        ray.cancel(ref, force=True)
-                ray.kill(q.actor)
-        return RunOutcome([done[i] for i in range(len(refs))], interrupted=guard.received)
-
-    @staticmethod
-    def _drain(q: Any, on_message: Emit, guard: InterruptGuard) -> None:
-        while True:
-            batch = q.get_nowait_batch(q.qsize())
-            if not batch:
-                return
-            for message in batch:
-                with guard.critical():  # a record or an episode is written whole
-                    on_message(message)
-
-    @staticmethod
-    def _outcome(ray: Any, ref: Any, i: int) -> TaskOutcome:
-        from ray.exceptions import TaskCancelledError
-
-        try:
-            return ray.get(ref)
-        except TaskCancelledError:
-            return TaskOutcome(i, interrupted=signal.SIGINT)
-        except Exception as err:  # noqa: BLE001  (a task that died: its machine, its process)
-            return TaskOutcome(i, error=f"{type(err).__name__}: {err}")
-
-
-def _ray_task(target: Target, task: Any, index: int, q: Any) -> TaskOutcome:
-    """Ray task entry: runs ``target``; its exception or interruption comes back in the outcome."""
+@contextmanager
+def _environ(**values: str | None) -> Iterator[None]:
+    """Sets environment variables (None: leaves one as it is) for the block, then restores them."""
+    old = {k: os.environ.get(k) for k, v in values.items() if v is not None}
+    os.environ.update({k: v for k, v in values.items() if v is not None})
     try:
-        return TaskOutcome(index, result=target(task, q.put))
-    except KeyboardInterrupt as err:  # Interrupted, or Ray's cancellation
-        return TaskOutcome(index, interrupted=getattr(err, "signum", signal.SIGINT))
-    except BaseException as err:  # noqa: BLE001  (reported to the driver, with the traceback)
-        return TaskOutcome(index, error=f"{err!r}\n{traceback.format_exc()}")
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def _worker_main(target: Target, task: Any, index: int, q: Any) -> None:
@@ -362,14 +249,14 @@ def deal(items: Sequence[Any], parts: int) -> list[list[Any]]:
     return [list(items[k::n]) for k in range(n)]
 
 
-EXECUTORS = ("local", "ray")
+# ------------------------------------------------------------------ command-line flags
 
 
 def add_executor_args(parser: Any) -> None:
-    """``--executor`` and ``--address``, the same for ``rsb generate`` and ``rsb eval``."""
+    """``--executor`` and ``--address``, the same for every command that runs workers."""
     parser.add_argument("--executor", choices=EXECUTORS, default="local",
                         help="where workers run: local processes (default) or Ray tasks (pip install "
-                             "'rsb_maniskill[ray]'); with ray, --num-procs defaults to the cluster's CPUs")
+                             "'rsb_maniskill[ray]'); with ray, --num-procs auto counts the cluster's CPUs and GPUs")
     parser.add_argument("--address", default=None,
                         help="Ray cluster to join (e.g. 10.0.0.1:6379 or auto); without it Ray starts a "
                              "local cluster for this run")
@@ -383,5 +270,7 @@ def executor_from_args(executor: str, address: str | None, gpus_per_task: float 
         if address:
             raise ValueError("--address names a Ray cluster: add --executor ray")
         return None
+    from rsb_maniskill.workers_ray import RayExecutor  # the optional half: only when asked for
+
     RayExecutor._ray()  # fail now, with the install hint, not after the first suite
     return RayExecutor(address=address, gpus_per_task=gpus_per_task)

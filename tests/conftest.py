@@ -30,3 +30,15 @@ def silent_proxy(monkeypatch):
         monkeypatch.setenv("HTTPS_PROXY", url)
         monkeypatch.setenv("https_proxy", url)
         yield url
+
+
+@pytest.fixture
+def gpu_physics() -> None:
+    """Skips a test that needs GPU physics where this machine can't run it (no CUDA device, or no
+    PhysX GPU library and no way to fetch it), with the reason and the fix ``rsb doctor`` prints.
+    Use as ``@pytest.mark.usefixtures("gpu_physics")``."""
+    from rsb_maniskill.physx_gpu import gpu_physics_unavailable
+
+    reason = gpu_physics_unavailable()
+    if reason:
+        pytest.skip(reason)

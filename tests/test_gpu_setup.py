@@ -31,7 +31,7 @@ def home(tmp_path, monkeypatch):
     return tmp_path
 
 
-def _assert_clear(err: Exception, home: Path) -> None:
+def _assert_clear(err: Exception | str, home: Path) -> None:
     msg = str(err)
     lib = home / ".sapien" / "physx" / physx_gpu.physx_version() / "libPhysXGpu_64.so"
     assert str(lib) in msg and physx_gpu.library_url() in msg and str(lib.parent) in msg
@@ -92,6 +92,116 @@ def test_gpu_env_fails_clearly_before_sapien_downloads(home, monkeypatch):
     with pytest.raises(physx_gpu.PhysXGpuLibraryMissing) as err:
         gym.make("RSB-Math-4", num_envs=4, sim_backend="physx_cuda", obs_mode="state")
     _assert_clear(err.value, home)
+
+
+# ---------------------------------------------------------------- when GPU physics can run: one rule
+
+
+@pytest.fixture
+def cuda(monkeypatch):
+    """A (faked) CUDA machine; the network probe forgets earlier verdicts."""
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda *a: "NVIDIA H100 80GB HBM3 (faked)")
+    monkeypatch.setattr(network, "_PROBED", {})
+
+
+def _forbid_network(monkeypatch) -> None:
+    def no_network(*args, **kwargs):
+        raise AssertionError("network used")
+    monkeypatch.setattr(requests, "head", no_network)
+    monkeypatch.setattr(requests, "get", no_network)
+    monkeypatch.setattr(socket.socket, "connect", no_network)
+
+
+def test_gpu_physics_needs_cuda(home, monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    _forbid_network(monkeypatch)
+    assert "needs a CUDA device" in physx_gpu.gpu_physics_unavailable()
+
+
+def test_gpu_physics_runs_where_the_library_is(home, cuda, monkeypatch):
+    lib = physx_gpu.library_path()
+    lib.parent.mkdir(parents=True)
+    lib.write_bytes(b"")  # present is enough: SAPIEN loads it
+    monkeypatch.setenv("RSB_OFFLINE", "1")  # offline changes nothing then
+    _forbid_network(monkeypatch)
+    assert physx_gpu.gpu_physics_unavailable() is None
+    assert physx_gpu.gpu_physics_unavailable(probe_network=False) is None
+
+
+@pytest.mark.parametrize("var", network.OFFLINE_VARS)
+def test_gpu_physics_offline_without_the_library_names_it_and_the_fix(home, cuda, var, monkeypatch):
+    monkeypatch.setenv(var, "1")
+    _forbid_network(monkeypatch)
+    reason = physx_gpu.gpu_physics_unavailable()
+    _assert_clear(reason, home)
+    assert "offline" in reason and var in reason
+
+
+@pytest.mark.timeout(60)
+def test_gpu_physics_online_but_unreachable_names_it_within_seconds(home, cuda, silent_proxy):
+    t0 = time.monotonic()
+    reason = physx_gpu.gpu_physics_unavailable()
+    assert time.monotonic() - t0 < network.PROBE_TIMEOUT + 5
+    _assert_clear(reason, home)
+    assert "Timeout" in reason or "no answer" in reason  # requests' timeout or the probe's deadline
+
+
+def test_gpu_physics_refused_connection_names_it(home, cuda, monkeypatch):
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()  # nothing listens there now
+    monkeypatch.setenv("HTTPS_PROXY", f"http://127.0.0.1:{port}")
+    reason = physx_gpu.gpu_physics_unavailable()
+    _assert_clear(reason, home)
+    assert "unreachable" in reason
+
+
+def test_gpu_physics_online_fetches_at_first_use(home, cuda, monkeypatch):
+    """GitHub answers: the library is fetched at the first GPU env, as before; only `rsb doctor`,
+    which never uses the network, calls the missing library a reason."""
+    monkeypatch.setattr(network, "unreachable", lambda url, timeout=network.PROBE_TIMEOUT: None)
+    assert physx_gpu.gpu_physics_unavailable() is None
+    reason = physx_gpu.gpu_physics_unavailable(probe_network=False)
+    assert "not installed yet" in reason and physx_gpu.SETUP_COMMAND in reason
+    assert str(physx_gpu.library_path()) in reason
+
+
+def test_gpu_tests_skip_by_the_rule_with_its_reason(home, cuda, monkeypatch, request):
+    monkeypatch.setenv("RSB_OFFLINE", "1")
+    with pytest.raises(pytest.skip.Exception) as skip:
+        request.getfixturevalue("gpu_physics")
+    assert str(skip.value) == physx_gpu.gpu_physics_unavailable()
+    _assert_clear(str(skip.value), home)
+
+
+def test_gpu_tests_run_where_the_library_is(home, cuda, request):
+    lib = physx_gpu.library_path()
+    lib.parent.mkdir(parents=True)
+    lib.write_bytes(b"")
+    assert request.getfixturevalue("gpu_physics") is None  # no skip
+
+
+def test_doctor_reports_the_same_rule(home, cuda, monkeypatch):
+    from rsb_maniskill.doctor import check_gpu
+
+    monkeypatch.setenv("RSB_OFFLINE", "1")
+    _forbid_network(monkeypatch)
+    checks = {c.name: c for c in check_gpu()}
+    assert checks["GPU physics"].status == "warn"
+    assert checks["GPU physics"].detail == physx_gpu.gpu_physics_unavailable()
+    assert checks["PhysX GPU library"].detail == f"missing ({physx_gpu.library_path()})"
+    assert checks["--num-procs auto"].detail.startswith("cameras: workers: ")
+    lib = physx_gpu.library_path()
+    lib.parent.mkdir(parents=True)
+    lib.write_bytes(b"")
+    checks = {c.name: c for c in check_gpu()}
+    assert checks["GPU physics"].status == "ok" and checks["PhysX GPU library"].detail == str(lib)
 
 
 @pytest.mark.parametrize("backend, n, gpu", [("auto", 1, False), ("auto", 8, True), ("physx_cpu", 1, False),

@@ -14,8 +14,9 @@ import ray
 
 from rsb_maniskill.evaluation import eval_seeds  # noqa: E402
 from rsb_maniskill.evaluation.jobs import EvalJob, run_job  # noqa: E402
-from rsb_maniskill.evaluation.records import read_records  # noqa: E402
-from rsb_maniskill.workers import ProcessPool, RayExecutor  # noqa: E402
+from rsb_maniskill.evaluation.store import read_records  # noqa: E402
+from rsb_maniskill.workers import ProcessPool  # noqa: E402
+from rsb_maniskill.workers_ray import RayExecutor  # noqa: E402
 
 pytestmark = pytest.mark.timeout(600)
 TESTS = Path(__file__).parent
@@ -108,8 +109,15 @@ def test_cli_eval_and_generate_on_ray(executor, tmp_path, capsys):
     assert main(["eval", "blind", "--suites", SUITE, "-n", "3", "--max-steps", "30", "--out", str(out), "-q",
                  "--executor", "ray"]) == 0
     assert sorted(r["seed"] for r in read_records(out / "episodes.jsonl")) == eval_seeds(SUITE, 3)
+    capsys.readouterr()
     assert main(["generate", SUITE, "-n", "2", "--out", str(tmp_path / "demos"), "-q", "--executor", "ray"]) == 0
-    assert "2" in capsys.readouterr().out
+    printed = capsys.readouterr()
+    assert "2" in printed.out
+    # auto counts the cluster's CPUs (2), then gives each task at least 16 state episodes
+    assert "workers: 1 Ray task (auto: Ray cluster of 2 CPUs, no camera to render; 2 episodes" in printed.err
+    assert main(["generate", SUITE, "-n", "2", "--out", str(tmp_path / "two"), "-q", "--executor", "ray",
+                 "--num-procs", "2"]) == 0
+    assert "workers: 2 Ray tasks (--num-procs 2)" in capsys.readouterr().err
     assert ray.is_initialized()  # the cluster the fixture started is left alone
 
 

@@ -11,8 +11,9 @@ import pytest
 import torch
 
 import rsb_maniskill  # noqa: F401
+from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.semantic import SUITE_IDS
-from rsb_maniskill.tasks.answer_selection import HOLD_STEPS, MAX_EPISODE_STEPS, ZONE_XY
+from rsb_maniskill.tasks.answer_selection import HOLD_STEPS, ZONE_XY
 
 from robot_helpers import ArmDriver
 
@@ -42,7 +43,7 @@ def test_every_suite_resets_and_steps(suite_id, question_data):
     for _ in range(2):
         obs, reward, term, trunc, info = env.step(env.unwrapped.agent.rest_action()[None])
     assert torch.isfinite(reward).all()
-    assert gym.spec(suite_id).max_episode_steps == MAX_EPISODE_STEPS
+    assert gym.spec(suite_id).max_episode_steps == TASK_MAX_EPISODE_STEPS
     env.close()
 
 
@@ -284,6 +285,38 @@ def test_lifted_block_is_a_grasp_and_placement_rules(correct):
     env.close()
 
 
+# ---------------------------------------------------------------- ids
+def test_task_classes_declare_the_ids_of_env_ids():
+    """Each class names its ids above itself (@serves); together they are env_ids.ENVS, each once,
+    and ManiSkill holds each id with the class that declares it."""
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    from rsb_maniskill.env_ids import ENVS, TABLETOP_ID, TASK_ENVS
+    from rsb_maniskill.registration import load_simulator, served_by
+    from rsb_maniskill.tasks import TASK_CLASSES, AnswerSelectionEnv, TableTopEnv
+
+    assert AnswerSelectionEnv.ENV_IDS == tuple(TASK_ENVS) and TableTopEnv.ENV_IDS == (TABLETOP_ID,)
+    classes = served_by(TASK_CLASSES)
+    assert set(classes) == set(ENVS)
+    load_simulator()
+    assert all(REGISTERED_ENVS[uid].cls is cls for uid, cls in classes.items())
+
+
+def test_serves_takes_known_ids_and_every_id_needs_one_class():
+    from rsb_maniskill.env_ids import ENVS, TABLETOP_ID, serves
+    from rsb_maniskill.registration import served_by
+
+    with pytest.raises(ValueError, match="RSB-Math-7"):
+        serves("RSB-Math-7")
+    table = serves(TABLETOP_ID)(type("Table", (), {}))
+    with pytest.raises(RuntimeError, match="no task class serves RSB-"):
+        served_by([table])
+    every = serves(*ENVS)(type("Every", (), {}))
+    with pytest.raises(RuntimeError, match=f"{TABLETOP_ID} is served by both"):
+        served_by([every, table])
+    assert set(served_by([every])) == set(ENVS)
+
+
 # ---------------------------------------------------------------- errors
 def test_unknown_id_fails_clearly():
     with pytest.raises(gym.error.Error, match="RSB-Math-7"):
@@ -299,7 +332,7 @@ def test_bad_split_and_color_map_fail_clearly():
 
 # ---------------------------------------------------------------- GPU
 @pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA for the physx_cuda backend")
+@pytest.mark.usefixtures("gpu_physics")  # skips without CUDA, or without the PhysX GPU library and network
 def test_gpu_parallel_envs_are_independent():
     env = gym.make("RSB-Math-10", num_envs=16, obs_mode="state", sim_backend="physx_cuda",
                    render_backend="none")
@@ -326,7 +359,7 @@ def test_gpu_parallel_envs_are_independent():
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA for the physx_cuda backend")
+@pytest.mark.usefixtures("gpu_physics")
 def test_gpu_objects_differ_per_env_and_match_cpu():
     env = gym.make("RSB-Math-10-Objects", num_envs=16, obs_mode="state", sim_backend="physx_cuda",
                    render_backend="none")

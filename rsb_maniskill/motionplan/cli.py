@@ -11,7 +11,8 @@ from typing import Any
 
 from rsb_maniskill.env_ids import add_suites_argument
 from rsb_maniskill.motionplan.config import DEFAULT_EXPERT
-from rsb_maniskill.workers import add_executor_args, executor_from_args
+from rsb_maniskill.workers import executor_from_args
+from rsb_maniskill.workers_plan import add_worker_args, obs_mode_renders, resolve_workers
 
 # The replay sub-parser must hand every argument, options included, to ManiSkill's own parser:
 # a prefix character no option uses makes argparse treat them all as positionals.
@@ -35,8 +36,6 @@ def register(subparsers) -> None:
     p.add_argument("--traj-name", default=None, help="file name stem (default: the split)")
     p.add_argument("-o", "--obs-mode", default="state", help="observations to record (default: state)")
     p.add_argument("--save-video", action="store_true", help="also write one mp4 per kept demo")
-    p.add_argument("--num-procs", type=int, default=None,
-                   help="worker processes (default 1), or Ray tasks (default: the cluster's CPUs)")
     p.add_argument("--shard", default="0/1", metavar="I/N",
                    help="make shard I of N (disjoint seeds/questions); merge shards with `rsb merge`")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
@@ -49,7 +48,7 @@ def register(subparsers) -> None:
     p.add_argument("--expert", default=DEFAULT_EXPERT, help=argparse.SUPPRESS)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("-v", "--verbose", action="store_true", help="log each failed seed with its reason")
-    add_executor_args(p)
+    add_worker_args(p)  # --num-procs auto|N, --executor, --address
     p.set_defaults(func=run_generate)
 
     m = subparsers.add_parser("merge", help="merge trajectory files (parts, shards) into one",
@@ -89,7 +88,8 @@ def _generate(args: argparse.Namespace, executor: Any) -> int:
         return 2
     extra = {k: v for k, v in (("instructions", args.instructions), ("color_map", args.color_map),
                                ("data_dir", args.data_dir)) if v is not None}
-    num_procs = args.num_procs or (executor.workers() if executor is not None else 1)
+    executor, num_procs = resolve_workers(args.num_procs, executor, obs_mode_renders(args.obs_mode) or args.save_video,
+                                          episodes=_demos_a_shard(args))
     status = 0
     for env_id in args.suites:
         try:
@@ -109,6 +109,20 @@ def _generate(args: argparse.Namespace, executor: Any) -> int:
         if summary.interrupted:
             break
     return status
+
+
+def _demos_a_shard(args: argparse.Namespace) -> int | None:
+    """The demos one shard makes, where the arguments say (auto's worker count); None: unknown
+    (``--questions all``: the pool's size), or the arguments are bad (checked later)."""
+    n = args.num
+    try:
+        if args.questions is not None and args.questions != "all":
+            start, stop = (int(x) for x in args.questions.split(":"))
+            n = stop - start if n is None else min(n, stop - start)
+        shards = int(args.shard.split("/")[1])
+    except (ValueError, IndexError):
+        return None
+    return None if n is None or shards < 1 else -(-n // shards)
 
 
 def run_merge(args: argparse.Namespace) -> int:

@@ -1,0 +1,110 @@
+"""`--num-procs auto` against every explicit worker count, on this machine, in one run.
+
+    python benchmarks/auto_workers.py [--job generate eval] [-n 16] [--repeats 2] [--suite RSB-Math-4]
+                                      [-o state|rgb]
+
+Runs the same small job as a user types it, each time in a fresh process (start-up and worker
+spawning included: what a user waits for): ``rsb generate SUITE -n N`` (the scripted expert) and
+``rsb eval oracle --suites SUITE -n N``, with ``--num-procs auto`` and with every count from 1
+to the usable CPUs. Prints each run's wall time and episodes/s (median of the repeats, with the
+spread), the CPU seconds of the main process alone (its imports and its share of the work: what
+a CPU kept for it would serve), the line auto printed, and auto's ratio to the best explicit count
+(1.00: as fast; below 1: slower). Settings are run in a rotated order on each repeat, so that a machine getting busier
+does not always hit the same one. Nothing here asserts a speed: on a shared machine read the
+spread. Where a command does not take ``auto`` yet, its auto run passes the count
+``plan_workers`` picks for this machine (said in the output).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+from rsb_maniskill.workers_plan import nvidia_gpus, obs_mode_renders, plan_workers, usable_cpus
+
+AUTO = "auto"
+
+
+# `rsb ARGS`, then the main process's own CPU seconds (not its workers'): does it need a CPU of its own?
+RSB = ("import resource, sys; from rsb_maniskill.cli import main; rc = main(sys.argv[1:]); "
+       "r = resource.getrusage(resource.RUSAGE_SELF); print(f'MAIN-CPU {r.ru_utime + r.ru_stime:.2f}', "
+       "file=sys.stderr); sys.exit(rc)")
+
+
+def command(job: str, suite: str, n: int, obs_mode: str, procs: str, out: str) -> list[str]:
+    if job == "generate":
+        args = ["generate", suite, "-n", str(n), "-o", obs_mode, "--out", out, "-q"]
+    else:
+        args = ["eval", "oracle", "--suites", suite, "-n", str(n), "-o", obs_mode, "--out", out, "-q"]
+    return [sys.executable, "-c", RSB, *args, "--num-procs", procs]
+
+
+def takes_auto(job: str) -> bool:
+    """Whether this command's --num-procs accepts auto yet (its help says auto|N)."""
+    out = subprocess.run([sys.executable, "-m", "rsb_maniskill.cli", job, "--help"], capture_output=True, text=True)
+    return "auto|N" in out.stdout
+
+
+def run_once(cmd: list[str]) -> tuple[float, float, str]:
+    """Wall seconds of one run, its main process's CPU seconds, and the ``workers:`` line it printed."""
+    t0 = time.perf_counter()
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if res.returncode != 0:
+        raise SystemExit(f"failed ({res.returncode}): {' '.join(cmd)}\n{res.stderr[-2000:]}")
+    line = next((ln for ln in res.stderr.splitlines() if ln.startswith("workers: ")), "")
+    main_cpu = next(float(ln.split()[1]) for ln in res.stderr.splitlines() if ln.startswith("MAIN-CPU "))
+    return wall, main_cpu, line
+
+
+def bench(job: str, args: argparse.Namespace, cpus: int) -> None:
+    auto_arg = AUTO
+    if not takes_auto(job):
+        plan = plan_workers(cpus, len(nvidia_gpus()), obs_mode_renders(args.obs_mode), episodes=args.num)
+        auto_arg = str(plan.num_procs)
+        print(f"# rsb {job} does not take --num-procs auto yet: its auto run passes {auto_arg} ({plan.line()})")
+    settings = [AUTO] + [str(k) for k in range(1, cpus + 1)]
+    walls: dict[str, list[float]] = {s: [] for s in settings}
+    main_cpu: dict[str, list[float]] = {s: [] for s in settings}
+    lines: dict[str, str] = {}
+    for r in range(args.repeats):
+        for s in settings[r % len(settings):] + settings[:r % len(settings)]:
+            with tempfile.TemporaryDirectory() as tmp:
+                wall, cpu, line = run_once(command(job, args.suite, args.num, args.obs_mode,
+                                                   auto_arg if s == AUTO else s, tmp))
+            walls[s].append(wall)
+            main_cpu[s].append(cpu)
+            lines.setdefault(s, line)
+    print(f"\nrsb {job} {args.suite} -n {args.num} -o {args.obs_mode}, {args.repeats} run(s) each, "
+          f"{cpus} usable CPUs, load average before: {os.getloadavg()[0]:.2f}")
+    print(f"{'--num-procs':>11} {'wall s (median)':>15} {'min-max':>13} {'episodes/s':>10} {'main CPU s':>10}  "
+          "workers line")
+    rate = {s: args.num / statistics.median(w) for s, w in walls.items()}
+    for s in settings:
+        w = walls[s]
+        print(f"{s:>11} {statistics.median(w):>15.1f} {min(w):>6.1f}-{max(w):<6.1f} {rate[s]:>10.3f} "
+              f"{statistics.median(main_cpu[s]):>10.1f}  {lines[s]}")
+    best = max(settings[1:], key=rate.get)
+    print(f"auto / best explicit ({best}): {rate[AUTO] / rate[best]:.2f} in episodes/s "
+          f"(each run's own spread: {min(walls[AUTO]):.1f}-{max(walls[AUTO]):.1f} s for auto)")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--job", nargs="+", choices=("generate", "eval"), default=["generate", "eval"])
+    p.add_argument("--suite", default="RSB-Math-4")
+    p.add_argument("-n", "--num", type=int, default=16, help="demos (generate) or episodes (eval) a run")
+    p.add_argument("-o", "--obs-mode", default="state", help="state (default) or rgb: rendering workers")
+    p.add_argument("--repeats", type=int, default=2)
+    args = p.parse_args()
+    cpus = usable_cpus()
+    for job in args.job:
+        bench(job, args, cpus)
+
+
+if __name__ == "__main__":
+    main()

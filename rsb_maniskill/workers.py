@@ -28,15 +28,11 @@ import time
 import traceback
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Iterator, Protocol, Sequence
-
-if TYPE_CHECKING:
-    from rsb_maniskill.workers_ray import RayExecutor
+from typing import Any, Callable, Iterator, Protocol, Sequence
 
 Emit = Callable[[Any], None]
 Target = Callable[[Any, Emit], Any]
 
-EXECUTORS = ("local", "ray")
 
 
 class Interrupted(KeyboardInterrupt):
@@ -247,30 +243,3 @@ def deal(items: Sequence[Any], parts: int) -> list[list[Any]]:
     """Round-robin split of ``items`` into at most ``parts`` non-empty lists (item k to list k % n)."""
     n = max(1, min(parts, len(items)))
     return [list(items[k::n]) for k in range(n)]
-
-
-# ------------------------------------------------------------------ command-line flags
-
-
-def add_executor_args(parser: Any) -> None:
-    """``--executor`` and ``--address``, the same for every command that runs workers."""
-    parser.add_argument("--executor", choices=EXECUTORS, default="local",
-                        help="where workers run: local processes (default) or Ray tasks (pip install "
-                             "'rsb_maniskill[ray]'); with ray, --num-procs auto counts the cluster's CPUs and GPUs")
-    parser.add_argument("--address", default=None,
-                        help="Ray cluster to join (e.g. 10.0.0.1:6379 or auto); without it Ray starts a "
-                             "local cluster for this run")
-
-
-def executor_from_args(executor: str, address: str | None, gpus_per_task: float = 0) -> RayExecutor | None:
-    """The executor the flags name: None for local (the caller picks InProcess or ProcessPool).
-
-    Raises ValueError on ``--address`` without ``--executor ray`` and ImportError without Ray."""
-    if executor == "local":
-        if address:
-            raise ValueError("--address names a Ray cluster: add --executor ray")
-        return None
-    from rsb_maniskill.workers_ray import RayExecutor  # the optional half: only when asked for
-
-    RayExecutor._ray()  # fail now, with the install hint, not after the first suite
-    return RayExecutor(address=address, gpus_per_task=gpus_per_task)

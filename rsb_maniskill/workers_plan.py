@@ -19,11 +19,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-from rsb_maniskill.workers import Executor, ProcessPool, add_executor_args
+from rsb_maniskill.workers import Executor, ProcessPool
 
 if TYPE_CHECKING:
     from rsb_maniskill.workers_ray import RayExecutor
 
+EXECUTORS = ("local", "ray")  # --executor: local processes, or Ray tasks (the ray extra)
 AUTO = "auto"  # --num-procs auto: the worker count from the machine (plan_workers)
 # Rendering with CPU physics saturates one NVIDIA GPU at 4-8 processes: on an H100 (2026-11-25)
 # 1 / 4 / 8 / 16 processes rendered 161 / 425-442 / 402-536 / 342 rgb steps/s in all (docs/gpu.md).
@@ -240,3 +241,27 @@ def add_worker_args(parser: Any) -> None:
                              "with Ray, each task asks for its share of a GPU); the run prints its choice. "
                              "N: exactly N")
     add_executor_args(parser)
+
+
+def add_executor_args(parser: Any) -> None:
+    """``--executor`` and ``--address``, the same for every command that runs workers."""
+    parser.add_argument("--executor", choices=EXECUTORS, default="local",
+                        help="where workers run: local processes (default) or Ray tasks (pip install "
+                             "'rsb_maniskill[ray]'); with ray, --num-procs auto counts the cluster's CPUs and GPUs")
+    parser.add_argument("--address", default=None,
+                        help="Ray cluster to join (e.g. 10.0.0.1:6379 or auto); without it Ray starts a "
+                             "local cluster for this run")
+
+
+def executor_from_args(executor: str, address: str | None, gpus_per_task: float = 0) -> RayExecutor | None:
+    """The executor the flags name: None for local (the caller picks InProcess or ProcessPool).
+
+    Raises ValueError on ``--address`` without ``--executor ray`` and ImportError without Ray."""
+    if executor == "local":
+        if address:
+            raise ValueError("--address names a Ray cluster: add --executor ray")
+        return None
+    from rsb_maniskill.workers_ray import RayExecutor  # the optional half: only when asked for
+
+    RayExecutor._ray()  # fail now, with the install hint, not after the first suite
+    return RayExecutor(address=address, gpus_per_task=gpus_per_task)

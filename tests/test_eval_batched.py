@@ -145,7 +145,7 @@ def test_one_policy_per_env_is_required():
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA for the physx_cuda backend")
+@pytest.mark.usefixtures("gpu_physics")
 def test_rsb_eval_on_gpu_parallel_envs_matches_cpu_episodes(tmp_path):
     """`rsb eval --num-envs 4` on physx_cuda: every episode is the CPU episode of the same seed."""
     import rsb_maniskill  # noqa: F401
@@ -165,11 +165,8 @@ def test_rsb_eval_on_gpu_parallel_envs_matches_cpu_episodes(tmp_path):
     cpu.close()
 
 
-CUDA_REASON = "needs CUDA for the physx_cuda backend (none on this machine)"
-
-
 @pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason=CUDA_REASON)
+@pytest.mark.usefixtures("gpu_physics")
 def test_batched_policy_on_gpu_envs_one_call_per_step(tmp_path):
     """A batched policy on 4 physx_cuda envs: one object, rows routed to their envs, CPU episodes."""
     import rsb_maniskill  # noqa: F401
@@ -195,7 +192,7 @@ def test_batched_policy_on_gpu_envs_one_call_per_step(tmp_path):
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason=CUDA_REASON)
+@pytest.mark.usefixtures("gpu_physics")
 def test_render_on_demand_on_gpu_envs_same_records():
     import rsb_maniskill  # noqa: F401
     from rsb_maniskill.evaluation import eval_seeds
@@ -219,7 +216,7 @@ def test_render_on_demand_on_gpu_envs_same_records():
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason=CUDA_REASON)
+@pytest.mark.usefixtures("gpu_physics")
 def test_rsb_eval_num_envs_on_ray_gpu_task(tmp_path):
     """`rsb eval --num-envs 2 --executor ray`: one GPU task running 2 envs; the CPU episodes."""
     from rsb_maniskill.cli import main

@@ -318,7 +318,7 @@ def test_perturbed_expert_demo_replays_with_maniskills_tool(tmp_path):
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA for the physx_cuda backend")
+@pytest.mark.usefixtures("gpu_physics")
 def test_gpu_per_env_perturbations_match_cpu():
     perturb = {"robot_init": 2, "clutter": 2, "table": 2, "candidate": 2}
     env = gym.make("RSB-Math-10", num_envs=4, obs_mode="state", sim_backend="physx_cuda", perturb=perturb)

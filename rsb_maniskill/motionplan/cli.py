@@ -11,8 +11,7 @@ from typing import Any
 
 from rsb_maniskill.env_ids import add_suites_argument
 from rsb_maniskill.motionplan.config import DEFAULT_EXPERT
-from rsb_maniskill.workers import executor_from_args
-from rsb_maniskill.workers_plan import add_worker_args, obs_mode_renders, resolve_workers
+from rsb_maniskill.workers_plan import add_worker_args, executor_from_args, obs_mode_renders, resolve_workers
 
 # The replay sub-parser must hand every argument, options included, to ManiSkill's own parser:
 # a prefix character no option uses makes argparse treat them all as positionals.

@@ -94,7 +94,7 @@ class _Progress:
 def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateSummary:
     """Runs the whole job: validate, run workers, merge their parts into the final file.
 
-    ``executor`` runs the workers (e.g. a :class:`~rsb_maniskill.workers.RayExecutor`, whose
+    ``executor`` runs the workers (e.g. a :class:`~rsb_maniskill.workers_ray.RayExecutor`, whose
     machines must see ``cfg.out``); default: this process for one worker, else a process pool."""
     t0 = time.perf_counter()
     pool_size = _validate(cfg)

@@ -18,7 +18,7 @@ import warnings
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..records import VLA_EVAL_RUNNER
+from ..records import VERSION_FIELD, VLA_EVAL_RUNNER
 from ..store import RECORDS_FILE
 
 AGGREGATE_GLOB = "*_aggregate.json"  # vla-eval's results files
@@ -71,6 +71,12 @@ def records_from_results(results: Mapping[str, Any], source: str = "results") ->
                                     f"no RSB record in its metrics ({sorted(metrics)}): not a vla-eval run of "
                                     "rsb_maniskill.integrations.vla_eval:RSBBenchmark")
     if failed:
+        # An errored episode has no RSB record, so no benchmark version: it was run on the version of
+        # the run's other episodes (when they agree), and must not read as unversioned beside them.
+        versions = {r[VERSION_FIELD] for r in records if r.get(VERSION_FIELD)}
+        if len(versions) == 1:
+            for r in records:
+                r.setdefault(VERSION_FIELD, next(iter(versions)))
         warnings.warn(f"{source}: {failed} episode(s) ended with an error in vla-eval (failure_reason); "
                       "counted as failures with no grasp, as vla-eval counts them", stacklevel=2)
     return records

@@ -18,3 +18,4 @@ test-fast: setup
 
 lint: setup
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/lint-imports  # the layer contracts of pyproject.toml (docs/architecture.md)

@@ -56,19 +56,6 @@ def test_codec_rejects_object_arrays():
         packb(np.array([object()]))
 
 
-def test_server_and_vla_eval_import_the_wire_module_not_the_client():
-    """The codec and the connection have one owner (``wire.py``); the server never loads the client."""
-    import ast
-    from pathlib import Path
-
-    import rsb_maniskill.evaluation.remote as remote
-
-    for name in ("server.py", "vla_eval.py"):
-        tree = ast.parse((Path(remote.__file__).parent / name).read_text())
-        froms = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level == 1}
-        assert "wire" in froms and "client" not in froms, name
-
-
 def test_flatten_unflatten():
     obs = sample_obs()
     flat = flatten_obs(obs)

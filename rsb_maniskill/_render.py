@@ -78,12 +78,10 @@ def limit_lavapipe_threads(threads: int | None) -> bool:
 
 
 def lavapipe_share(workers: int) -> int:
-    """Raster threads per worker when ``workers`` local processes share this machine's CPUs."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cpus = os.cpu_count() or 1
-    return max(1, cpus // max(1, workers))
+    """Raster threads per worker when ``workers`` local processes share the CPUs this process may use."""
+    from rsb_maniskill.workers_plan import usable_cpus  # affinity and cgroup quota, as --num-procs auto counts
+
+    return max(1, usable_cpus() // max(1, workers))
 
 
 def ensure_renderer() -> None:

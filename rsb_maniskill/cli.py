@@ -3,12 +3,17 @@
 Each module listed in ``_COMMAND_MODULES`` exposes ``register(subparsers)`` that adds its
 sub-commands with ``set_defaults(func=...)``; ``func(args) -> int`` is the exit status.
 The modules keep their heavy imports inside the commands, so ``rsb questions`` never loads the simulator.
+A command prints its own errors in one line; one it lets through is printed the same way here, and
+``rsb --debug`` (or ``RSB_DEBUG=1``) adds the traceback (``debug.py``).
 """
 from __future__ import annotations
 
 import argparse
 import importlib
 import sys
+from typing import NoReturn
+
+from rsb_maniskill.debug import DEBUG_ENV, debug_mode, print_error
 
 _COMMAND_MODULES = (
     "rsb_maniskill.demo",
@@ -20,16 +25,27 @@ _COMMAND_MODULES = (
     "rsb_maniskill.evaluation.cli.eval",
     "rsb_maniskill.evaluation.cli.backbone",
     "rsb_maniskill.evaluation.cli.report",
+    "rsb_maniskill.evaluation.cli.leaderboard",
     "rsb_maniskill.export.cli",
 )
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with a usage error in one line, as every other error: what is wrong, and where the
+    help is (its sub-parsers are of this class too)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     from rsb_maniskill.version import version_line
 
-    parser = argparse.ArgumentParser(prog="rsb", description="RoboSemanticBench on ManiSkill3")
+    parser = Parser(prog="rsb", description="RoboSemanticBench on ManiSkill3")
     parser.add_argument("--version", action="version", version=version_line(),
                         help="print the package and benchmark versions and exit")
+    parser.add_argument("--debug", action="store_true",
+                        help=f"on an error, print the traceback before the one-line message (also: {DEBUG_ENV}=1)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
         importlib.import_module(name).register(sub)
@@ -46,11 +62,14 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print("rsb: interrupted", file=sys.stderr)
-        return 130
+    with debug_mode(args.debug):  # in the environment, for worker processes too
+        try:
+            return int(args.func(args) or 0)
+        except KeyboardInterrupt:
+            print("rsb: interrupted", file=sys.stderr)
+            return 130
+        except Exception as err:  # noqa: BLE001  (a command let it through: one line, the traceback with --debug)
+            return print_error(args.command, err, 1, hint=True, unexpected=True)
 
 
 if __name__ == "__main__":

@@ -105,9 +105,14 @@ class _SuitesAction(argparse.Action):
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
         try:
-            setattr(namespace, self.dest, resolve_env_ids(values))
+            suites = resolve_env_ids(values)
         except ValueError as err:
             parser.exit(2, f"{parser.prog}: error: {err}\n")
+        if values and not suites:  # e.g. --suites "": something was given, and it names nothing
+            given = " ".join(repr(v) for v in values)
+            parser.exit(2, f"{parser.prog}: error: {option_string or 'SUITE'} {given} names no suite; give a suite id "
+                           f"(e.g. RSB-Math-4) or a group ({', '.join(SUITE_GROUPS)})\n")
+        setattr(namespace, self.dest, suites)
 
 
 def add_suites_argument(parser: argparse.ArgumentParser, default: Sequence[str] = ("paper",),

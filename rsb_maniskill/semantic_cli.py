@@ -44,9 +44,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d.set_defaults(func=lambda args: (d.print_help(), 2)[1])
 
 
-def _fail(err: Exception) -> int:
-    print(f"rsb: error: {err}", file=sys.stderr)
-    return 1
+def _fail(command: str, err: Exception | str, status: int = 1) -> int:
+    print(f"rsb {command}: error: {err}", file=sys.stderr)
+    return status
 
 
 def cmd_questions(args: argparse.Namespace) -> int:
@@ -56,7 +56,9 @@ def cmd_questions(args: argparse.Namespace) -> int:
     from rsb_maniskill.semantic.sampler import EpisodeSampler
 
     if not args.suites:
-        return _fail(ValueError("name at least one SUITE (e.g. RSB-Math-4)"))
+        return _fail("questions", "name at least one SUITE (e.g. RSB-Math-4)", 2)
+    if args.num < 1:
+        return _fail("questions", f"-n must be >= 1, got {args.num}", 2)
     try:
         for env_id in args.suites:
             suite_id, targets = split_env_id(env_id)
@@ -77,7 +79,7 @@ def cmd_questions(args: argparse.Namespace) -> int:
                       f"{spec.block_names[spec.target_block]})")
                 print(f"rationale: {spec.rationale}")
     except (ValueError, SemanticError) as err:
-        return _fail(err)
+        return _fail("questions", err)
     return 0
 
 
@@ -127,7 +129,7 @@ def cmd_data_download(args: argparse.Namespace) -> int:
     try:
         paths = download_hub_data(args.export)
     except SemanticError as err:
-        return _fail(err)
+        return _fail("data download", err)
     for name, path in paths.items():
         print(f"{name}: {path}")
     if args.export:

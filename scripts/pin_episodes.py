@@ -8,13 +8,17 @@ version, so the digests of a version are written once:
     python scripts/pin_episodes.py                                  # check: which suites drifted (exit 1)
     python scripts/pin_episodes.py --bump 1.2 --note "General: ..."  # a new version: version.py, docs, digests
     python scripts/pin_episodes.py --amend --note "..."              # re-pin the current, unreleased version
-    python scripts/pin_episodes.py --write                          # first pin, or re-write unchanged digests
+    python scripts/pin_episodes.py --write                          # first pin, re-write unchanged digests, or
+                                                                    # pin a new kind of digest (additive amendment)
 
 ``--bump`` sets ``BENCHMARK_VERSION`` in rsb_maniskill/version.py, adds the version's section to
 docs/versions.md (the note and the suites whose episodes changed) and writes both digest files.
 ``--amend`` is for a version not yet released (merged, not tagged): it re-pins the current version,
 adds the note to its section and lists again the suites that changed since the previous version
-(each digest file keeps the previous version's digests under ``previous``). See docs/versions.md.
+(each digest file keeps the previous version's digests under ``previous``). ``--write`` also pins
+a digest of a new kind of episode that the file does not hold yet (the ``counterfactual`` variants
+were added to RSB-MS 1.1 so): no pinned digest may change, so no episode of the version does.
+See docs/versions.md.
 """
 from __future__ import annotations
 
@@ -97,28 +101,36 @@ def main() -> int:
 
     t0 = time.perf_counter()
     digests = {golden.GOLDEN_FILE: golden.compute(data_dir=data), FIXTURE_GOLDEN: golden.compute(data_dir=FIXTURE_DATA)}
-    print(f"pin_episodes: {len(digests[FIXTURE_GOLDEN])} suites x 2 digests, real and fixture data, in "
+    kinds = len(next(iter(digests[FIXTURE_GOLDEN].values())))
+    print(f"pin_episodes: {len(digests[FIXTURE_GOLDEN])} suites x {kinds} digests, real and fixture data, in "
           f"{time.perf_counter() - t0:.1f} s")
     files = {path: golden.load(path) if path.is_file() else {"suites": {}, "benchmark_version": None}
              for path in digests}
     pinned = files[golden.GOLDEN_FILE]
 
     def diff_from(previous: bool) -> dict[str, list[str]]:
-        """Suites whose digests differ from the pinned ones, or from the previous version's."""
+        """Suites whose pinned digests differ from the pinned ones, or from the previous version's (a
+        digest the reference does not hold is an addition, not a change)."""
         out: dict[str, list[str]] = {}
         for path, doc in files.items():
             ref = (doc.get("previous") or {"suites": {}}) if previous else doc
-            for eid, parts in golden.differences(digests[path], ref).items():
+            for eid, parts in golden.differences(digests[path], ref, new=False).items():
                 out.setdefault(eid, parts)
         return out
 
     diff = diff_from(previous=False)
+    added = {eid: parts for path, doc in files.items() if doc["suites"]
+             for eid, parts in golden.additions(digests[path], doc).items()}
     same_version = pinned["benchmark_version"] == BENCHMARK_VERSION
 
     if not (args.bump or args.amend or args.write):
         if diff or not same_version:
             print(f"episodes differ from the pinned {pinned.get('benchmark')}: {changed_suites(diff)}; pin them as a "
                   "new version with --bump X.Y --note '...'")
+            return 1
+        if added:
+            print(f"digests not pinned yet: {changed_suites(added)}; no pinned episode changed: pin them with "
+                  "--write (an additive amendment of this version, docs/versions.md)")
             return 1
         print(f"the episodes are {pinned['benchmark']}'s, as pinned")
         return 0

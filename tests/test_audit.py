@@ -172,10 +172,54 @@ def test_guessers_score_every_option():
 def test_cli_writes_json_and_markdown(tmp_path, capsys):
     rc = main(["audit", "RSB-Direct-4", "RSB-Math-10", "-n", "400", "--out", str(tmp_path)])
     out = capsys.readouterr().out
-    assert rc == 0 and "| RSB-Math-10 | 400 |" in out
+    assert rc == 0 and "| RSB-Math-10 | 400 |" in out and "| RSB-Math-10 [counterfactual] | 1,600 |" in out
     data = json.loads((tmp_path / "audit.json").read_text())
-    assert [d["suite_id"] for d in data] == ["RSB-Direct-4", "RSB-Math-10"] and all(d["passed"] for d in data)
+    assert [d["suite_id"] for d in data] == ["RSB-Direct-4", "RSB-Direct-4 [counterfactual]", "RSB-Math-10",
+                                             "RSB-Math-10 [counterfactual]"] and all(d["passed"] for d in data)
     assert "### RSB-Math-10" in (tmp_path / "audit.md").read_text()
+    assert main(["audit", "RSB-Direct-4", "-n", "300", "--instruction", "normal", "--json"]) == 0
+    assert [d["suite_id"] for d in json.loads(capsys.readouterr().out)] == ["RSB-Direct-4"]
+
+
+@pytest.mark.parametrize("suite_id", [
+    "RSB-Math-4", "RSB-Math-10", "RSB-Direct-10", "RSB-Math-4-Objects",
+    *(pytest.param(s, marks=pytest.mark.data) for s in ("RSB-HardMath-10", "RSB-General-4", "RSB-General-10"))])
+def test_the_counterfactual_variants_pass_the_audit(suite_id):
+    """Position, colour / letter / object slot, wording, option-set shape: no shortcut in the variants
+    either, also for a guesser that knows the variant index; one answer per set; no train question."""
+    from rsb_maniskill.audit.counterfactual import audit_variants
+    from rsb_maniskill.objects.family import split_env_id
+
+    sid, targets = split_env_id(suite_id)
+    a = audit_variants(sid, 500, data_dir=_data(sid), targets=targets)
+    assert a.episodes == 500 * min(a.n_choices, 4) and a.suite_id.endswith(" [counterfactual]")
+    by_index = [g for g in a.guessers if "(variant " in g.name]
+    assert len(by_index) == 2 * a.n_choices * 3 and all(g.applies == 500 for g in by_index)
+    assert any(g.name == "mentioned first" for g in a.guessers)  # the wording guessers read the variants
+    assert a.passed, [(g.name, round(g.accuracy, 3), round(g.low, 3)) for g in a.flagged]
+    assert a.ambiguous == 0 and a.overlap.clean
+
+
+def test_an_index_shortcut_in_the_variants_fails_the_audit():
+    """Variants whose variant-1 answer always sits on candidate 0 (what a biased target order would
+    give): the guesser that knows the variant index is right every time it applies."""
+    from rsb_maniskill.audit.counterfactual import index_guessers, variant_episodes
+    from rsb_maniskill.semantic import counterfactual as cf
+
+    te = EpisodeSampler("RSB-Math-4", "test")
+    specs, index = variant_episodes(te, range(10_000_000, 10_000_400))
+    fair = audit_specs("fair", [], specs, guessers=index_guessers(specs, index, 4, te.letters))
+    assert fair.passed
+    rigged = [sp if k != 1 else cf._onto(te, sp, 0) for sp, k in zip(specs, index)]
+    a = audit_specs("rigged", [], rigged, guessers=index_guessers(rigged, index, 4, te.letters))
+    g = next(g for g in a.guessers if g.name == "block 0 (variant 1)")
+    assert g.flagged and g.applies == 400 and g.applies_accuracy == 1.0
+    assert not any(f.name.endswith(("(variant 2)", "(variant 3)")) for f in a.flagged)
+
+
+def test_cli_counterfactual_needs_the_test_split(capsys):
+    assert main(["audit", "RSB-Direct-4", "--split", "train", "--instruction", "counterfactual"]) == 2
+    assert "use --split test" in capsys.readouterr().err
 
 
 def test_cli_exit_1_on_a_shortcut_in_user_specs(tmp_path, capsys):

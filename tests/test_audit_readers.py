@@ -134,7 +134,7 @@ def reader_module(tmp_path, monkeypatch):
 
 def test_cli_reader_factory_appears_as_a_row(reader_module, tmp_path, capsys):
     out = tmp_path / "out"
-    rc = main(["audit", "RSB-Math-4", "-n", "100", "--train-episodes", "0", "--no-readers",
+    rc = main(["audit", "RSB-Math-4", "-n", "100", "--train-episodes", "0", "--no-readers", "--instruction", "normal",
                "--reader", f"{reader_module}:make", "--reader", f"{reader_module}:missing", "--out", str(out)])
     md = capsys.readouterr().out
     assert rc == 0
@@ -154,7 +154,7 @@ def test_cli_twin_rule_exit_status(monkeypatch, tmp_path, capsys):
         "        return self.inner.score(q, o) if len(o) == 10 else None\n\n\ndef make():\n    return OnlyTen()\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     rc = main(["audit", "RSB-Math-4", "RSB-Math-10", "-n", "150", "--train-episodes", "0", "--no-readers",
-               "--reader", "tests_reader_helpers:make", "--json"])
+               "--instruction", "normal", "--reader", "tests_reader_helpers:make", "--json"])
     cap = capsys.readouterr()
     data = json.loads(cap.out)
     assert rc == 1 and "twin rule fails: number reachability" in cap.err

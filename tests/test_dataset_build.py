@@ -2,6 +2,7 @@
 resumable after kill -9, one dataset per suite with its card, bad input refused before any write."""
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import signal
@@ -31,11 +32,25 @@ def build(out: Path, num_procs: int, shard_size: int = 2, **kw) -> list[dict]:
     return build_datasets(cfg)
 
 
+def tree(root: Path) -> dict[str, str]:
+    """Every file under ``root``, by its bytes (relative path -> sha256)."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
 @pytest.fixture(scope="module")
 def one_proc(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("one")
     summaries = build(out, 1)
     assert summaries[0]["episodes"] == 4 and not summaries[0]["already_built"]
+    return out / SUITE
+
+
+@pytest.fixture(scope="module")
+def one_shard(tmp_path_factory) -> Path:
+    """The same four questions in one shard of four (``one_proc``: two shards of two)."""
+    out = tmp_path_factory.mktemp("one_shard")
+    build(out, 1, shard_size=4)
     return out / SUITE
 
 
@@ -47,23 +62,25 @@ def test_two_workers_build_the_same_dataset(one_proc, tmp_path):
     assert again[0]["already_built"] and again[1]["rendered_frames"] == 0
 
 
-def test_shard_size_changes_no_episode(one_proc, tmp_path):
+def test_shard_size_changes_no_byte(one_proc, one_shard):
     """One shard of the four questions (seed 3 played after seeds 0-2 in one env) and two shards of
-    two (each in a new env): the same frames and videos, byte for byte; only how the frames are
-    filed (one data file per shard) and the recorded setting differ."""
-    build(tmp_path, 1, shard_size=4)
-    one_shard, videos = tmp_path / SUITE, lambda fp: {k: v for k, v in fp.items() if k.startswith("videos/")}
-    assert read_data(one_shard) == read_data(one_proc)
-    assert len(videos(fingerprint(one_proc))) == 12 and videos(fingerprint(one_shard)) == videos(fingerprint(one_proc))
-    # the episodes' rows but for where their frames are filed, which episode of its shard's demo
-    # file each was, and the per-episode stats of the columns the merge renumbers (it keeps the
-    # shards' own, shard-local values)
-    filed = ("data/", "rsb/source_episode_id", "stats/episode_index/", "stats/index/", "stats/task_index/")
-    episodes = []
-    for root in (one_shard, one_proc):
-        table = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet")
-        episodes.append(table.drop_columns([c for c in table.column_names if c.startswith(filed)]).to_pylist())
-    assert episodes[0] == episodes[1] and len(episodes[0]) == 4
+    two (each in a new env): the same dataset, every file under its root byte for byte: frames and
+    videos, how the frames are filed, the per-episode statistics of the renumbered columns, the
+    dataset statistics built from them, the build settings and the card."""
+    files = tree(one_shard)
+    assert files == tree(one_proc)
+    assert len([f for f in files if f.startswith("videos/")]) == 12 and "meta/stats.json" in files
+    assert {"README.md", "meta/rsb_build.json", "meta/info.json", "data/chunk-000/file-000.parquet"} <= set(files)
+    # the renumbered columns' statistics are of the merged dataset's values, not of a shard's
+    data = read_data(one_proc)
+    for e in pq.read_table(one_proc / "meta/episodes/chunk-000/file-000.parquet").to_pylist():
+        rows = range(e["dataset_from_index"], e["dataset_to_index"])
+        assert e["stats/episode_index/min"] == e["stats/episode_index/max"] == [e["episode_index"]]
+        assert e["stats/index/min"] == [rows[0]] and e["stats/index/max"] == [rows[-1]]
+        assert e["stats/task_index/mean"] == [data["task_index"][rows[0]]]
+        assert "rsb/source_episode_id" not in e and "rsb/source_file" not in e  # a build's demos are temporary
+    stats = json.loads((one_proc / "meta/stats.json").read_text())
+    assert stats["episode_index"]["max"] == [3] and stats["episode_index"]["count"] == [len(data["index"])]
 
 
 def test_dataset_contents_and_card(one_proc):
@@ -78,7 +95,7 @@ def test_dataset_contents_and_card(one_proc):
         assert isinstance(e["rsb/options"], list) and all(isinstance(o, str) for o in e["rsb/options"])
         assert e["rsb/correct_option"] == e["rsb/options"]["ABCD".index(e["rsb/correct_letter"])]
         assert f"Option {e['rsb/correct_letter']} is" in e["rsb/rationale"]
-    assert len(sorted((one_proc / "data").glob("chunk-000/file-*.parquet"))) == 2
+    assert len(sorted((one_proc / "data").glob("chunk-000/file-*.parquet"))) == 1  # whole episodes, not shards
     for e in eps:  # each episode's frames point at its own task and its own video
         rows = range(e["dataset_from_index"], e["dataset_to_index"])
         assert {data["episode_index"][r] for r in rows} == {e["episode_index"]}
@@ -229,7 +246,8 @@ def test_bad_input_is_one_line_and_writes_nothing(argv, message, tmp_path, capsy
     out = tmp_path / "out"
     assert main(["dataset", "build", *argv, "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert message in err and len(err.splitlines()) == 1
+    errors = [line for line in err.splitlines() if ": error: " in line]  # beside it, at most the worker count
+    assert len(errors) == 1 and message in errors[0] and "Traceback" not in err
     assert not out.exists()
 
 
@@ -252,7 +270,9 @@ def test_missing_question_data_offline(tmp_path, capsys, monkeypatch):
 
 
 @pytest.mark.slow
-def test_lerobot_loads_the_merged_dataset(one_proc):
+@pytest.mark.parametrize("dataset", ["one_proc", "one_shard"])
+def test_lerobot_loads_the_merged_dataset(dataset, request):
+    one_proc = request.getfixturevalue(dataset)  # two shards merged, or one
     py = _lerobot_python()
     code = textwrap.dedent(f"""
         import json
@@ -305,11 +325,11 @@ def test_workers_get_one_task_each_whatever_the_suites():
 def test_workers_share_lavapipe_threads_unless_told(monkeypatch):
     """Each local worker caps lavapipe's raster threads to its share of the CPUs (software rendering
     only; a user's LP_NUM_THREADS wins)."""
-    from rsb_maniskill import _render
+    from rsb_maniskill import _render, workers_plan
 
     monkeypatch.delenv("LP_NUM_THREADS", raising=False)
-    cpus = len(os.sched_getaffinity(0))
-    assert _render.lavapipe_share(2) == max(1, cpus // 2) and _render.lavapipe_share(4 * cpus) == 1
+    monkeypatch.setattr(workers_plan, "usable_cpus", lambda: 6)  # the CPUs --num-procs auto counts
+    assert _render.lavapipe_share(2) == 3 and _render.lavapipe_share(4) == 1 and _render.lavapipe_share(24) == 1
     monkeypatch.setattr(_render, "software_rendering", lambda: False)
     assert not _render.limit_lavapipe_threads(1) and "LP_NUM_THREADS" not in os.environ  # a GPU driver: left alone
     monkeypatch.setattr(_render, "software_rendering", lambda: True)

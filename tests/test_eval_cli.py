@@ -112,9 +112,13 @@ def test_sigterm_stops_workers_and_keeps_finished_episodes(tmp_path):
     assert proc.returncode == 130 and "Rerun the same command to resume" in err
     time.sleep(0.5)
     assert not [w for w in workers if Path(f"/proc/{w}").exists()], "worker processes outlived the run"
-    assert (out / "summary.json").exists()  # the finished episodes are summarised
+    partial = summary(out)["partial"]  # the finished episodes are summarised, and marked as part of the run
+    assert partial == f"partial: interrupted, {len(read_records(records))} of 12 episodes"
+    assert (out / "summary.md").read_text().startswith(f"**{partial}**")
+    assert partial in (out / "report.html").read_text()
     assert rsb_eval("blind", "--suites", SUITE, "-n", "12", "--num-procs", "2", "--out", str(out)) == 0
     assert sorted(r["seed"] for r in read_records(records)) == eval_seeds(SUITE, 12)
+    assert "partial" not in summary(out)
 
 
 @pytest.mark.slow

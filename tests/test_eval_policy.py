@@ -91,12 +91,12 @@ def _fake_env(space, num_envs=1):
 
 def test_builtin_table():
     """One table: every name resolves to its factory, says whether it needs the env, and its obs mode."""
-    assert builtin_policies() == ("blind", "oracle", "random", "remote")
+    assert builtin_policies() == ("blind", "leftmost", "oracle", "random", "remote")
     assert resolve_factory("random") == RandomPolicy.for_env
     for name in builtin_policies():
         assert callable(resolve_factory(name))
     assert {n: policy_spec(n).obs_mode for n in builtin_policies()} == {
-        "blind": "state", "oracle": "state", "random": "state", "remote": "rgb"}
+        "blind": "state", "leftmost": "state", "oracle": "state", "random": "state", "remote": "rgb"}
     assert policy_spec("my_pkg.policies:make").obs_mode == "rgb" and not policy_spec("my_pkg.policies:make").needs_env
     # the privileged baselines are built with the env, and only with a one-env env
     space = np.zeros((2, 14))  # unused by the expert's constructor

@@ -69,3 +69,14 @@ def test_apply_instruction_mode():
         apply_instruction_mode("x", "shuffled")
     with pytest.raises(ValueError, match="normal"):
         apply_instruction_mode("x", "reversed")
+
+
+def test_counterfactual_mode_gives_the_variants_own_instruction():
+    """The variant's instruction is the one given (the task renders it); no ablation fields."""
+    from rsb_maniskill.evaluation.protocol import ablate, variant_reset
+
+    assert apply_instruction_mode("put the red block", "counterfactual") == "put the red block"
+    assert ablate("put the red block", "counterfactual", None) == ("put the red block", {})
+    assert variant_reset(None, [None]) is None and variant_reset({"a": 1}, [None, None]) == {"a": 1}
+    assert variant_reset(None, [2]) == {"variant": 2}
+    assert variant_reset({"a": 1}, [0, 3]) == {"a": 1, "variant": [0, 3]}

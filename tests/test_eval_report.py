@@ -73,6 +73,18 @@ def test_write_report_files(tmp_path, results):
     assert {r["row"] for r in rows if r["suite_id"] == "Avg"} == {"good", "clumsy", "good (blank)"}
     assert paths["markdown"].read_text().startswith("Benchmark: RSB-MS ")  # then the tables
     assert {k for k in paths if k.startswith("png:")} == {"png:good", "png:clumsy", "png:good (blank)"}
+    # without records there is nothing to split by category or position: no such section, no file
+    assert "categories" not in data and "bias" not in data and not any(k.startswith("csv:") for k in paths)
+
+
+def test_write_report_with_records_adds_the_why_sections(tmp_path):
+    """Records of every row get the per-category (here: none recorded, said so) and bias sections."""
+    recs = records("good", "RSB-Math-4", 30, 60, 10)
+    paths = write_report(results_from_records(recs), tmp_path, records=recs)
+    data = json.loads(paths["json"].read_text())
+    assert "no per-category table" in data["categories"]["note"] and data["bias"]["rows"]["good"]["RSB-Math-4"]
+    md = paths["markdown"].read_text()
+    assert md.index("paper Table 7") < md.index("### No per-category tables") < md.index("preferences: verdicts")
 
 
 def test_plot_is_a_valid_png(tmp_path, results):

@@ -33,6 +33,7 @@ def test_every_suite_gives_the_pinned_episodes(question_data):
     assert pinned["benchmark_version"] == BENCHMARK_VERSION, f"{path} pins another version: {FIX}"
     digests = golden.compute(data_dir=question_data)
     assert set(digests) == set(pinned["suites"]) and len(digests) == 16
+    assert all(set(d) == {"eval", "train", "counterfactual"} for d in pinned["suites"].values())
     diff = golden.differences(digests, pinned)
     assert diff == {}, f"episodes changed ({diff}) without a new benchmark version: {FIX}"
 
@@ -52,7 +53,30 @@ def test_a_changed_episode_or_layout_changes_the_digest(monkeypatch):
     assert moved["eval"] != before["eval"] and moved["train"] != before["train"]
     assert golden.differences({"RSB-Math-4": moved}, {"suites": {"RSB-Math-4": before}}) == {
         "RSB-Math-4": ["eval", "train"]}
-    assert golden.differences({"RSB-Math-4": before}, {"suites": {}}) == {"RSB-Math-4": ["eval", "train"]}
+    assert moved["counterfactual"] == before["counterfactual"]  # a variant's layout is its scene's: pinned by eval
+    assert golden.differences({"RSB-Math-4": before}, {"suites": {}}) == {
+        "RSB-Math-4": ["eval", "train", "counterfactual"]}
+
+
+def test_the_counterfactual_digest_pins_the_variants(monkeypatch):
+    """Only the variants' digest moves when the variants do, and pinning a new kind of digest is an
+    addition, not a change of the pinned episodes (the additive amendment of docs/versions.md)."""
+    from rsb_maniskill.semantic import counterfactual
+
+    before = golden.suite_digests("RSB-Direct-10")
+    assert set(before) == {"eval", "train", "counterfactual"}
+    monkeypatch.setattr(counterfactual, "SALT", "another stream")  # other targets for variants 1..K-1
+    after = golden.suite_digests("RSB-Direct-10")
+    assert (after["eval"], after["train"]) == (before["eval"], before["train"])
+    assert after["counterfactual"] != before["counterfactual"]
+    old = {"suites": {"RSB-Direct-10": {k: before[k] for k in ("eval", "train")}}}
+    assert golden.differences({"RSB-Direct-10": before}, old) == {"RSB-Direct-10": ["counterfactual"]}
+    assert golden.differences({"RSB-Direct-10": before}, old, new=False) == {}
+    assert golden.additions({"RSB-Direct-10": before}, old) == {"RSB-Direct-10": ["counterfactual"]}
+    assert golden.differences({"RSB-Direct-10": after}, {"suites": {"RSB-Direct-10": before}}, new=False) == {
+        "RSB-Direct-10": ["counterfactual"]}
+    assert golden.differences({"RSB-Direct-10": before}, {"suites": {}}, new=False) == {
+        "RSB-Direct-10": ["eval", "train", "counterfactual"]}  # a new suite is no addition
 
 
 @pytest.mark.parametrize("env_id", ["RSB-Math-10", "RSB-Direct-4-Objects"])

@@ -1,6 +1,8 @@
 """`rsb report` / report.html: built from a real `rsb eval` run (oracle with a video, blind with
 shuffled instructions, random) plus synthetic records covering every outcome, then opened in a
-real headless Chromium: no console error, no network, filters change the cards, a screenshot."""
+real headless Chromium: no console error, no network, filters change the cards, one error analysis,
+the per-category and bias tables and plots rendered, a frame at full resolution in the lightbox, a
+long instruction read whole, screenshots."""
 from __future__ import annotations
 
 import json
@@ -12,7 +14,8 @@ from pathlib import Path
 import pytest
 
 from rsb_maniskill.cli import main
-from rsb_maniskill.evaluation.metrics import OUTCOMES
+from rsb_maniskill.evaluation.metrics import OUTCOMES, suite_order
+from rsb_maniskill.evaluation.records import record_row
 from rsb_maniskill.evaluation.reporting.page import episode_cards, markdown_to_html
 from rsb_maniskill.evaluation.reporting.writer import write_html_report
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
@@ -21,6 +24,7 @@ from cdp_browser import Browser, find_chromium
 
 SUITE = "RSB-Math-4"
 N_SYNTHETIC = 130  # more than one page of cards (120)
+LONG = " Read it to the end: the last words say which block to take." * 12  # a long instruction, cut on its card
 
 
 def _synthetic(records: list[dict]) -> list[dict]:
@@ -35,6 +39,8 @@ def _synthetic(records: list[dict]) -> list[dict]:
         r.pop("video", None)
         r.update(policy="synthetic", suite_id=SUITE if i % 3 else "RSB-Math-10", seed=20_000_000 + i,
                  instruction_mode="normal", **flags[OUTCOMES[i % 4]])
+        if i == 0:
+            r["instruction"] += LONG
         out.append(r)
     return out
 
@@ -74,7 +80,16 @@ def test_eval_writes_the_report_and_rsb_report_rewrites_it(results, capsys):
 def test_cards_name_the_correct_and_the_grasped_candidate(results):
     records = read_records(results / "episodes.jsonl")
     cards = episode_cards(records, results)
-    for r, c in zip(records, cards):
+    # row by row, suite by suite, in seed order, whatever order the workers wrote the records in
+    shuffled = episode_cards(records[1:] + records[:1], results)
+    for row in {c["row"] for c in cards}:
+        mine = [(c["suite"], c["seed"]) for c in cards if c["row"] == row]
+        assert mine == [(c["suite"], c["seed"]) for c in shuffled if c["row"] == row]
+        assert [s for s, _ in mine] == sorted((s for s, _ in mine), key=suite_order(s for s, _ in mine).index)
+        assert all(a[1] < b[1] for a, b in zip(mine, mine[1:]) if a[0] == b[0])
+    by_episode = {(c["row"], c["suite"], c["seed"]): c for c in cards}
+    for r in records:
+        c = by_episode[(record_row(r), r["suite_id"], int(r["seed"]))]
         spec = r["episode"]
         assert c["correct"]["letter"] == r["correct_letter"]
         assert c["correct"]["block"] == spec["block_names"][r["target_block"]]
@@ -173,9 +188,9 @@ def test_page_in_headless_chromium(results, tmp_path):
         _select(b, "policy", "")
         assert _select(b, "suite", "RSB-Math-10") == N_SYNTHETIC // 3 + 1
         assert _select(b, "suite", "") == min(120, len(records))
-        # the oracle's video: two decoded thumbnails; a click swaps in the video, which loads
+        # the oracle's video: two decoded thumbnails; its play button swaps in the video, which loads
         assert b.evaluate('[...document.querySelectorAll(".media img")].map(i => i.naturalWidth > 0)') == [True, True]
-        b.evaluate('document.querySelector(".media img").click()')
+        b.evaluate('document.querySelector(".card .play").click()')
         state = b.evaluate("""new Promise(done => {
             const v = document.querySelector(".media video");
             const t0 = Date.now();
@@ -195,3 +210,74 @@ def test_page_in_headless_chromium(results, tmp_path):
 
     img = cv2.imread(str(shot))
     assert img is not None and img.shape[1] >= 1300 and img.shape[0] > 3000 and img.std() > 20
+
+
+@pytest.mark.timeout(300)
+def test_sections_lightbox_and_long_text_in_chromium(results, tmp_path):
+    """One error analysis; the per-category and bias tables and charts; a click on a thumbnail opens
+    the frame at the video's resolution with the whole instruction; a cut instruction reads whole."""
+    write_html_report(results)
+    shots = os.environ.get("RSB_REPORT_SCREENSHOT_DIR")
+    with Browser(_chromium(), width=1400, height=1000) as b:
+        b.open((results / "report.html").resolve().as_uri())
+        h2 = b.evaluate('[...document.querySelectorAll("h2")].map(h => h.textContent)')
+        assert h2.count("Error analysis") == 1 and "Per-category results" in h2
+        assert b.evaluate('document.querySelector("#tables").textContent.includes("Error analysis")') is False
+        assert "paper Table 7" in b.evaluate('document.querySelector("#errors").textContent')
+        # per-category tables: one per row and suite with categories, small cells greyed
+        cats = b.evaluate('[...document.querySelectorAll("#categories h3")].map(h => h.textContent)')
+        assert "oracle on RSB-Math-4: by category (%)" in cats
+        assert "Operator" in b.evaluate('document.querySelector("#categories table").textContent')
+        assert b.evaluate('document.querySelectorAll("#categories tr.small").length') > 0
+        # bias: verdicts and per-axis tables, and charts drawn with a bar per position and the expected line
+        assert "verdicts" in b.evaluate('document.querySelector("#bias").textContent')
+        charts = b.evaluate("""[...document.querySelectorAll("svg.biaschart")].map(s => {
+            const box = s.getBoundingClientRect();
+            return [box.width, box.height, s.querySelectorAll("rect").length, s.querySelectorAll(".expected").length];
+        })""")
+        assert charts and all(w > 0 and h > 0 and bars >= 4 and lines == bars for w, h, bars, lines in charts)
+        assert b.evaluate('[...document.querySelectorAll("main img")].every(i => i.complete && i.naturalWidth > 0)')
+        if shots:
+            b.evaluate('document.getElementById("bias").scrollIntoView()')
+            b.screenshot(Path(shots) / "bias.png", full_page=False)
+        # the lightbox: the frame at the video's resolution, the whole instruction
+        b.evaluate('document.querySelector(".media img").click()')
+        state = b.evaluate("""new Promise(done => {
+            const img = document.getElementById("lb-img");
+            const t0 = Date.now();
+            (function poll() {
+                if (img.complete && img.naturalWidth || Date.now() - t0 > 10000)
+                    done([document.getElementById("lightbox").open, img.naturalWidth,
+                          img.getBoundingClientRect().width, document.getElementById("lb-text").textContent]);
+                else setTimeout(poll, 50);
+            })();
+        })""")
+        records = read_records(results / "episodes.jsonl")
+        filmed = next(r for r in records if r.get("video"))
+        assert state[0] is True and state[1] == 512 and state[2] >= 512, state[:3]  # not the card's 140 px
+        assert state[3].startswith("instruction: " + filmed["instruction"])
+        b.evaluate('document.querySelector("#lightbox button[data-frame=\'1\']").click()')
+        assert b.evaluate('document.getElementById("lb-img").src') == episode_cards([filmed], results)[0]["thumbs"][1]
+        if shots:
+            b.screenshot(Path(shots) / "lightbox.png", full_page=False)
+        b.evaluate('document.getElementById("lb-close").click()')
+        assert b.evaluate('document.getElementById("lightbox").open') is False
+        # a long instruction: cut on its card, a button shows it whole
+        long_text = next(r["instruction"] for r in records if r["instruction"].endswith(LONG))
+        cut = b.evaluate(f"""(() => {{
+            const select = document.querySelector('select[data-filter="policy"]');
+            select.value = "synthetic";
+            select.dispatchEvent(new Event("change"));
+            const long = {json.dumps(long_text)};
+            const box = [...document.querySelectorAll(".card .instr")].find(e => e.textContent === long);
+            const button = box.nextElementSibling;
+            const before = [box.scrollHeight > box.clientHeight + 1, button.hidden];
+            button.click();
+            return before.concat([box.clientHeight >= box.scrollHeight, button.textContent,
+                                  box.getBoundingClientRect().height]);
+        }})()""")
+        assert cut[:2] == [True, False] and cut[2] is True and cut[3] == "show less" and cut[4] > 200, cut
+        fits = b.evaluate("""[...document.querySelectorAll(".card .instr")].filter(e => !e.classList.contains("open"))
+            .map(e => [e.scrollHeight > e.clientHeight + 1, e.nextElementSibling.hidden])""")
+        assert all(clipped != hidden for clipped, hidden in fits)  # the button exactly under cut texts
+        assert b.errors() == []

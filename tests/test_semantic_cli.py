@@ -41,8 +41,8 @@ def test_questions_json(capsys):
 def test_questions_errors(capsys):
     assert main(["questions", "RSB-Poetry-4"]) == 2  # a usage error, as in every command naming suites
     assert "unknown suite 'RSB-Poetry-4'; valid: a suite id (RSB-Math-4" in capsys.readouterr().err
-    assert main(["questions"]) == 1
-    assert "name at least one SUITE" in capsys.readouterr().err
+    assert main(["questions"]) == 2
+    assert "rsb questions: error: name at least one SUITE" in capsys.readouterr().err
     assert main(["questions", "RSB-Math-4", "--split", "validation"]) == 1
     assert "unknown split" in capsys.readouterr().err
 

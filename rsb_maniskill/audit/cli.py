@@ -3,9 +3,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections import defaultdict
 from pathlib import Path
+
+from rsb_maniskill.semantic.counterfactual import MODE as COUNTERFACTUAL
+
+AUDIT_MODES = ("normal", COUNTERFACTUAL)  # the protocol episodes, their counterfactual variants
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -16,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "options alone (surface: gradient-boosted trees on each option's shape in its set; lexical: a "
                     "linear model on its word and character n-grams; for a failing suite the audit prints the n-grams "
                     "that give the answer away). Also counts option sets with two answers and questions or facts "
-                    "shared by the splits. Exit status 1 when a suite fails (a guesser's 95 %% interval wholly above "
+                    "shared by the splits. Exit status 1 when a suite fails (a guesser's 95 % interval wholly above "
                     "chance + 3 points, an ambiguous set, or split overlap). Question-aware readers (similarity to "
                     "the question, numbers reachable from the question's) are reference rows; a 10-choice suite fails "
                     "when a reader lifts it above its 4-choice twin, intervals apart (the twin rule).")
@@ -35,6 +40,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="audit the episodes worded under language robustness axes (lang_reference, lang_layout, "
                         "lang_distractor, lang_order; levels 0-3), e.g. --perturb lang_layout=3; 'all' audits "
                         "every language axis at every level 1-3, one after the other")
+    p.add_argument("--instruction", nargs="+", default=None, choices=AUDIT_MODES, metavar="MODE",
+                   help="what to audit of each suite: normal (the protocol episodes) and counterfactual (the "
+                        "variants of the same scenes, rsb eval --instruction counterfactual; test split only); "
+                        "default both")
     p.add_argument("--reader", action="append", default=[], metavar="MODULE:FACTORY",
                    help="also score your question-aware reader: factory() returns an object with "
                         "score(question, options) -> one score per option (or None), or such a callable; repeatable")
@@ -74,6 +83,18 @@ def _read_specs(paths: list[str]) -> dict[str, dict[str, list]]:
     return by
 
 
+def _check_out(path: str) -> None:
+    """``--out`` made and written to now, before the audit runs (minutes): ValueError otherwise."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".write-probe{os.getpid()}"
+        probe.touch()
+        probe.unlink()
+    except OSError as err:
+        raise ValueError(f"cannot write to --out {out}: {err.strerror or err}; choose another directory") from None
+
+
 def _perturbs(items: list[str]) -> list[dict[str, int] | None]:
     """``--perturb``: one perturbation (its axes together), every language axis and level ("all"),
     or none. Only language axes change what the audit reads; a visual axis is a clear error."""
@@ -89,6 +110,16 @@ def _perturbs(items: list[str]) -> list[dict[str, int] | None]:
     return [perturb or None]
 
 
+def _modes(asked: list[str] | None, split: str) -> list[str]:
+    """``--instruction``: what to audit; by default the protocol episodes and, on the test split,
+    their counterfactual variants (evaluation scenes: there are none on the train split)."""
+    if asked is None:
+        return ["normal", COUNTERFACTUAL] if split == "test" else ["normal"]
+    if COUNTERFACTUAL in asked and split != "test":
+        raise ValueError("--instruction counterfactual audits the variants of the evaluation scenes: use --split test")
+    return asked
+
+
 def _readers(args: argparse.Namespace) -> list:
     """Built-in readers (unless --no-readers), then each --reader (ValueError with the fix)."""
     from .readers import default_readers, load_reader
@@ -100,6 +131,7 @@ def cmd_audit(args: argparse.Namespace) -> int:
     from rsb_maniskill.semantic.errors import SemanticError
 
     from . import report
+    from .counterfactual import audit_variants
     from .run import LEXICAL_PROBE, audit_specs, audit_suite
     from .twins import twin_failures
 
@@ -108,6 +140,8 @@ def cmd_audit(args: argparse.Namespace) -> int:
         return 2
     audits = []
     try:
+        if args.out:
+            _check_out(args.out)
         readers = _readers(args)
         if args.specs:
             for suite_id, splits in sorted(_read_specs(args.specs).items()):
@@ -120,13 +154,19 @@ def cmd_audit(args: argparse.Namespace) -> int:
             if not suites:
                 print("rsb audit: error: name at least one SUITE (or 'paper', 'all'), or pass --specs", file=sys.stderr)
                 return 2
+            modes = _modes(args.instruction, args.split)
             for sid, targets in suites:
                 for perturb in _perturbs(args.perturb):
                     print(f"rsb audit: {sid} ({targets}{', ' + str(perturb) if perturb else ''}) ...",
                           file=sys.stderr, flush=True)
-                    audits.append(audit_suite(sid, args.split, args.episodes, n_train=args.train_episodes,
-                                              data_dir=args.data_dir, targets=targets, perturb=perturb,
-                                              readers=readers))
+                    if "normal" in modes:
+                        audits.append(audit_suite(sid, args.split, args.episodes, n_train=args.train_episodes,
+                                                  data_dir=args.data_dir, targets=targets, perturb=perturb,
+                                                  readers=readers))
+                    if COUNTERFACTUAL in modes:
+                        audits.append(audit_variants(sid, args.episodes, n_train=args.train_episodes,
+                                                     data_dir=args.data_dir, targets=targets, perturb=perturb,
+                                                     readers=readers))
     except (ValueError, SemanticError) as err:
         print(f"rsb audit: error: {err}", file=sys.stderr)
         return 2

@@ -14,7 +14,7 @@ from rsb_maniskill.semantic.normalize import option_key
 from rsb_maniskill.semantic.sampler import EpisodeSampler
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
-from .guessers import candidate_guessers, credit, named_guessers
+from .guessers import Guesser, candidate_guessers, credit, named_guessers
 from .lexical import lexical_probe
 from .probe import learned_probe
 from .readers import BoundReader
@@ -115,10 +115,11 @@ def ambiguous_sets(specs: Sequence[EpisodeSpec]) -> list[list[str]]:
 def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[EpisodeSpec], *,
                 split: str = "test", margin: float = MARGIN, overlap: SplitOverlap | None = None,
                 seed: int = 0, read_instruction: bool = False,
-                readers: Sequence[BoundReader] = ()) -> SuiteAudit:
+                readers: Sequence[BoundReader] = (), guessers: Sequence[Guesser] = ()) -> SuiteAudit:
     """Audit ``test`` episodes; the learned probe is fit on ``train`` episodes (never the same seeds).
     ``read_instruction``: also the guessers of the instruction's wording (``wording.py``).
-    ``readers``: question-aware readers scored as reference rows (``readers.py``)."""
+    ``readers``: question-aware readers scored as reference rows (``readers.py``).
+    ``guessers``: more named guessers (the counterfactual variants' index guessers)."""
     if not test:
         raise ValueError(f"{suite_id}: no episodes to audit")
     n = test[0].n_choices
@@ -127,7 +128,7 @@ def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[Epis
     chance = 1.0 / n
     results = []
     extra = instruction_guessers(test) if read_instruction else []
-    for g in named_guessers(n, test[0].letters) + candidate_guessers(test) + extra:
+    for g in named_guessers(n, test[0].letters) + candidate_guessers(test) + extra + list(guessers):
         cr, ap = np.empty(len(test)), np.zeros(len(test), dtype=bool)
         for i, sp in enumerate(test):
             s = g.score(sp)
@@ -164,6 +165,16 @@ def suite_overlap(train: EpisodeSampler, test: EpisodeSampler) -> SplitOverlap:
     return split_overlap([q.text for q in tr], [q.text for q in te], [q.fact for q in tr], [q.fact for q in te])
 
 
+def suite_name(suite_id: str, targets: str = DEFAULT_TARGETS, perturb: dict[str, int] | None = None) -> str:
+    """The audit row of a suite: its env id, with the language perturbation in brackets."""
+    name = suite_id if targets == DEFAULT_TARGETS else f"{suite_id}-{targets.capitalize()}"
+    if perturb:
+        from rsb_maniskill.perturb import label
+
+        name += f" [{label(perturb)}]"
+    return name
+
+
 def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: int | None = None,
                 data_dir: str | os.PathLike | None = None, margin: float = MARGIN,
                 targets: str = DEFAULT_TARGETS, perturb: dict[str, int] | None = None,
@@ -183,10 +194,5 @@ def audit_suite(suite_id: str, split: str = "test", n: int = 3000, *, n_train: i
     train = [train_s.episode(s) for s in range(n if n_train is None else n_train)]
     test = [test_s.episode(EVAL_SEED_BASE + i) for i in range(n)]
     overlap = suite_overlap(train_s, test_s if split == "test" else EpisodeSampler(suite_id, "test", data_dir=data_dir))
-    name = suite_id if targets == DEFAULT_TARGETS else f"{suite_id}-{targets.capitalize()}"
-    if perturb:
-        from rsb_maniskill.perturb import label
-
-        name += f" [{label(perturb)}]"
-    return audit_specs(name, train, test, split=split, margin=margin, overlap=overlap, read_instruction=bool(perturb),
-                       readers=readers)
+    return audit_specs(suite_name(suite_id, targets, perturb), train, test, split=split, margin=margin,
+                       overlap=overlap, read_instruction=bool(perturb), readers=readers)

@@ -13,6 +13,7 @@ caller:
 from __future__ import annotations
 
 import os
+import traceback
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
@@ -21,12 +22,26 @@ from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.workers import Executor, InProcess, Interrupted, ProcessPool, deal
 
 from .policy import is_batched, load_policy, policy_name, policy_spec
-from .protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED
+from .policy_error import PolicyError, blame_policy, first_line
+from .protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED, record_episode
 from .records import perturb_label as record_perturb
 from .runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
 from .store import RecordWriter, read_records
 
 Write = Callable[[dict], None]
+
+
+class JobError(RuntimeError):
+    """A job's episodes could not run: its env could not be built, or a worker failed or died.
+    One line; ``detail`` is the traceback (``rsb --debug``). It pickles whole (a worker sends it
+    back as it is); the episodes finished before it are kept."""
+
+    def __init__(self, message: str, detail: str | None = None) -> None:
+        super().__init__(message)
+        self.detail = detail
+
+    def __reduce__(self) -> tuple:
+        return type(self), (self.args[0], self.detail)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -95,19 +110,20 @@ def job_records(out_path: str | os.PathLike, settings: EpisodeSettings) -> list[
 
 def drive(settings: EpisodeSettings, out_path: str | os.PathLike, run: Callable[[list[int], Write], None],
           progress: bool = True) -> list[dict]:
-    """Resume, write and show one evaluation: ``run(todo, write)`` runs the seeds not yet recorded.
+    """Resume, write and show one evaluation: ``run(todo, write)`` runs the episodes not yet recorded
+    (seeds; in counterfactual mode (seed, variant) pairs: resumed variant by variant).
 
     Reads ``out_path`` once; ``write`` appends a record (durably) and advances the bar. Returns every
     record of this label / suite / mode in file order, old and new.
     """
     records = job_records(out_path, settings)
-    done = {int(r["seed"]) for r in records}
-    todo = [s for s in settings.seeds if s not in done]
+    done = {record_episode(r) for r in records}
+    episodes = settings.episodes()
+    todo = [e for e in episodes if e not in done]
     if not todo:
         return records
     mode = settings.instruction_mode + (f", {perturb_label(settings.perturb)}" if settings.perturb else "")
-    bar = ProgressBar(settings.label, settings.suite_id, mode, len(settings.seeds),
-                      len(settings.seeds) - len(todo), progress)
+    bar = ProgressBar(settings.label, settings.suite_id, mode, len(episodes), len(episodes) - len(todo), progress)
     try:
         with RecordWriter(out_path) as writer:
             def write(record: dict) -> None:
@@ -175,10 +191,12 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
     """Run the seeds of ``job`` not yet in ``out_path``; returns all of the job's records.
 
     The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``num_procs`` tasks
-    of ``executor``, e.g. a :class:`~rsb_maniskill.workers.RayExecutor`); with one, or with
+    of ``executor``, e.g. a :class:`~rsb_maniskill.workers_ray.RayExecutor`); with one, or with
     parallel GPU envs (``job.num_envs > 1``) and no executor, they run in this process.
-    A failed worker's finished episodes are kept (RuntimeError naming it); a signal stops the
-    workers and raises :class:`~rsb_maniskill.workers.Interrupted`, a KeyboardInterrupt.
+    A misbehaving policy raises its :class:`~rsb_maniskill.evaluation.policy_error.PolicyError`
+    (from a worker process too), any other failure a :class:`JobError`; the finished episodes are
+    kept either way. A signal stops the workers and raises
+    :class:`~rsb_maniskill.workers.Interrupted`, a KeyboardInterrupt.
     """
     if job.num_envs > 1 and policy_spec(job.policy).single_env:
         raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs")
@@ -190,28 +208,47 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
         outcome = chosen.run(run_shard, [(job, shard) for shard in shards], write)
         if outcome.interrupted:
             raise Interrupted(outcome.interrupted)
+        failed = [t.result for t in outcome.tasks if isinstance(t.result, BaseException)]
+        if failed:  # the first worker's error, whole (the others' are most likely the same)
+            raise failed[0]
         errors = {**outcome.errors, **{t.index: "interrupted" for t in outcome.tasks if t.interrupted}}
         if errors:
             first = min(errors)
-            raise RuntimeError(f"{len(errors)} of {len(shards)} evaluation workers failed on {job.suite_id} "
-                               f"(finished episodes are saved; rerun to resume). Worker {first}: {errors[first]}")
+            raise JobError(f"{len(errors)} of {len(shards)} evaluation workers failed on {job.suite_id}; worker "
+                           f"{first}: {first_line(errors[first])}", detail=errors[first])
 
     return drive(job, out_path, run, progress)
 
 
-def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> None:
-    """A worker's share: build env and policy from the job, run its seeds, send each record."""
+def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> BaseException | None:
+    """A worker's share: build env and policy from the job, run its seeds, send each record.
+
+    Returns the error that stopped it, None when every seed ran: a PolicyError, or a JobError
+    carrying the traceback, so that it reaches the driver whole from any executor."""
     job, seeds = task
-    env = make_env(job)
     try:
-        if job.num_envs > 1:
+        env = make_env(job)
+    except Exception as err:  # noqa: BLE001  (reported by the driver, in one line)
+        settings = ", ".join(f"{k}={v!r}" for k, v in (("obs_mode", job.obs_mode), ("control_mode", job.control_mode),
+                                                         *job.env_kwargs.items()) if v is not None)
+        return JobError(f"cannot build the env {job.suite_id} ({settings}): {type(err).__name__}: "
+                        f"{first_line(str(err))}", detail=traceback.format_exc())
+    try:
+        with blame_policy("building it", policy=job.label, where=job.suite_id):
             policy = load_policy(job.policy, env=env, **job.policy_kwargs)
-            if not is_batched(policy):  # one instance per env
+            if job.num_envs > 1 and not is_batched(policy):  # one instance per env
                 policy = [policy] + [load_policy(job.policy, env=env, **job.policy_kwargs)
                                      for _ in range(env.unwrapped.num_envs - 1)]
+        if job.num_envs > 1:
             batched_loop(env, policy, job, seeds, write)
         else:
-            episode_loop(env, load_policy(job.policy, env=env, **job.policy_kwargs), job, seeds, write)
+            episode_loop(env, policy, job, seeds, write)
+    except PolicyError as err:
+        return err
+    except Exception as err:  # noqa: BLE001  (reported by the driver, in one line)
+        return JobError(f"{job.suite_id}: {type(err).__name__}: {first_line(str(err))}",
+                        detail=traceback.format_exc())
     finally:
         env.close()
+    return None
 

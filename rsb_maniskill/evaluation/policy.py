@@ -16,14 +16,21 @@ with one object: ``reset_batch(instructions, obs)`` and ``act_batch(obs, envs) -
 action_dim)``, observations keeping their leading env dim. A policy that has it (the remote
 client: one request per step for all envs) is built once; one without it is built once per env
 and batched by :class:`PerEnvPolicies`. The single-env form is what everything else uses.
+
+A policy that misbehaves (raises in ``reset`` / ``act``, or returns what the env cannot take)
+raises :class:`~rsb_maniskill.evaluation.policy_error.PolicyError`: one line naming the policy,
+the episode and what came back, its traceback kept for ``rsb --debug``.
 """
 from __future__ import annotations
 
 import importlib
+import inspect
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
+
+from .policy_error import PolicyError, shown
 
 
 @runtime_checkable
@@ -90,17 +97,20 @@ def _row(obs: Any, i: int) -> Any:
 def as_chunks(actions: Any, n: int, action_dim: int | None = None) -> list[np.ndarray]:
     """Check a batched policy's output: ``n`` chunks, each as :func:`as_chunk` wants it."""
     if isinstance(actions, np.ndarray) and actions.ndim != 3:
-        raise ValueError(f"policy.act_batch must return shape (envs, T, action_dim), got shape {actions.shape}")
+        raise PolicyError(f"act_batch must return shape (envs, T, action_dim), got shape {actions.shape}")
+    if isinstance(actions, (str, bytes)) or not isinstance(actions, (np.ndarray, Sequence)):
+        raise PolicyError(f"act_batch returned {shown(actions)}; return an array of shape (envs, T, action_dim) "
+                          "or a list of (T, action_dim) chunks")
     chunks = list(actions)
     if len(chunks) != n:
-        raise ValueError(f"policy.act_batch returned {len(chunks)} chunks for {n} envs")
-    return [as_chunk(c, action_dim) for c in chunks]
+        raise PolicyError(f"act_batch returned {len(chunks)} chunks for {n} envs")
+    return [as_chunk(c, action_dim, "act_batch") for c in chunks]
 
 
 def _actions(out: Mapping, method: str) -> Any:
     if "actions" not in out:
-        raise ValueError(f"policy.{method} returned a mapping without 'actions' (keys: {sorted(map(str, out))}); "
-                         "return the actions, or {'actions': ..., 'text': ...}")
+        raise PolicyError(f"{method} returned a mapping without 'actions' (keys: {sorted(map(str, out))}); "
+                          "return the actions, or {'actions': ..., 'text': ...}")
     return out["actions"]
 
 
@@ -110,7 +120,7 @@ def split_output(out: Any) -> tuple[Any, str | None]:
         return out, None
     text = out.get("text")
     if text is not None and not isinstance(text, str):
-        raise ValueError(f"policy.act returned 'text' of type {type(text).__name__}; it must be a str")
+        raise PolicyError(f"act returned 'text' of type {type(text).__name__}; it must be a str")
     return _actions(out, "act"), text
 
 
@@ -123,8 +133,8 @@ def split_outputs(out: Any, n: int) -> tuple[Any, list[str | None]]:
         return _actions(out, "act_batch"), [None] * n
     if isinstance(texts, str) or not isinstance(texts, Sequence) or len(texts) != n \
             or not all(t is None or isinstance(t, str) for t in texts):
-        raise ValueError(f"policy.act_batch must return 'text' as a list of {n} str (or None), one per env; "
-                         f"got {type(texts).__name__}")
+        raise PolicyError(f"act_batch must return 'text' as a list of {n} str (or None), one per env; "
+                          f"got {type(texts).__name__}")
     return _actions(out, "act_batch"), list(texts)
 
 
@@ -147,23 +157,38 @@ def policy_name(policy: Any) -> str:
     return str(name) if name else type(policy).__name__
 
 
-def as_chunk(actions: Any, action_dim: int | None = None) -> np.ndarray:
+def as_chunk(actions: Any, action_dim: int | None = None, method: str = "act") -> np.ndarray:
     """Check and normalise a policy's output to a float (T, action_dim) array.
 
-    A single action of shape (action_dim,) is accepted as a chunk of one. Errors say what came back,
-    since a wrong shape from a user policy is the most common integration bug.
+    A single action of shape (action_dim,) is accepted as a chunk of one. Errors (PolicyError) say
+    what came back, since a wrong output from a user policy is the most common integration bug.
     """
-    a = np.asarray(actions, dtype=np.float64) if not isinstance(actions, np.ndarray) else actions
+    want = f"an array of shape (T, {action_dim or 'action_dim'}) with T >= 1"
+    if actions is None:
+        raise PolicyError(f"{method} returned None; return {want}")
+    if isinstance(actions, np.ndarray):
+        a = actions
+    else:
+        try:
+            a = np.asarray(actions, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise PolicyError(f"{method} returned {shown(actions)}, not numbers; return {want}") from None
     if a.ndim == 1:
         a = a[None]
-    if a.ndim != 2 or a.shape[0] < 1:
-        raise ValueError(f"policy.act must return an array of shape (T, action_dim) with T >= 1, got shape {a.shape}")
+    if a.ndim == 2 and a.shape[0] == 0:
+        raise PolicyError(f"{method} returned an empty chunk (shape {a.shape}); return {want}")
+    if a.ndim != 2:
+        raise PolicyError(f"{method} must return {want}, got shape {a.shape}")
     if action_dim is not None and a.shape[1] != action_dim:
-        raise ValueError(f"policy.act returned actions of dim {a.shape[1]}, the env expects {action_dim}")
+        raise PolicyError(f"{method} returned actions of dim {a.shape[1]} (chunk shape {a.shape}); the env takes "
+                          f"{action_dim} numbers an action (its control mode's action space)")
     if not np.issubdtype(a.dtype, np.number):
-        raise ValueError(f"policy.act must return numbers, got dtype {a.dtype}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError("policy.act returned NaN or inf actions")
+        raise PolicyError(f"{method} returned an array of dtype {a.dtype}; return {want} of numbers")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise PolicyError(f"{method} returned NaN or inf actions ({int(bad.sum())} of {a.size} numbers, the first "
+                          f"at action {row}, index {col}: {a[row, col]})")
     return a
 
 
@@ -187,9 +212,9 @@ class RandomPolicy:
         return cls(low.reshape(-1, low.shape[-1])[0], high.reshape(-1, high.shape[-1])[0], **kwargs)
 
     @classmethod
-    def for_env(cls, env: Any, **kwargs: Any) -> "RandomPolicy":
-        """Over the action space of one env of ``env``."""
-        return cls.from_action_space(env_action_space(env), **kwargs)
+    def for_env(cls, env: Any, chunk_size: int = 1, seed: int = 0) -> "RandomPolicy":
+        """Over the action space of one env of ``env`` (the ``random`` policy's factory)."""
+        return cls.from_action_space(env_action_space(env), chunk_size=chunk_size, seed=seed)
 
     def reset(self, instruction: str, obs: dict) -> None:
         pass
@@ -219,6 +244,8 @@ POLICIES: dict[str, PolicySpec] = {
                          obs_mode="state"),
     "blind": PolicySpec("rsb_maniskill.evaluation.reference_policies:blind", needs_env=True, single_env=True,
                         obs_mode="state"),
+    "leftmost": PolicySpec("rsb_maniskill.evaluation.reference_policies:leftmost", needs_env=True,
+                           single_env=True, obs_mode="state"),
     "random": PolicySpec("rsb_maniskill.evaluation.policy:RandomPolicy.for_env", needs_env=True, obs_mode="state"),
     # openpi (default) or vla-eval (-a protocol=vla-eval); needs the `eval` / `vla_eval` extra
     "remote": PolicySpec("rsb_maniskill.evaluation.remote:remote_policy"),
@@ -279,6 +306,24 @@ def import_factory(spec: str, what: str = "policy") -> Callable[..., Any]:
     if not callable(factory):
         raise TypeError(f"{what} spec {spec!r}: {attr!r} is not callable")
     return factory
+
+
+def check_factory_args(spec: str, kwargs: Mapping[str, Any]) -> None:
+    """Before anything runs: TypeError (one line, naming the factory's arguments) when the factory
+    of ``spec`` cannot take ``kwargs``: an argument it does not have, or a required one missing.
+    A factory taking ``**kwargs`` passes on what it is given, so it passes here too."""
+    factory = resolve_factory(spec)
+    try:
+        signature = inspect.signature(factory)
+    except (TypeError, ValueError):  # not introspectable (a C function): it will tell when called
+        return
+    given_env = (None,) if policy_spec(spec).needs_env else ()
+    try:
+        signature.bind(*given_env, **kwargs)
+    except TypeError as err:
+        names = [name for name, p in list(signature.parameters.items())[len(given_env):]
+                 if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+        raise TypeError(f"policy {spec!r}: {err} (its arguments: {', '.join(names) or 'none'})") from None
 
 
 def load_policy(spec: str, *, env: Any = None, check: bool = True, **kwargs: Any) -> Policy:

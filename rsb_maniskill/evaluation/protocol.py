@@ -7,10 +7,13 @@ seeds fixes the 500 scenes (question, option->block binding, layout) for every m
 Seeds are ``EVAL_SEED_BASE + i`` for i = 0..n-1, the same numbers for every suite. Demonstration
 collection uses small seeds (0, 1, ... and q + k*P) on the train split; the evaluation seeds start
 at ten million so that the two can never meet even if someone evaluates on the train split.
+
+The counterfactual mode runs K variants of each of these scenes (``semantic/counterfactual.py``):
+its episodes are (seed, variant) pairs, and the task takes the variant at reset.
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -18,7 +21,7 @@ from rsb_maniskill.objects.family import split_env_id
 from rsb_maniskill.semantic.suites import SUITE_IDS
 
 from .metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, num_choices
-from .records import INSTRUCTION_MODES
+from .records import COUNTERFACTUAL, EVAL_INSTRUCTION_MODES, INSTRUCTION_MODES
 
 EVAL_SEED_BASE = 10_000_000
 EPISODES_PER_SUITE = 500
@@ -29,11 +32,15 @@ SHUFFLE_SEED = 0
 # lerobot-eval seeds episode i of a run with --seed + i (default 1000): the LeRobot env maps that
 # seed back to protocol episode i (integrations/lerobot_env.py, the lerobot_env_rsb plugin).
 LEROBOT_SEED_BASE = 1000
+# What the loops run: a seed, or in counterfactual mode (seed, variant): variant k of the scene
+# of that seed, reset with options={"variant": k} (semantic/counterfactual.py).
+Episode = int | tuple[int, int]
 
 __all__ = [
-    "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "INSTRUCTION_MODES", "LEROBOT_SEED_BASE",
-    "PAPER_OBJECT_SUITES", "PAPER_SUITES", "SHUFFLE_SEED", "SUITE_IDS", "ShuffledDonors",
-    "apply_instruction_mode", "derangement", "eval_seeds", "num_choices", "shuffled_instruction",
+    "COUNTERFACTUAL", "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_INSTRUCTION_MODES", "EVAL_SEED_BASE",
+    "INSTRUCTION_MODES", "LEROBOT_SEED_BASE", "PAPER_OBJECT_SUITES", "PAPER_SUITES", "SHUFFLE_SEED", "SUITE_IDS",
+    "ShuffledDonors", "apply_instruction_mode", "derangement", "episode_of", "eval_seeds", "mode_episodes",
+    "num_choices", "scene_variants", "shuffled_instruction",
 ]
 
 
@@ -48,6 +55,54 @@ def eval_seeds(suite_id: str, n: int = EPISODES_PER_SUITE) -> list[int]:
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
     return [EVAL_SEED_BASE + i for i in range(n)]
+
+
+def scene_variants(suite_id: str, variants: int | None = None) -> int:
+    """K, the counterfactual variants run per scene: ``variants``, else ``min(N, 4)`` (every
+    candidate of a 4-choice scene); ValueError unless 2 <= K <= N."""
+    from rsb_maniskill.semantic.counterfactual import check_variants, default_variants
+
+    n = num_choices(suite_id)
+    return check_variants(default_variants(n) if variants is None else variants, n)
+
+
+def mode_episodes(seeds: Sequence[int], mode: str, variants: int | None = None) -> list[Episode]:
+    """The episodes an instruction mode runs on ``seeds``: the seeds themselves, or in counterfactual
+    mode variants 0..K-1 of each, ``(seed, k)``, the variants of a scene one after the other."""
+    if mode != COUNTERFACTUAL:
+        return [int(s) for s in seeds]
+    if variants is None:
+        raise ValueError("counterfactual mode needs K, the variants per scene (protocol.scene_variants)")
+    return [(int(s), k) for s in seeds for k in range(int(variants))]
+
+
+def episode_of(item: Episode) -> tuple[int, int | None]:
+    """(seed, variant) of an episode the loops run; variant None for a protocol episode."""
+    return (int(item[0]), int(item[1])) if isinstance(item, tuple) else (int(item), None)
+
+
+def record_episode(record: Mapping[str, Any]) -> Episode:
+    """The episode a record is of, as :func:`mode_episodes` names it (so a resumed run skips it)."""
+    if record.get("instruction_mode") == COUNTERFACTUAL:
+        return int(record["seed"]), int(record.get("variant", 0))
+    return int(record["seed"])
+
+
+def variant_reset(options: Mapping[str, Any] | None, variants: Sequence[int | None]) -> dict | None:
+    """Reset options that ask the task for ``variants`` (one per env, None: the protocol episode)."""
+    if all(v is None for v in variants):
+        return None if options is None else dict(options)
+    return {**(options or {}), "variant": variants[0] if len(variants) == 1 else list(variants)}
+
+
+def variant_fields(env: Any, i: int = 0) -> dict[str, Any]:
+    """The record fields of the variant env ``i`` runs (``variant``, ``variant_kind``); empty for
+    a protocol episode. ValueError when the task knows no variants."""
+    variants = getattr(env.unwrapped, "episode_variants", None)
+    if variants is None:
+        raise ValueError("counterfactual mode needs an RSB task env (env.unwrapped.episode_variants)")
+    v = variants[i]
+    return {} if v is None else {"variant": int(v.index), "variant_kind": str(v.kind)}
 
 
 def derangement(n: int, seed: int = SHUFFLE_SEED) -> list[int]:
@@ -119,9 +174,21 @@ class ShuffledDonors:
         return self.seeds[j], self.text(self.seeds[j])
 
 
+def check_ablation_mode(mode: str, harness: str) -> None:
+    """For a harness that gives one instruction per episode (the LeRobot env, the vla-eval
+    benchmark): ValueError, one line, unless ``mode`` is an instruction ablation."""
+    if mode == COUNTERFACTUAL:
+        raise ValueError(f"instruction_mode 'counterfactual' runs K variants of each scene, under rsb eval only "
+                         f"(rsb eval POLICY --instruction counterfactual); {harness} takes "
+                         f"{', '.join(INSTRUCTION_MODES)}")
+    if mode not in INSTRUCTION_MODES:
+        raise ValueError(f"instruction_mode must be one of {', '.join(INSTRUCTION_MODES)}, got {mode!r}")
+
+
 def apply_instruction_mode(instruction: str, mode: str, donor_instruction: str | None = None) -> str:
-    """Instruction the policy sees: ``normal`` as is, ``blank`` empty, ``shuffled`` another episode's."""
-    if mode == "normal":
+    """Instruction the policy sees: ``normal`` as is, ``blank`` empty, ``shuffled`` another episode's;
+    ``counterfactual`` the variant's own, as is."""
+    if mode in ("normal", COUNTERFACTUAL):
         return instruction
     if mode == "blank":
         return ""
@@ -129,7 +196,7 @@ def apply_instruction_mode(instruction: str, mode: str, donor_instruction: str |
         if donor_instruction is None:
             raise ValueError("instruction mode 'shuffled' needs the donor episode's instruction")
         return donor_instruction
-    raise ValueError(f"instruction mode must be one of {INSTRUCTION_MODES}, got {mode!r}")
+    raise ValueError(f"instruction mode must be one of {EVAL_INSTRUCTION_MODES}, got {mode!r}")
 
 
 def ablate(own: str, mode: str, donor: tuple[int, str] | None) -> tuple[str, dict[str, Any]]:
@@ -139,6 +206,6 @@ def ablate(own: str, mode: str, donor: tuple[int, str] | None) -> tuple[str, dic
     extra: dict[str, Any] = {}
     if donor is not None:
         extra["donor_seed"] = donor[0]
-    if mode != "normal":
+    if mode not in ("normal", COUNTERFACTUAL):
         extra["original_instruction"] = own
     return apply_instruction_mode(own, mode, donor[1] if donor else None), extra

@@ -8,10 +8,11 @@ versions never share a table (:func:`one_version`).
 """
 from __future__ import annotations
 
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.batch import first_value
 from rsb_maniskill.perturb import label as axes_label
+from rsb_maniskill.semantic.counterfactual import MODE as COUNTERFACTUAL
 from rsb_maniskill.version import BENCHMARK_VERSION
 
 # Fields every record carries (the runner fills them; extra fields are free).
@@ -20,17 +21,29 @@ RECORD_FIELDS: tuple[str, ...] = (
     "first_grasped", "grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success", "steps",
     "policy",
 )
+# The instruction ablations: one instruction an episode, the protocol's or made from it (the
+# modes of rsb backbone, the LeRobot env and the vla-eval benchmark too).
 INSTRUCTION_MODES: tuple[str, ...] = ("normal", "blank", "shuffled")
+# Counterfactual scenes: K variants of each protocol scene, the answer on another candidate each
+# (semantic/counterfactual.py); records carry VARIANT_FIELDS. rsb eval only.
+EVAL_INSTRUCTION_MODES: tuple[str, ...] = INSTRUCTION_MODES + (COUNTERFACTUAL,)
+VARIANT_FIELDS: tuple[str, ...] = ("variant", "variant_kind")  # the index (0 = the protocol episode), its kind
 # A record's identity: the same episode of the same evaluation. Later duplicates are dropped.
-RECORD_KEY: tuple[str, ...] = ("policy", "suite_id", "instruction_mode", "perturb", "seed")
-# Values of key fields that a record may lack (records written before the field existed).
-KEY_DEFAULTS: dict[str, Any] = {"perturb": "none"}
+RECORD_KEY: tuple[str, ...] = ("policy", "suite_id", "instruction_mode", "perturb", "seed", "variant")
+# Values of key fields that a record may lack (records written before the field existed; an
+# episode without a variant is its scene's protocol episode, variant 0).
+KEY_DEFAULTS: dict[str, Any] = {"perturb": "none", "variant": 0}
 # The benchmark version of the episodes (rsb_maniskill.version): the runner writes it into every
 # record; records written before versions existed read as "unversioned".
 VERSION_FIELD = "benchmark_version"
 # info flags copied into every record, and extra ones kept when the env provides them.
 RECORD_FLAGS = ("grasped_any", "grasped_correct", "placed_correct", "placed_wrong", "success")
 EXTRA_FLAGS = ("grasped_wrong", "fail")
+# What kind of episode it is ({dimension: value}, semantic/categories.py) and where its candidates
+# stand (rank of each from the left in the head camera, positions.py): the per-category and bias
+# tables read them; records written before they existed lack them (the tables say so).
+CATEGORIES_FIELD = "categories"
+LEFT_RANK_FIELD = "left_rank"
 # The ``runner`` field of records written by another harness than ``rsb eval`` (which writes none):
 # LeRobot's ``lerobot-eval`` (integrations/lerobot_env.py) and vla-eval (integrations/vla_eval.py,
 # whose RSBBenchmark and ``rsb eval remote -a protocol=vla-eval`` also take it as the policy name).
@@ -66,10 +79,15 @@ def one_version(records: Iterable[Mapping[str, Any]]) -> str | None:
 def validate_record(record: Mapping[str, Any]) -> None:
     """Raise ValueError naming the missing fields or a bad instruction mode."""
     missing = [k for k in RECORD_FIELDS if k not in record]
+    if len(missing) == len(RECORD_FIELDS):
+        raise ValueError(f"not an episode record: it has none of their fields ({', '.join(missing[:3])}, ...)")
     if missing:
         raise ValueError(f"episode record lacks fields: {', '.join(missing)}")
-    if record["instruction_mode"] not in INSTRUCTION_MODES:
-        raise ValueError(f"instruction_mode must be one of {INSTRUCTION_MODES}, got {record['instruction_mode']!r}")
+    if record["instruction_mode"] not in EVAL_INSTRUCTION_MODES:
+        raise ValueError(f"instruction_mode must be one of {EVAL_INSTRUCTION_MODES}, "
+                         f"got {record['instruction_mode']!r}")
+    if record["instruction_mode"] == COUNTERFACTUAL and any(k not in record for k in VARIANT_FIELDS):
+        raise ValueError(f"a counterfactual record lacks {' or '.join(VARIANT_FIELDS)}")
 
 
 # ---------------------------------------------------------------- identity and rows
@@ -95,7 +113,7 @@ def record_row(record: Mapping[str, Any]) -> str:
 
 
 def dedupe(records: Iterable[Mapping[str, Any]]) -> list[dict]:
-    """Keep the first record of each (policy, suite, instruction mode, perturbation, seed)."""
+    """Keep the first record of each (policy, suite, instruction mode, perturbation, seed, variant)."""
     seen: set[tuple] = set()
     out = []
     for r in records:
@@ -132,9 +150,13 @@ def build_record(
     steps: int,
     policy: str,
     extra: Mapping[str, Any] | None = None,
+    categories: Mapping[str, str] | None = None,
+    left_rank: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """The episode record (:data:`RECORD_FIELDS`, and the benchmark version) from the episode
-    spec and the last ``info``."""
+    spec and the last ``info``; with ``categories`` (what the task says the episode is:
+    ``semantic/categories.py``) and ``left_rank`` (each candidate's rank from the left in the head
+    camera: ``positions.py``) the per-category and bias tables can read the record."""
     record: dict[str, Any] = {
         "suite_id": suite_id,
         "seed": int(seed),
@@ -150,6 +172,10 @@ def build_record(
         VERSION_FIELD: BENCHMARK_VERSION,
     }
     record.update({k: bool(info_flag(info, k)) for k in EXTRA_FLAGS if k in info})
+    if categories:
+        record[CATEGORIES_FIELD] = {str(k): str(v) for k, v in categories.items()}
+    if left_rank is not None:
+        record[LEFT_RANK_FIELD] = [int(r) for r in left_rank]
     if extra:
         record.update(extra)
     return record

@@ -36,8 +36,20 @@ from .policy import (
     split_output,
     split_outputs,
 )
-from .protocol import SHUFFLE_SEED, ShuffledDonors, ablate
-from .records import INSTRUCTION_MODES, build_record, perturb_fields
+from .policy_error import blame_policy, episode_where
+from .positions import left_ranks
+from .protocol import (
+    SHUFFLE_SEED,
+    Episode,
+    ShuffledDonors,
+    ablate,
+    episode_of,
+    mode_episodes,
+    scene_variants,
+    variant_fields,
+    variant_reset,
+)
+from .records import COUNTERFACTUAL, EVAL_INSTRUCTION_MODES, build_record, perturb_fields
 from .statements import EpisodeText
 from .store import safe_name
 
@@ -55,7 +67,9 @@ class EpisodeSettings:
     suite_id: str
     seeds: tuple[int, ...]
     label: str  # the records' ``policy`` field and the table row
-    instruction_mode: str = "normal"  # normal, blank ("" for the policy) or shuffled (another episode's)
+    instruction_mode: str = "normal"  # normal, blank ("" for the policy), shuffled (another episode's), counterfactual
+    # counterfactual mode: K variants of each scene (default min(N, 4)); episodes() are (seed, variant)
+    variants: int | None = None
     max_steps: int = DEFAULT_MAX_STEPS  # cap on env steps, on top of the env's own time limit
     video_dir: str | None = None  # an mp4 of each of the first num_videos seeds, from env.render()
     num_videos: int = 0
@@ -74,12 +88,21 @@ class EpisodeSettings:
     def __post_init__(self) -> None:
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
         object.__setattr__(self, "perturb", parse_perturb(self.perturb) or None)
-        if self.instruction_mode not in INSTRUCTION_MODES:
-            raise ValueError(f"instruction_mode must be one of {INSTRUCTION_MODES}, got {self.instruction_mode!r}")
+        if self.instruction_mode not in EVAL_INSTRUCTION_MODES:
+            raise ValueError(f"instruction_mode must be one of {EVAL_INSTRUCTION_MODES}, "
+                             f"got {self.instruction_mode!r}")
+        if self.instruction_mode == COUNTERFACTUAL:
+            object.__setattr__(self, "variants", scene_variants(self.suite_id, self.variants))
+        elif self.variants is not None:
+            raise ValueError("variants are counterfactual mode's (instruction_mode='counterfactual')")
         if len(set(self.seeds)) != len(self.seeds):
             raise ValueError("seeds contain duplicates")
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+
+    def episodes(self) -> list[Episode]:
+        """What the loops run: the seeds, or in counterfactual mode each seed's variants, (seed, k)."""
+        return mode_episodes(self.seeds, self.instruction_mode, self.variants)
 
 
 def default_instruction_lookup(env: Any, reset_options: Mapping[str, Any] | None = None) -> Callable[[int], str]:
@@ -102,6 +125,8 @@ class _Episodes:
     def __init__(self, env: Any, settings: EpisodeSettings, *, resets_allowed: bool) -> None:
         self.settings = settings
         self.action_dim = int(env_action_space(env).shape[-1])
+        # what the task says an episode is (per-category tables); tasks without it give no categories
+        self.categorize = getattr(env.unwrapped, "episode_categories", None)
         self.filmed = set(settings.seeds[:settings.num_videos]) if settings.video_dir is not None else set()
         self.donors = None
         if settings.instruction_mode == "shuffled":
@@ -128,7 +153,7 @@ class _Episodes:
     def record(self, *, seed: int, spec: Any, given: str, info: Mapping[str, Any], steps: int,
                extra: dict[str, Any], frames: list | None, said: EpisodeText) -> dict[str, Any]:
         """The record of a finished episode (with what the policy said, if it talked); writes its
-        video first when it was filmed."""
+        video first when it was filmed. ``extra`` holds a counterfactual variant's fields."""
         s = self.settings
         extra.update(said.fields(spec))
         if s.perturb:
@@ -136,13 +161,17 @@ class _Episodes:
         if frames is not None:
             # The policy label leads the name: rows of one results directory share videos/.
             name = f"{safe_name(s.label)}_{s.suite_id}_{s.instruction_mode}_seed{seed}"
+            if "variant" in extra:
+                name += f"_v{extra['variant']}"
             if s.perturb:
                 name += "_" + safe_name(perturb_label(s.perturb))
             extra["video"] = write_video(frames, s.video_dir, name).name
         if s.keep_spec and hasattr(spec, "to_dict"):
             extra["episode"] = spec.to_dict()
         return build_record(suite_id=s.suite_id, seed=seed, spec=spec, instruction=given,
-                            instruction_mode=s.instruction_mode, info=info, steps=steps, policy=s.label, extra=extra)
+                            instruction_mode=s.instruction_mode, info=info, steps=steps, policy=s.label, extra=extra,
+                            categories=self.categorize(spec) if self.categorize is not None else None,
+                            left_rank=left_ranks(spec) if hasattr(spec, "candidates") else None)
 
 
 class Observations:
@@ -219,24 +248,30 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
     batched_actions = len(env.action_space.shape) == 2
     observations = Observations(env, settings.render_every_step)
 
-    for seed in todo:
+    for item in todo:
         t0 = time.monotonic()
+        seed, variant = episode_of(item)
         donor = episodes.donor(seed)
-        obs, info = observations.reset(seed=seed, options=settings.reset_options)
+        obs, info = observations.reset(seed=seed, options=variant_reset(settings.reset_options, [variant]))
         instructions = base.get_language_instruction()
         if len(instructions) != 1:
             raise ValueError(f"episode_loop drives one env, this one has {len(instructions)}; "
                              "use batched_loop for parallel envs")
         spec = base.episode_specs[0]
         given, extra = episodes.instruction(instructions[0], donor)
+        if variant is not None:
+            extra.update(variant_fields(env))
         frames = [_render(env)[0]] if seed in episodes.filmed else None
 
-        policy.reset(given, single_env_obs(obs))
+        with _blamed(settings, "reset", [seed]):
+            policy.reset(given, single_env_obs(obs))
         steps, finished, said = 0, False, EpisodeText()
         while not finished and steps < settings.max_steps:
-            actions, text = split_output(policy.act(single_env_obs(observations.current())))
+            current = single_env_obs(observations.current())
+            with _blamed(settings, "act", [seed]):
+                actions, text = split_output(policy.act(current))
+                chunk = as_chunk(actions, episodes.action_dim)
             said.add(text)
-            chunk = as_chunk(actions, episodes.action_dim)
             for action in chunk:
                 a = action[None] if batched_actions else action
                 _, terminated, truncated, info = observations.step(a)
@@ -249,6 +284,12 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         extra["wall_s"] = round(time.monotonic() - t0, 3)
         write(episodes.record(seed=seed, spec=spec, given=given, info=info, steps=steps, extra=extra, frames=frames,
                               said=said))
+
+
+def _blamed(settings: EpisodeSettings, call: str, seeds: Sequence[int]) -> Any:
+    """The policy's ``call`` on ``seeds``: what goes wrong in it is a PolicyError naming the episode."""
+    return blame_policy(call, policy=settings.label, where=episode_where(settings.suite_id, seeds,
+                                                                          settings.instruction_mode))
 
 
 def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:
@@ -278,17 +319,23 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
     observations = Observations(env, settings.render_every_step)
 
     for start in range(0, len(todo), b):
-        wave = list(todo[start:start + b])
-        n = len(wave)
-        obs, info = observations.reset(seed=wave + [wave[-1]] * (b - n), options=settings.reset_options)
+        wave_items = [episode_of(e) for e in todo[start:start + b]]
+        n = len(wave_items)
+        items = wave_items + [wave_items[-1]] * (b - n)  # the last wave padded with repeats
+        wave = [seed for seed, _ in wave_items]
+        obs, info = observations.reset(seed=[seed for seed, _ in items],
+                                       options=variant_reset(settings.reset_options, [k for _, k in items]))
         specs = list(base.episode_specs)
         instructions = base.get_language_instruction()
         given, extras = [], []
         for i, seed in enumerate(wave):
             text, extra = episodes.instruction(instructions[i], episodes.donor(seed, instructions[i]))
+            if items[i][1] is not None:
+                extra.update(variant_fields(env, i))
             given.append(text)
             extras.append(extra)
-        policy.reset_batch(given, obs_rows(obs, range(n)))
+        with _blamed(settings, "reset_batch", wave):
+            policy.reset_batch(given, obs_rows(obs, range(n)))
         frames = {i: [] for i, s in enumerate(wave) if s in episodes.filmed}
         _collect_frames(env, frames)
         pending: list[list[np.ndarray]] = [[] for _ in range(b)]
@@ -299,9 +346,10 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         while any(active):
             need = [i for i in range(b) if active[i] and not pending[i]]
             if need:  # one call for all envs whose chunk ran out (in step when chunks are of equal length)
-                actions, texts = split_outputs(policy.act_batch(obs_rows(observations.current(), need), need),
-                                               len(need))
-                chunks = as_chunks(actions, len(need), episodes.action_dim)
+                current = obs_rows(observations.current(), need)
+                with _blamed(settings, "act_batch", [wave[i] for i in need]):
+                    actions, texts = split_outputs(policy.act_batch(current, need), len(need))
+                    chunks = as_chunks(actions, len(need), episodes.action_dim)
                 for i, chunk, text in zip(need, chunks, texts):
                     pending[i] = list(chunk)
                     said[i].add(text)

@@ -7,6 +7,9 @@ each row was run with in ``MANIFEST_FILE`` (``rsb eval``, ``rsb backbone``).
 Each record is appended, flushed and fsync'ed as its episode ends. A run killed mid-write leaves
 at most one partial last line; the reader skips it and the writer cuts it off before appending, so
 resuming (skip ``completed_seeds``, run the rest) yields the same records as an uninterrupted run.
+
+A file edited or damaged by hand fails in one line naming the file and the line (:class:`RecordsError`,
+:class:`ManifestError`), never with a wrong summary.
 """
 from __future__ import annotations
 
@@ -15,18 +18,25 @@ import os
 import re
 import warnings
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
-from .records import VERSION_FIELD, dedupe, one_version, validate_record
+from .records import VERSION_FIELD, VersionMixError, dedupe, one_version, validate_record
 
 RECORDS_FILE = "episodes.jsonl"
 MANIFEST_FILE = "run.json"
 BACKBONE_FILE = "backbone.jsonl"
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")  # what a file name of any system may not hold
+SHOWN_CHARS = 40  # how much of a bad line an error quotes
+FIX_LINE = "fix or delete that line (the other records are kept) and rerun"
 
 
 class ManifestError(ValueError):
-    """A results directory that does not fit this run: other settings, or another benchmark version."""
+    """A results directory that does not fit this run: other settings, another benchmark version,
+    or a ``MANIFEST_FILE`` that is not one."""
+
+
+class RecordsError(ValueError):
+    """A records file with a line that is no record: the file was edited or damaged."""
 
 
 def safe_name(label: str) -> str:
@@ -143,11 +153,13 @@ class RecordWriter:
 
 
 # ---------------------------------------------------------------- reading
-def iter_records(path: str | os.PathLike) -> Iterator[dict]:
+def iter_records(path: str | os.PathLike, check: Callable[[Mapping[str, Any]], None] | None = None
+                 ) -> Iterator[dict]:
     """Records of ``path`` in file order; a torn last line is skipped with a warning.
 
-    A malformed line anywhere else means the file was edited or corrupted: ValueError with its
-    line number, rather than a silently wrong summary.
+    A malformed line anywhere else means the file was edited or corrupted: RecordsError naming the
+    file and the line (``path:lineno: ...``), rather than a silently wrong summary; so does a
+    record that ``check`` (e.g. ``records.validate_record``) refuses with a ValueError.
     """
     path = Path(path)
     if not path.exists():
@@ -163,13 +175,21 @@ def iter_records(path: str | os.PathLike) -> Iterator[dict]:
             if lineno == len(lines):
                 warnings.warn(f"{path}: skipping a truncated last line (interrupted run)", stacklevel=2)
                 return
-            raise ValueError(f"{path}:{lineno}: not a JSON object record")
+            shown = raw[:SHOWN_CHARS].decode("utf-8", errors="replace") + ("..." if len(raw) > SHOWN_CHARS else "")
+            raise RecordsError(f"{path}:{lineno}: not a JSON object record ({shown!r}): the file was edited or "
+                               f"damaged; {FIX_LINE}")
+        if check is not None:
+            try:
+                check(record)
+            except ValueError as err:
+                raise RecordsError(f"{path}:{lineno}: {err}; {FIX_LINE}") from None
         yield record
 
 
 def read_records(path: str | os.PathLike, unique: bool = True) -> list[dict]:
-    """All records of ``path`` (first of each duplicate when ``unique``)."""
-    records = list(iter_records(path))
+    """All records of ``path`` (first of each duplicate when ``unique``); RecordsError naming the
+    line of one that is no episode record (``records.validate_record``)."""
+    records = list(iter_records(path, validate_record))
     return dedupe(records) if unique else records
 
 
@@ -208,36 +228,96 @@ def read_backbone_records(path: str | os.PathLike) -> list[dict]:
 
 
 # ---------------------------------------------------------------- the manifest
+def _load_manifest(path: Path) -> dict[str, Any]:
+    """``MANIFEST_FILE``'s content (empty sections when there is none); ManifestError naming the
+    file when it is not JSON, or not a manifest."""
+    if not path.exists():
+        return {"runs": {}}
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        raise ManifestError(f"{path}: not valid JSON (line {err.lineno}, column {err.colno}: {err.msg}); restore it, "
+                            "or delete it and the next run writes it anew") from None
+    except UnicodeDecodeError:
+        raise ManifestError(f"{path}: not a text file; restore it, or delete it and the next run writes it "
+                            "anew") from None
+    if not isinstance(manifest, dict) or not all(isinstance(v, dict) for v in manifest.values()):
+        raise ManifestError(f"{path}: not the settings file of rsb eval (an object of sections, each "
+                            "label -> settings); restore it, or delete it and the next run writes it anew")
+    return manifest
+
+
 def read_manifest(results_dir: str | os.PathLike) -> dict[str, dict[str, Any]]:
     """The settings of each policy row of a results directory (``MANIFEST_FILE``; ``rsb eval``
-    writes it), or nothing when it has none (``lerobot-eval``)."""
-    path = Path(results_dir) / MANIFEST_FILE
-    return json.loads(path.read_text()).get("runs", {}) if path.exists() else {}
+    writes it), or nothing when it has none (``lerobot-eval``); ManifestError naming the file
+    when it is damaged."""
+    return _load_manifest(Path(results_dir) / MANIFEST_FILE).get("runs", {})
+
+
+def _has_records(out: Path, section: str, label: str, records: list[dict]) -> bool:
+    """Whether ``out`` holds records of the row ``label`` of ``section``."""
+    if section == "runs":
+        return any(r.get("policy") == label for r in records)
+    return any(r.get("backbone") == label for r in read_backbone_records(out / BACKBONE_FILE))
 
 
 def check_manifest(out: Path, label: str, settings: Mapping[str, Any], *, keys: tuple[str, ...],
-                   section: str = "runs") -> None:
+                   section: str = "runs") -> str | None:
     """Record this row's settings in ``MANIFEST_FILE`` (under ``section``: ``runs`` for policies,
     ``backbones`` for ``rsb backbone``), or check that ``keys`` match those it was started with; the
     directory's records must be of this benchmark version (a table holds one). ManifestError, one
-    line, otherwise."""
+    line, otherwise; RecordsError for a damaged records file.
+
+    A row started with other settings that recorded nothing (a run that failed before its first
+    episode) locks nothing: its settings are replaced, and the returned note (one line) says so."""
     from rsb_maniskill.version import BENCHMARK_VERSION, code_commit, package_version
 
+    records = read_records(out / RECORDS_FILE)
     try:
-        one_version([*read_records(out / RECORDS_FILE), {VERSION_FIELD: BENCHMARK_VERSION}])
-    except ValueError as err:
+        one_version([*records, {VERSION_FIELD: BENCHMARK_VERSION}])
+    except VersionMixError as err:
         raise ManifestError(f"{out / RECORDS_FILE}: {err}. Use another --out for this version's run.") from None
     path = out / MANIFEST_FILE
-    manifest = json.loads(path.read_text()) if path.exists() else {"runs": {}}
+    manifest = _load_manifest(path)
     old = manifest.setdefault(section, {}).get(label)
+    note = None
     if old is not None:
         diff = [k for k in keys if old.get(k) != settings.get(k)]
-        if diff:
-            shown = ", ".join(f"{k}: {old.get(k)!r} before, {settings.get(k)!r} now" for k in diff)
+        if not diff:
+            return None
+        shown = ", ".join(f"{k}: {old.get(k)!r} before, {settings.get(k)!r} now" for k in diff)
+        if _has_records(out, section, label, records):
             raise ManifestError(f"{out} already holds episodes of {label!r} run with other settings ({shown}). "
                                 "Use the same settings to resume, or another --out / --name for a new run.")
-        return
+        note = f"{path}: {label!r} was started with other settings and recorded nothing; replaced ({shown})"
     manifest[section][label] = {**settings, "rsb_version": package_version(), "code_commit": code_commit()}
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(manifest, indent=2) + "\n")
     os.replace(tmp, path)
+    return note
+
+
+class RunStart:
+    """What a run is about to add to ``out`` before its first episode (its ``MANIFEST_FILE`` row, an
+    empty ``RECORDS_FILE``), so that :meth:`undo` can take it back when the run fails without
+    recording one: a typo's failed run leaves the directory as it found it."""
+
+    def __init__(self, out: Path) -> None:
+        self.manifest, self.records = out / MANIFEST_FILE, out / RECORDS_FILE
+        self.manifest_before = self.manifest.read_bytes() if self.manifest.exists() else None
+        self.records_existed = self.records.exists()
+
+    def undo(self, label: str) -> bool:
+        """Restore ``MANIFEST_FILE`` (and drop an empty records file this run made) unless the
+        directory now holds records of ``label``; True when it did."""
+        if any(r.get("policy") == label for r in iter_records(self.records)):
+            return False
+        if self.manifest_before is None:
+            self.manifest.unlink(missing_ok=True)
+        elif self.manifest.read_bytes() != self.manifest_before:
+            tmp = self.manifest.with_suffix(".json.tmp")
+            tmp.write_bytes(self.manifest_before)
+            os.replace(tmp, self.manifest)
+        if not self.records_existed and self.records.exists() and self.records.stat().st_size == 0:
+            self.records.unlink()
+        return True

@@ -48,6 +48,9 @@ WORK_DIR = ".work"
 SETTINGS_FILE = "settings.json"
 BUILD_META = "meta/rsb_build.json"  # the settings a dataset was built with, inside the dataset
 PROVENANCE = ("code_commit", "skipped_questions")  # also in BUILD_META; they decide no episode or file
+# How the work is cut: a resumed build must keep it (the finished shards are reused), but it decides
+# no episode and no byte of the dataset (export/merge.py), so BUILD_META does not hold it.
+WORK_ONLY = ("shard_size",)
 EXPORT_META = "meta/rsb_export.json"  # what an exported dataset's demos are (benchmark version, ...)
 DEFAULT_SHARD_SIZE = 25  # questions a shard: a kill loses at most this many demos per worker
 
@@ -74,23 +77,27 @@ class BuildConfig:
 
 def _check_settings(work: Path, dataset: Path | None, settings: dict) -> bool:
     """True when ``dataset`` is already built with ``settings``; raises when ``work`` or ``dataset``
-    hold a build of other settings (nothing is touched then)."""
-    def differs(path: Path) -> str | None:
+    hold a build of other settings (nothing is touched then). A dataset built with another shard
+    size is the same dataset (``WORK_ONLY``)."""
+    def differs(path: Path, ignored: tuple[str, ...]) -> str | None:
         if not path.is_file():
             return None
         old = json.loads(path.read_text())
-        diff = sorted(k for k in (set(old) | set(settings)) - set(PROVENANCE) if old.get(k) != settings.get(k))
+        diff = sorted(k for k in (set(old) | set(settings)) - set(ignored) if old.get(k) != settings.get(k))
         return ", ".join(f"{k}={old.get(k)!r} there, {settings.get(k)!r} now" for k in diff) or None
 
-    for path, holder in ((work / SETTINGS_FILE, work), *(((dataset / BUILD_META, dataset),) if dataset else ())):
-        d = differs(path)
+    checks = [(work / SETTINGS_FILE, work, PROVENANCE)]
+    if dataset is not None:
+        if dataset.exists() and not (dataset / BUILD_META).is_file():
+            raise ExportError(f"{dataset} exists and is not an `rsb dataset build` output; use another --out")
+        checks.insert(0, (dataset / BUILD_META, dataset, PROVENANCE + WORK_ONLY))
+    for path, holder, ignored in checks:
+        d = differs(path, ignored)
         if d:
             raise ExportError(f"{holder} holds a build of other settings ({d}); use another --out or delete it")
-    if dataset is None:
-        return False
-    if dataset.exists() and not (dataset / BUILD_META).is_file():
-        raise ExportError(f"{dataset} exists and is not an `rsb dataset build` output; use another --out")
-    return (dataset / BUILD_META).is_file()
+        if holder == dataset and path.is_file():
+            return True  # built: the work directory's shards no longer matter
+    return False
 
 
 # ------------------------------------------------------------------ driver side
@@ -175,20 +182,24 @@ def export_lerobot(demos: Sequence[str | os.PathLike], out: str | os.PathLike, *
     out = Path(out)
     cameras = check_cameras(cameras, naming)
     fps, _ = check_fps(fps)
+    from rsb_maniskill.motionplan.dataset import DatasetError, check_pair
+
     paths = [Path(p) for p in demos]
+    ids, versions = [], {}
     for p in paths:
         if p.suffix != ".h5" or not p.is_file() or not p.with_suffix(".json").is_file():
             raise ExportError(f"{p}: not a trajectory file pair (X.h5 with X.json beside it)")
-    check_out(out, overwrite)
-    ids, versions = [], {}
-    for p in paths:
-        data = json.loads(p.with_suffix(".json").read_text())
+        try:
+            data = check_pair(p)  # both files readable, and they agree (errors name the file)
+        except DatasetError as err:
+            raise ExportError(str(err)) from None
         ids.append((p, [int(e["episode_id"]) for e in data["episodes"]]))
         versions.setdefault((data.get("rsb") or {}).get("benchmark_version") or UNVERSIONED, p)
     if len(versions) > 1:
         (va, pa), (vb, pb) = sorted(versions.items())[:2]
         raise ExportError(f"{pa} holds demos of {benchmark_label(va)}, {pb} of {benchmark_label(vb)}: one dataset "
                           "holds the episodes of one benchmark version")
+    check_out(out, overwrite)
     total = sum(len(i) for _, i in ids)
     if total == 0:
         raise ExportError("the demo files hold no episodes")
@@ -319,7 +330,7 @@ def build_datasets(cfg: BuildConfig, executor: Any = None) -> list[dict[str, Any
     for env_id, settings, work, dataset, shards, complete in suites:
         if not complete:
             metas = [json.loads((shard_dir(work, k) / SHARD_META).read_text()) for k in range(len(shards))]
-            public = {k: v for k, v in settings.items() if k != "data_dir"}
+            public = {k: v for k, v in settings.items() if k != "data_dir" and k not in WORK_ONLY}
             skipped = sorted(q for m in metas for q in m.get("skipped_questions", []))
             full = [shard_dir(work, k) for k, m in enumerate(metas) if m["episodes"]]
             meta = {**public, "code_commit": code_commit(), "skipped_questions": skipped}

@@ -8,7 +8,7 @@ from rsb_maniskill.env_ids import CONTROL_FREQ
 from rsb_maniskill.export.build import BuildConfig
 from rsb_maniskill.export.naming import DEFAULT_NAMING, NAMINGS, camera_key
 from rsb_maniskill.robot import CAMERAS
-from rsb_maniskill.workers import add_executor_args
+from rsb_maniskill.workers_plan import add_worker_args
 
 
 def _keys(naming: str) -> str:
@@ -26,9 +26,7 @@ def _add_format_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cameras", default=",".join(CAMERAS), help=CAMERAS_HELP)
     p.add_argument("--naming", choices=NAMINGS, default=DEFAULT_NAMING,
                    help="feature keys: rsb (LeRobot's Aloha names, openpi's) or robotwin (LeRobot's RoboTwin env)")
-    p.add_argument("--num-procs", type=int, default=None,
-                   help="worker processes (default 1; with --executor ray the cluster's CPUs)")
-    add_executor_args(p)
+    add_worker_args(p)  # --num-procs auto|N, --executor, --address
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -76,10 +74,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _executor(args: argparse.Namespace):
-    from rsb_maniskill.workers import executor_from_args
+    from rsb_maniskill.workers_plan import executor_from_args, resolve_workers
 
-    executor = executor_from_args(args.executor, args.address)
-    return executor, args.num_procs or (executor.workers() if executor is not None else 1)
+    return resolve_workers(args.num_procs, executor_from_args(args.executor, args.address), renders=True)
 
 
 def _cameras(text: str) -> list[str]:

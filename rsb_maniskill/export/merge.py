@@ -1,11 +1,15 @@
 """Merging LeRobot v3.0 datasets written by separate workers (or machines) into one.
 
 Each shard is a complete dataset (``write_dataset``). The merge renumbers episodes, frames and
-tasks, gives each shard's data parquet its own ``data/chunk-CCC/file-FFF.parquet`` (LeRobot's
-chunked layout: ``CHUNKS_SIZE`` files a chunk), moves every episode video to the chunk and file of
-its new episode index (hard links: no copy, and the shards stay intact), and recomputes the
-dataset statistics from the per-episode ones. It writes under a temporary name beside ``out`` and
-renames at the end, so an interrupted merge leaves the shards as they were and nothing at ``out``.
+tasks, and files the frames anew: consecutive episodes fill ``data/chunk-CCC/file-FFF.parquet``
+(LeRobot's chunked layout: ``CHUNKS_SIZE`` files a chunk) up to ``DATA_FILE_FRAMES`` frames a file,
+whatever shard they came from. It moves every episode video to the chunk and file of its new
+episode index (hard links: no copy, and the shards stay intact), gives the renumbered columns
+(episode, frame and task index) their per-episode statistics of the new values, as LeRobot's own
+aggregation does, and computes the dataset statistics from the per-episode ones. So the merged
+dataset is the same, file for file and byte for byte, however the episodes were cut into shards.
+It writes under a temporary name beside ``out`` and renames at the end, so an interrupted merge
+leaves the shards as they were and nothing at ``out``.
 """
 from __future__ import annotations
 
@@ -30,7 +34,13 @@ from rsb_maniskill.export.lerobot import (
     aggregate_stats,
     jsonable_stats,
     tasks_table,
+    vector_stats,
 )
+
+# Frames a merged data file holds at most (whole episodes; about 75 MB of state and action at 148
+# bytes a frame, under LeRobot's 100 MB data files); fixed, so the files do not depend on the shards.
+DATA_FILE_FRAMES = 500_000
+RENUMBERED = ("episode_index", "index", "task_index")  # the columns a merge renumbers
 
 
 def _link(src: Path, dst: Path) -> None:
@@ -50,6 +60,42 @@ def _episode_stats(row: dict[str, Any], features: Sequence[str]) -> dict[str, di
             if feature in out:
                 out[feature][stat] = np.asarray(value, dtype=np.float64)
     return out
+
+
+def _renumbered_stats(episode: int, first: int, length: int, task: int) -> dict[str, dict[str, np.ndarray]]:
+    """The per-episode statistics of the renumbered columns, of their new values: what writing the
+    whole dataset at once would have computed (``lerobot._frame_table``'s columns), exactly.
+    LeRobot's aggregation shifts the old ones by the offsets, which rounds a mean differently."""
+    return {"episode_index": vector_stats(np.full(length, episode)), "index": vector_stats(first + np.arange(length)),
+            "task_index": vector_stats(np.full(length, task))}
+
+
+class _DataFiles:
+    """Writes the merged frames into data files of whole episodes, ``DATA_FILE_FRAMES`` at most each."""
+
+    def __init__(self, root: Path) -> None:
+        self.root, self.pending, self.frames, self.file = root, [], 0, 0
+
+    def add(self, table: Any) -> tuple[int, int]:
+        """Files one episode's rows; returns the (chunk, file) index of the data file it went to."""
+        if self.pending and self.frames + table.num_rows > DATA_FILE_FRAMES:
+            self.flush()
+        self.pending.append(table)
+        self.frames += table.num_rows
+        return divmod(self.file, CHUNKS_SIZE)
+
+    def flush(self) -> None:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        if not self.pending:
+            return
+        chunk, file = divmod(self.file, CHUNKS_SIZE)
+        path = self.root / DATA_PATH.format(chunk_index=chunk, file_index=file)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # one contiguous table: the bytes depend on the rows only, not on how the shards cut them
+        pq.write_table(pa.concat_tables(self.pending).combine_chunks(), path)
+        self.pending, self.frames, self.file = [], 0, self.file + 1
 
 
 def video_keys(info: dict) -> list[str]:
@@ -76,8 +122,9 @@ def merge_datasets(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
     rows: list[dict[str, Any]] = []
     stats: list[dict[str, dict[str, np.ndarray]]] = []
     frames = 0
+    data_files = _DataFiles(tmp)
     try:
-        for k, shard in enumerate(shards):
+        for shard in shards:
             info = json.loads((shard / INFO_FILE).read_text())
             if info["features"] != info0["features"] or info["fps"] != info0["fps"]:
                 raise ExportError(f"{shard}: its features or fps differ from {shards[0]}'s; merge shards of one build")
@@ -93,15 +140,14 @@ def merge_datasets(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
             }
             for name, col in columns.items():
                 data = data.set_column(data.schema.get_field_index(name), name, col)
-            chunk, file = divmod(k, CHUNKS_SIZE)
-            data_path = tmp / DATA_PATH.format(chunk_index=chunk, file_index=file)
-            data_path.parent.mkdir(parents=True, exist_ok=True)
-            pq.write_table(data, data_path)
             for row in pq.read_table(shard / EPISODES_FILE).to_pylist():
-                e = row["episode_index"] + e0
+                e, first, n = row["episode_index"] + e0, row["dataset_from_index"], row["length"]
+                chunk, file = data_files.add(data.slice(first, n))
                 row.update({"episode_index": e, "data/chunk_index": chunk, "data/file_index": file,
-                            "dataset_from_index": row["dataset_from_index"] + frames,
-                            "dataset_to_index": row["dataset_to_index"] + frames})
+                            "dataset_from_index": first + frames, "dataset_to_index": row["dataset_to_index"] + frames})
+                renumbered = _renumbered_stats(e, first + frames, n, tasks[row["tasks"][0]])
+                row.update({f"stats/{f}/{stat}": np.asarray(v).tolist() for f, st in renumbered.items()
+                            for stat, v in st.items() if f"stats/{f}/{stat}" in row})
                 new_chunk, new_file = divmod(e, CHUNKS_SIZE)
                 for key in keys:
                     src = shard / VIDEO_PATH.format(video_key=key, chunk_index=row[f"videos/{key}/chunk_index"],
@@ -111,6 +157,7 @@ def merge_datasets(shards: Sequence[str | os.PathLike], out: str | os.PathLike,
                 rows.append(row)
                 stats.append(_episode_stats(row, stat_features))
             frames += data.num_rows
+        data_files.flush()
         (tmp / EPISODES_FILE).parent.mkdir(parents=True, exist_ok=True)
         pq.write_table(pa.Table.from_pylist(rows), tmp / EPISODES_FILE)
         pq.write_table(tasks_table(tasks), tmp / TASKS_FILE)

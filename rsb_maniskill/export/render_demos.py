@@ -53,9 +53,11 @@ def _read_group(group) -> dict | np.ndarray:
 
 
 def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int,
-                    episode_ids: Sequence[int] | None = None) -> Iterable[Episode]:
+                    episode_ids: Sequence[int] | None = None, source: bool = True) -> Iterable[Episode]:
     """Episodes of one demo file (those of ``episode_ids``, default all), camera frames rendered
-    from the recorded env states."""
+    from the recorded env states. With ``source`` each names the file and the episode in it it came
+    from (``rsb export lerobot``: the user's demos); without (``rsb dataset build``: a shard's
+    temporary file, gone after the build and numbered by the shard) the seed and question identify it."""
     import h5py
 
     from mani_skill.trajectory.utils import dict_to_list_of_dicts
@@ -94,8 +96,8 @@ def render_episodes(h5_path: Path, cameras: Sequence[str], stride: int,
                     "options": [str(o) for o in spec.options], "correct_letter": spec.correct_letter,
                     "correct_option": str(spec.correct_option), "rationale": spec.rationale,  # a CoT target
                     "target_block": spec.target_block,
-                    "template_id": spec.template_id, "source_file": h5_path.name,
-                    "source_episode_id": int(ep["episode_id"]),
+                    "template_id": spec.template_id,
+                    **({"source_file": h5_path.name, "source_episode_id": int(ep["episode_id"])} if source else {}),
                 }
                 yield Episode(np.asarray(state, np.float32), to_aloha14(actions[::stride]).astype(np.float32),
                               {c: np.stack(v) for c, v in frames.items()}, ep.get("instruction", spec.instruction),

@@ -116,7 +116,8 @@ def _write_shard(work: Path, settings: dict, k: int, shard: ExportShard | SuiteS
             demo, ids = Path(shard.demo), shard.episode_ids
         episodes = 0
         if demo is not None:
-            out = write_dataset(render_episodes(demo, settings["cameras"], stride, ids), tmp / "dataset", fps=fps,
+            rendered = render_episodes(demo, settings["cameras"], stride, ids, source=isinstance(shard, ExportShard))
+            out = write_dataset(rendered, tmp / "dataset", fps=fps,
                                 cameras=settings["cameras"], naming=settings["naming"],
                                 on_episode=lambda n: emit({"type": "episode", "frames": n}))
             episodes = out["episodes"]

@@ -32,8 +32,8 @@ import numpy as np
 from gymnasium import spaces
 
 from rsb_maniskill.env_ids import CONTROL_FREQ, CPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS
-from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, LEROBOT_SEED_BASE
-from rsb_maniskill.evaluation.records import INSTRUCTION_MODES, LEROBOT_RUNNER, build_record
+from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, LEROBOT_SEED_BASE, check_ablation_mode
+from rsb_maniskill.evaluation.records import LEROBOT_RUNNER, build_record
 from rsb_maniskill.evaluation.store import RECORDS_FILE, RecordWriter
 from rsb_maniskill.export.naming import DEFAULT_NAMING, camera_key, check_naming
 from rsb_maniskill.robot import ACTION_DIM, CAMERA_SIZE, CAMERAS, CONTROL_MODE, from_aloha14, sensor_uid
@@ -75,9 +75,7 @@ class RSBLeRobotEnv(gym.Env):
         from rsb_maniskill.env_ids import resolve_env_ids
 
         (self.env_id,) = resolve_env_ids([env_id])
-        if instruction_mode not in INSTRUCTION_MODES:
-            raise ValueError(f"instruction_mode must be one of {', '.join(INSTRUCTION_MODES)}, "
-                             f"got {instruction_mode!r}")
+        check_ablation_mode(instruction_mode, "the LeRobot env")
         if obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {', '.join(OBS_TYPES)}, got {obs_type!r}")
         self.naming = check_naming(naming)

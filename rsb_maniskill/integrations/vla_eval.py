@@ -28,8 +28,14 @@ from vla_eval.render import DEFAULT_RENDER_MODE, assert_lavapipe_vulkan, configu
 from rsb_maniskill.batch import single_env_obs
 from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS, resolve_env_ids
 from rsb_maniskill.evaluation.metrics import outcome
-from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, ShuffledDonors, apply_instruction_mode, eval_seeds
-from rsb_maniskill.evaluation.records import INSTRUCTION_MODES, RECORD_FLAGS, VLA_EVAL_RUNNER, build_record
+from rsb_maniskill.evaluation.protocol import (
+    EPISODES_PER_SUITE,
+    ShuffledDonors,
+    apply_instruction_mode,
+    check_ablation_mode,
+    eval_seeds,
+)
+from rsb_maniskill.evaluation.records import RECORD_FLAGS, VLA_EVAL_RUNNER, build_record
 from rsb_maniskill.evaluation.remote.vla_eval_layout import make_layout
 from rsb_maniskill.robot import sensor_uid
 
@@ -71,9 +77,7 @@ class RSBBenchmark(StepBenchmark):
         super().__init__()
         self.suites = resolve_env_ids([suites] if isinstance(suites, str) else list(suites))
         self.layout = make_layout(preset, cameras=cameras, state_key=state_key, gripper=gripper, joints=joints)
-        if instruction_mode not in INSTRUCTION_MODES:
-            raise ValueError(f"instruction_mode must be one of {', '.join(INSTRUCTION_MODES)}, "
-                             f"got {instruction_mode!r}")
+        check_ablation_mode(instruction_mode, "the vla-eval benchmark")
         if obs_mode != "state_dict" and "rgb" not in obs_mode:
             raise ValueError(f"obs_mode must be an rgb mode or state_dict, got {obs_mode!r}")
         for name, value in (("episodes", episodes), ("render_every", render_every), ("max_steps", max_steps)):

@@ -85,6 +85,9 @@ def _generate(args: argparse.Namespace, executor: Any) -> int:
     if not args.suites:
         print("rsb generate: error: name at least one SUITE (e.g. RSB-Math-4)", file=sys.stderr)
         return 2
+    if args.num is not None and args.num < 1:
+        print(f"rsb generate: error: -n must be >= 1, got {args.num}", file=sys.stderr)
+        return 2
     extra = {k: v for k, v in (("instructions", args.instructions), ("color_map", args.color_map),
                                ("data_dir", args.data_dir)) if v is not None}
     executor, num_procs = resolve_workers(args.num_procs, executor, obs_mode_renders(args.obs_mode) or args.save_video,

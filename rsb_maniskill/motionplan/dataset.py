@@ -92,8 +92,13 @@ def finalize_pair(tmp_h5: str | os.PathLike, final_h5: str | os.PathLike) -> Pat
 
 
 def load_json(path: str | os.PathLike) -> dict:
-    with open(path) as f:
-        return json.load(f)
+    """A trajectory json; DatasetError naming the file when it is not JSON."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise DatasetError(f"{path}: not valid JSON ({err}): a damaged trajectory file; restore it or make it "
+                           "again (rsb generate)") from None
 
 
 def dump_json(path: str | os.PathLike, data: dict) -> None:
@@ -137,8 +142,13 @@ def check_pair(h5_path: str | os.PathLike) -> dict:
     data = load_json(jp)
     if "episodes" not in data or "env_info" not in data:
         raise DatasetError(f"{jp}: not a ManiSkill trajectory json (no 'env_info' / 'episodes')")
-    with h5py.File(h5_path, "r") as f:
-        groups = set(f.keys())
+    try:
+        with h5py.File(h5_path, "r") as f:
+            groups = set(f.keys())
+    except OSError as err:
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise DatasetError(f"{h5_path}: not a readable HDF5 file ({reason}): truncated or damaged; restore it or "
+                           "make it again (rsb generate)") from None
     wanted = {f"traj_{ep['episode_id']}" for ep in data["episodes"]}
     if groups != wanted or len(wanted) != len(data["episodes"]):
         raise DatasetError(f"{h5_path}: h5 groups and json episodes disagree "

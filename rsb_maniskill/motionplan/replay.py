@@ -21,7 +21,7 @@ from pathlib import Path
 from rsb_maniskill.env_ids import CPU_SIM_BACKEND
 from rsb_maniskill.robot import CONTROL_MODE
 
-from .dataset import json_path_of, load_json, write_json_atomic
+from .dataset import DatasetError, check_pair, json_path_of, load_json, write_json_atomic
 
 
 def _register_envs() -> None:
@@ -88,6 +88,11 @@ def main(argv: list[str] | None = None) -> int:
 
     rt.mp = _RegisteringMultiprocessing()
     args = rt.parse_args(list(sys.argv[1:] if argv is None else argv))
+    try:
+        check_pair(args.traj_path)  # a missing, damaged or truncated pair: one line naming the file
+    except DatasetError as err:
+        print(f"rsb replay: error: {err}", file=sys.stderr)
+        return 2
     out = replayed_path(args) if args.save_traj else None
     if out is not None and out.resolve() == Path(args.traj_path).resolve():
         # ManiSkill would open its output with "w" before noticing, truncating the source.

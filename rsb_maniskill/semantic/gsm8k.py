@@ -36,6 +36,12 @@ def clean_solution(answer_field: str) -> str:
     return " ".join(line if line[-1] in ".!?" else line + "." for line in lines)
 
 
+def reasoning_steps(answer_field: str) -> int:
+    """Steps of GSM8K's worked solution: its ``<<...>>`` calculator annotations, one per computation
+    (counted before :func:`clean_solution` strips them). A few solutions carry none (0)."""
+    return len(_ANNOTATION.findall(answer_field.rsplit("####", 1)[0]))
+
+
 def question_from_row(row: dict) -> Question:
     """Build a HardMath question; unparseable records raise SemanticDataError (never skipped)."""
     origin = row.get("origin", "")
@@ -57,6 +63,7 @@ def question_from_row(row: dict) -> Question:
         solution=clean_solution(row["answer"]),
         origin=origin,
         fact=question_key(text),
+        steps=reasoning_steps(row["answer"]),
     )
 
 

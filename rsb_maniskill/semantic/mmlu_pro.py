@@ -151,9 +151,12 @@ def area(row: dict) -> str:
 
 
 def to_question(row: dict, fact: str = "") -> Question:
+    """A pool question of an MMLU-Pro row: ``group`` its :func:`area`, ``category`` MMLU-Pro's own
+    category (the reader's ``subject``)."""
     opts = tuple(normalize_text(o) for o in row["choices"])
     return Question(text=normalize_text(row["question"]), answer=opts[row["answer"]], source="mmlu_pro",
-                    group=area(row), choices=opts, core=core_options(row), origin=row.get("origin", ""), fact=fact)
+                    group=area(row), choices=opts, core=core_options(row), origin=row.get("origin", ""), fact=fact,
+                    category=str(row.get("subject", "")))
 
 
 def _facts(rows: list[dict]) -> list[str]:

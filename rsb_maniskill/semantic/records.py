@@ -27,6 +27,12 @@ class Question:
     solution: str = ""
     origin: str = ""  # "file, line N" or generator description, for error reports
     fact: str = ""  # what the question asks about; train and test never share one (rsb audit checks)
+    # What the per-category tables group by (semantic/categories.py), kept when the pool is built:
+    # MMLU-Pro's own category (14 values; ``group`` holds MMLU's subject for rows taken from MMLU),
+    # and GSM8K's reasoning steps (calculator annotations of its worked solution, which
+    # ``solution`` no longer shows).
+    category: str = ""
+    steps: int | None = None
 
     @property
     def numeric(self) -> bool:

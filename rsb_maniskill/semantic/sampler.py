@@ -2,13 +2,14 @@
 from __future__ import annotations
 
 import os
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from ..objects.family import DEFAULT_TARGETS, get_family
 from ..perturb import language, parse_perturb
 from . import mmlu_pro, wording
+from .categories import episode_categories
 from .distractors import numeric_options, weighted_options
 from .pools import Pool, get_pool
 from .records import Question, format_number
@@ -75,6 +76,11 @@ class EpisodeSampler:
             raise ValueError("Direct suites have no question records")
         return self.pool.questions[index]
 
+    def categories(self, spec: EpisodeSpec) -> dict[str, str]:
+        """What the per-category tables group the episode ``spec`` of this sampler by (operator,
+        reasoning steps, answer size, source, template, ...: ``categories.py``)."""
+        return episode_categories(spec, None if self.direct else self.question(spec.question_id))
+
     def episode(self, seed: int) -> EpisodeSpec:
         """The episode of the RSB tasks for ``seed``: question ``seed mod pool size`` (seeds
         0..P-1 visit every question once), everything else drawn from ``seed``."""
@@ -109,11 +115,28 @@ class EpisodeSampler:
         perm = rng.permutation(n)
         ordered = tuple(options[int(i)] for i in perm)
         slot = int(np.flatnonzero(perm == 0)[0])
+        return self._compose(seed, qi, q, ordered, slot, block_of_option, template_id, cands.names, cands.keys)
+
+    def rebind(self, spec: EpisodeSpec, options: Sequence[str], answer_slot: int,
+               block_of_option: Sequence[int]) -> EpisodeSpec:
+        """``spec`` (not Direct) with its options in another order or bound to other candidates:
+        the same seed, question, candidates and template; instruction and rationale rendered anew
+        as :meth:`sample` renders them. The counterfactual variants are built with it."""
+        if self.pool is None:
+            raise ValueError("Direct suites have no options to rebind: sample another target instead")
+        return self._compose(spec.seed, spec.question_id, self.pool.questions[spec.question_id], tuple(options),
+                             int(answer_slot), tuple(int(b) for b in block_of_option), spec.template_id,
+                             spec.block_names, spec.candidates)
+
+    def _compose(self, seed: int, qi: int, q: Question, ordered: tuple[str, ...], slot: int,
+                 block_of_option: tuple[int, ...], template_id: int, names: tuple[str, ...],
+                 keys: tuple[str, ...]) -> EpisodeSpec:
+        """The spec of a drawn question episode: its instruction and rationale rendered."""
+        n = self.n_choices
         letter = self.letters[slot]
-        names = cands.names
         if self.perturb:
             instruction = wording.render(get_template(n, template_id, lettered=self.lettered), q.text, ordered,
-                                         self.letters, names, cands.keys, block_of_option, self.family.noun,
+                                         self.letters, names, keys, block_of_option, self.family.noun,
                                          self.perturb, self._axis_rngs(seed))
         else:
             instruction = render_instruction(n, template_id, q.text, ordered, self.letters, names, block_of_option,
@@ -127,7 +150,7 @@ class EpisodeSampler:
         else:  # MMLU-Pro, commonsense (the latter states its fact first)
             rationale = f"{q.solution} The answer is {_sentence(q.answer)} {binding}".lstrip()
         return EpisodeSpec(self.suite_id, self.suite, n, self.split, seed, qi, q.text, ordered, self.letters, slot,
-                           letter, block_of_option, names, cands.keys, instruction, template_id, rationale,
+                           letter, block_of_option, names, keys, instruction, template_id, rationale,
                            self.family.name)
 
     # -----------------------------------------------------------------------------------------

@@ -29,7 +29,7 @@ from rsb_maniskill.objects.pool import CandidatePool
 from rsb_maniskill.perturb import language as perturb_language
 from rsb_maniskill.perturb import parse_perturb
 from rsb_maniskill.robot import ROBOT_UID
-from rsb_maniskill.semantic import EpisodeSampler, EpisodeSpec, parse_suite_id
+from rsb_maniskill.semantic import EpisodeSampler, EpisodeSpec, counterfactual, parse_suite_id
 from rsb_maniskill.tasks.base import RSBEnv
 from rsb_maniskill.tasks.contacts import PairContacts
 from rsb_maniskill.tasks.perturb_scene import CLUTTER_ITEMS, SceneAxes, build_clutter
@@ -100,6 +100,7 @@ class AnswerSelectionEnv(RSBEnv):
             w, h = camera_size
             kwargs["sensor_configs"] = {**kwargs.get("sensor_configs", {}), "width": int(w), "height": int(h)}
         self.episode_specs: list[EpisodeSpec | None] = []
+        self.episode_variants: list[counterfactual.Variant | None] = []  # reset(options={"variant": k})
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
         if kwargs.get("reconfiguration_freq") is None and not self.gpu_sim_enabled:
             self.reconfiguration_freq = CPU_RECONFIGURATION_FREQ
@@ -165,6 +166,7 @@ class AnswerSelectionEnv(RSBEnv):
         self.grasped_correct = torch.zeros(b, dtype=torch.bool, device=self.device)
         self.grasped_wrong = torch.zeros(b, dtype=torch.bool, device=self.device)
         self.episode_specs = [None] * b
+        self.episode_variants = [None] * b
         self._grasp_update_pending = False
         self._block_pose_cache = self._tcp_cache = None
 
@@ -173,8 +175,10 @@ class AnswerSelectionEnv(RSBEnv):
         self.table_scene.initialize(env_idx)
         idx = env_idx.cpu().numpy()
         for i in idx:
-            spec = self.episode_spec(int(compat.episode_seeds(self)[i]))
-            self.episode_specs[i] = spec
+            seed, k = int(compat.episode_seeds(self)[i]), _variant_option(options, int(i))
+            variant = None if k is None else self.episode_variant(seed, k)
+            spec = self.episode_spec(seed) if variant is None else variant.spec
+            self.episode_specs[i], self.episode_variants[i] = spec, variant
             self.target_block[i] = spec.target_block
             self.answer_slot[i] = spec.answer_slot
             self.question_id[i] = spec.question_id
@@ -215,6 +219,16 @@ class AnswerSelectionEnv(RSBEnv):
     def episode_spec(self, seed: int) -> EpisodeSpec:
         """The semantics of the episode ``seed`` (question ``seed mod pool size``), without a reset."""
         return self.sampler.episode(seed)
+
+    def episode_categories(self, spec: EpisodeSpec) -> dict[str, str]:
+        """What the per-category tables group the episode ``spec`` by (``semantic/categories.py``)."""
+        return self.sampler.categories(spec)
+
+    def episode_variant(self, seed: int, index: int) -> counterfactual.Variant:
+        """Counterfactual variant ``index`` of the scene ``seed``: the same layout and candidates, the
+        answer on another candidate (``semantic/counterfactual.py``); ``reset(seed=seed,
+        options={"variant": index})`` runs it (a list gives each env its own)."""
+        return counterfactual.variant(self.sampler, seed, index)
 
     def get_language_instruction(self) -> list[str]:
         """The instruction of each parallel env (strings can't live in observations)."""
@@ -368,6 +382,15 @@ class AnswerSelectionEnv(RSBEnv):
                 target[idx] = part[:, 0].to(target.dtype)
             else:
                 getattr(self, name)[idx] = part
+
+
+def _variant_option(options: dict | None, env: int) -> int | None:
+    """The counterfactual variant a reset asks of env ``env``: ``options["variant"]``, one index for
+    every env or a sequence with one per env (None: the protocol episode)."""
+    k = (options or {}).get("variant")
+    if k is not None and not isinstance(k, (int, np.integer)):
+        k = list(k)[env]
+    return None if k is None else int(k)
 
 
 def _park_positions(count: int) -> np.ndarray:

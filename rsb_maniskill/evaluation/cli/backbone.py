@@ -13,8 +13,20 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..store import ManifestError
-from .args import BACKBONE_KEYS, EvalError, check_data, check_env_args, parse_kv, results_dir
+from ..store import ManifestError, RecordsError
+from .args import (
+    BACKBONE_KEYS,
+    EVAL_FLAG_KEYS,
+    EvalError,
+    check_data,
+    check_env_args,
+    check_env_settings,
+    parse_kv,
+    results_dir,
+)
+
+# gym.make keywords rsb backbone sets itself (it builds its env only to render first frames)
+OWN_ENV_KEYS = {key: "rsb backbone builds its env with its own" for key in EVAL_FLAG_KEYS}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -54,7 +66,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_backbone(args: argparse.Namespace) -> int:
     try:
         return _run_backbone(args)
-    except (EvalError, ManifestError) as err:
+    except (EvalError, ManifestError, RecordsError) as err:
         print(f"rsb backbone: error: {err}", file=sys.stderr)
         return 2
 
@@ -70,7 +82,8 @@ def _run_backbone(args: argparse.Namespace) -> int:
         raise EvalError(f"--num-episodes must be >= 1, got {args.num_episodes}")
     kwargs = parse_kv(args.backbone_arg, "--backbone-arg")
     env_kwargs = parse_kv(args.env_arg, "--env-arg")
-    check_env_args(env_kwargs, "rsb backbone asks the questions of the unperturbed episodes")
+    check_env_args(env_kwargs, "rsb backbone asks the questions of the unperturbed episodes", OWN_ENV_KEYS)
+    check_env_settings(suites, env_kwargs)
     if args.data_dir:
         env_kwargs["data_dir"] = args.data_dir
     try:
@@ -82,8 +95,10 @@ def _run_backbone(args: argparse.Namespace) -> int:
     check_data(suites, env_kwargs.get("data_dir"))
     label = args.name or args.backbone
     out = results_dir(args.out, label)
-    check_manifest(out, label, dict(backbone=args.backbone, backbone_kwargs=kwargs, images=args.images,
-                                    env_kwargs=env_kwargs), section="backbones", keys=BACKBONE_KEYS)
+    note = check_manifest(out, label, dict(backbone=args.backbone, backbone_kwargs=kwargs, images=args.images,
+                                           env_kwargs=env_kwargs), section="backbones", keys=BACKBONE_KEYS)
+    if note:
+        print(f"rsb backbone: note: {note}", file=sys.stderr)
     try:
         backbone = load_backbone(args.backbone, **kwargs)
     except (TypeError, ValueError, ImportError, ConnectionError) as err:

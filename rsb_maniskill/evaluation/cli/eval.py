@@ -21,8 +21,21 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..store import ManifestError
-from .args import MANIFEST_KEYS, SEEDS_TEXT, EvalError, check_data, check_env_args, parse_kv, results_dir
+from rsb_maniskill.debug import print_error
+
+from ..policy_error import PolicyError
+from ..store import ManifestError, RecordsError
+from .args import (
+    MANIFEST_KEYS,
+    SEEDS_TEXT,
+    EvalError,
+    check_data,
+    check_env_args,
+    check_env_settings,
+    check_policy_args,
+    parse_kv,
+    results_dir,
+)
 
 SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0: the unperturbed run)
 
@@ -31,11 +44,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS, add_suites_argument
     from rsb_maniskill.perturb import AXES
     from rsb_maniskill.robot import CONTROL_MODE
-    from rsb_maniskill.workers import add_executor_args
+    from rsb_maniskill.workers_plan import add_worker_args
 
     from ..policy import POLICIES
     from ..protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS
-    from ..records import INSTRUCTION_MODES
+    from ..records import EVAL_INSTRUCTION_MODES
 
     state_only = [name for name, spec in POLICIES.items() if spec.obs_mode == "state"]
 
@@ -51,9 +64,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
                    help=f"episodes per suite (default {EPISODES_PER_SUITE}); "
                         "the first n are a prefix of any longer run")
-    p.add_argument("--instruction", nargs="+", default=["normal"], choices=INSTRUCTION_MODES,
+    p.add_argument("--instruction", nargs="+", default=["normal"], choices=EVAL_INSTRUCTION_MODES,
                    help="instruction given to the policy: normal, blank or shuffled (another episode's); "
-                        "several run one after the other")
+                        "counterfactual: K variants of each scene, the answer on another candidate each "
+                        "(follow / switch / stuck rates); several run one after the other")
+    p.add_argument("--variants", type=int, default=None, metavar="K",
+                   help="counterfactual variants per scene, 2..N (default: min(N, 4))")
     p.add_argument("--perturb", nargs="+", default=[], metavar="AXIS=LEVEL",
                    help="robustness axes applied together, each at a level 0-3 (axes: " + ", ".join(AXES) + "); "
                         "see docs/robustness.md")
@@ -71,8 +87,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="extra gym.make keyword, e.g. camera_size=[224,224] (VALUE as JSON, else a string)")
     p.add_argument("--data-dir", default=None,
                    help="GSM8K / MMLU-Pro directory (else $RSB_DATA_DIR, else the hub cache)")
-    p.add_argument("--num-procs", type=int, default=None,
-                   help="CPU worker processes (default 1), or Ray tasks (default: the cluster's CPUs)")
     p.add_argument("--num-envs", type=int, default=1,
                    help=f"parallel envs on the GPU backend ({GPU_SIM_BACKEND}), driven by one batched policy "
                         "(reset_batch / act_batch; e.g. remote: one request per step) or one policy "
@@ -81,7 +95,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"step cap per episode (default: the task's {TASK_MAX_EPISODE_STEPS})")
     p.add_argument("--videos", type=int, default=0, metavar="K", help="mp4 of the first K episodes of each suite")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    add_executor_args(p)
+    add_worker_args(p)  # --num-procs auto|N, --executor, --address
     p.set_defaults(func=run_eval)
 
 
@@ -100,6 +114,28 @@ def perturbations(perturb: list[str], sweep: list[str]) -> list[dict[str, int]]:
         return [parse_perturb(",".join(perturb))]
     except PerturbError as err:
         raise EvalError(f"{err} (--perturb AXIS=LEVEL, --sweep AXIS)") from None
+
+
+def check_variants(variants: int | None, modes: list[str], suites: list[str]) -> None:
+    """``--variants K``: only with ``--instruction counterfactual``, and 2 <= K <= N for every suite."""
+    from ..protocol import COUNTERFACTUAL, scene_variants
+
+    if variants is None:
+        return
+    if COUNTERFACTUAL not in modes:
+        raise EvalError("--variants sets the counterfactual variants per scene: add --instruction counterfactual")
+    for suite in suites:
+        try:
+            scene_variants(suite, variants)
+        except ValueError as err:
+            raise EvalError(f"--variants {variants} on {suite}: {err}") from None
+
+
+def episodes_per_scene(suite: str, mode: str, variants: int | None) -> int:
+    """Episodes a scene gives in ``mode``: K in counterfactual mode, else 1."""
+    from ..protocol import COUNTERFACTUAL, scene_variants
+
+    return scene_variants(suite, variants) if mode == COUNTERFACTUAL else 1
 
 
 def check_policy_spec(spec: str, num_envs: int = 1) -> None:
@@ -122,12 +158,17 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
 
 def run_eval(args: argparse.Namespace) -> int:
     # SIGTERM (a scheduler's stop) ends the run like Ctrl-C: workers stopped, summary written.
+    from ..jobs import JobError
+
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         return _run_eval(args)
-    except (EvalError, ManifestError) as err:
+    except (EvalError, ManifestError, RecordsError) as err:
         print(f"rsb eval: error: {err}", file=sys.stderr)
         return 2
+    except (PolicyError, JobError) as err:  # finished episodes are kept
+        return print_error("eval", err, 1, hint=True,
+                           then="fix it and rerun the same command: finished episodes are kept")
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -139,13 +180,14 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
     from rsb_maniskill.env_ids import CPU_SIM_BACKEND, GPU_SIM_BACKEND
 
     from ..jobs import EvalJob, run_job
-    from ..protocol import eval_seeds
+    from ..protocol import COUNTERFACTUAL, eval_seeds
 
     for suite in suites:
         for mode, perturb in ((m, p) for m in args.instruction for p in perturbs):
             job = EvalJob(perturb=perturb or None,
                 suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
                 label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
+                variants=args.variants if mode == COUNTERFACTUAL else None,
                 control_mode=args.control_mode, num_envs=args.num_envs,
                 sim_backend=GPU_SIM_BACKEND if args.num_envs > 1 else CPU_SIM_BACKEND, max_steps=max_steps,
                 env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
@@ -153,18 +195,29 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
             run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor)
 
 
+def _print_counterfactual(records: list[dict]) -> None:
+    """The follow / switch / stuck tables of counterfactual runs (nothing without them)."""
+    from ..counterfactual import counterfactual_table
+    from ..reporting.counterfactual import counterfactual_markdown
+
+    table = counterfactual_table(records)
+    if table:
+        print(counterfactual_markdown(table))
+
+
 def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.version import BENCHMARK_VERSION
-    from rsb_maniskill.workers import executor_from_args
+    from rsb_maniskill.workers_plan import executor_from_args, obs_mode_renders, resolve_workers
 
+    from ..jobs import JobError
     from ..policy import policy_spec
     from ..protocol import eval_seeds
-    from ..store import RECORDS_FILE, check_manifest, read_records
+    from ..store import RECORDS_FILE, RunStart, check_manifest, read_records
 
     suites = args.suites
-    for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-procs", args.num_procs or 1, 1),
-                             ("--num-envs", args.num_envs, 1), ("--videos", args.videos, 0)):
+    for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-envs", args.num_envs, 1),
+                             ("--videos", args.videos, 0)):
         if value < low:
             raise EvalError(f"{flag} must be >= {low}, got {value}")
     if args.max_steps is not None and args.max_steps < 1:
@@ -191,10 +244,14 @@ def _run_eval(args: argparse.Namespace) -> int:
     env_kwargs = parse_kv(args.env_arg, "--env-arg")
     check_env_args(env_kwargs, "use --perturb AXIS=LEVEL or --sweep AXIS (records carry them)")
     perturbs = perturbations(args.perturb, args.sweep)
+    check_variants(args.variants, args.instruction, suites)
     if args.data_dir:
         env_kwargs["data_dir"] = args.data_dir
     check_policy_spec(args.policy, args.num_envs)
-    check_data(suites, env_kwargs.get("data_dir"))
+    check_policy_args(args.policy, policy_kwargs)
+    obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
+    check_env_settings(suites, env_kwargs, obs_mode, args.control_mode)
+    check_data(suites, env_kwargs.get("data_dir"), env_kwargs.get("color_map"))
     if args.policy == "remote":
         from ..remote import check_remote_args
 
@@ -205,25 +262,30 @@ def _run_eval(args: argparse.Namespace) -> int:
 
     label = args.name or args.policy
     out = results_dir(args.out, label)
-    obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
     max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
     settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
                     control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs,
                     benchmark_version=BENCHMARK_VERSION, checkpoint=args.checkpoint)
-    check_manifest(out, label, settings, keys=MANIFEST_KEYS)
+    start = RunStart(out)  # taken back if the run fails before its first episode
+    note = check_manifest(out, label, settings, keys=MANIFEST_KEYS)
+    if note:
+        print(f"rsb eval: note: {note}", file=sys.stderr)
 
     records_path = out / RECORDS_FILE
     interrupted = False
     with contextlib.ExitStack() as stack:
-        num_procs = args.num_procs or 1
         if executor is not None:
             stack.enter_context(executor)  # a local Ray cluster lives for the whole run
-            num_procs = args.num_procs or executor.workers()
+        executor, num_procs = resolve_workers(args.num_procs, executor, obs_mode_renders(obs_mode) or args.videos > 0,
+                                              num_envs=args.num_envs, episodes=args.num_episodes)
         try:
             _run_jobs(args, suites, label, policy_kwargs, obs_mode, max_steps, env_kwargs, out, records_path,
                       num_procs, executor, perturbs)
         except KeyboardInterrupt:
             interrupted = True
+        except (PolicyError, JobError):
+            start.undo(label)
+            raise
 
     from rsb_maniskill.perturb import label as perturb_label
 
@@ -236,13 +298,20 @@ def _run_eval(args: argparse.Namespace) -> int:
     wanted = {(s, m, perturb_label(p)) for s in suites for m in args.instruction for p in perturbs}
     all_records = read_records(records_path)
     results = results_from_records(all_records)
+    asked = [r for r in all_records if r["policy"] == label
+             and (r["suite_id"], r["instruction_mode"], record_perturb(r)) in wanted]
+    n_run = sum(1 for r in asked if int(r["seed"]) - eval_seeds(r["suite_id"], 1)[0] < args.num_episodes
+                and int(r.get("variant", 0)) < episodes_per_scene(r["suite_id"], r["instruction_mode"], args.variants))
+    expected = sum(args.num_episodes * episodes_per_scene(s, m, args.variants) for s, m, _ in wanted)
+    partial = f"partial: interrupted, {n_run} of {expected} episodes" if interrupted else None
     if results:
-        paths = write_report(results, out, records=all_records)
-        page = write_html_report(out, records=all_records)
+        paths = write_report(results, out, records=all_records, partial=partial)
+        page = write_html_report(out, records=all_records, partial=partial)
         print(markdown_tables(results, BENCHMARK_VERSION))
         robust = robustness_table(all_records)
         if robust:
             print(robustness_markdown(robust))
+        _print_counterfactual(all_records)
         print(reasoning_markdown(reasoning_table(all_records)), end="")  # nothing unless a policy talked
         print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\n"
               f"results: {paths['results']}\nreport: {page}")
@@ -250,10 +319,10 @@ def _run_eval(args: argparse.Namespace) -> int:
         print(f"rsb eval: interrupted; finished episodes are in {records_path}. "
               "Rerun the same command to resume.", file=sys.stderr)
         return 130
-    n_run = sum(1 for r in all_records if r["policy"] == label
-                and (r["suite_id"], r["instruction_mode"], record_perturb(r)) in wanted
-                and int(r["seed"]) - eval_seeds(r["suite_id"], 1)[0] < args.num_episodes)
-    expected = len(wanted) * args.num_episodes
+    if len(asked) > n_run:  # the summary is of the whole folder: say what it holds beyond this run
+        print(f"rsb eval: note: the summary covers every record in {out}: {len(asked)} episodes of {label!r} on "
+              f"these suites, {len(asked) - n_run} more than this run's -n {args.num_episodes} (from an earlier, "
+              "longer run)", file=sys.stderr)
     if n_run != expected:
         print(f"rsb eval: warning: {n_run} of {expected} episodes recorded", file=sys.stderr)
         return 1

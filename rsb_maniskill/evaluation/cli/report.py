@@ -1,4 +1,4 @@
-"""`rsb report`: report.html and results.json of a results directory; two runs side by side.
+"""`rsb report`: report.html, results.json and the summaries of a results directory; two runs side by side.
 
     rsb report results/pi05                  # report.html, results.json
     rsb report vla_eval_out/                 # a `vla-eval run` of RSBBenchmark: also summary.*
@@ -20,13 +20,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     from ..store import RECORDS_FILE
 
     p = subparsers.add_parser(
-        "report", help="write report.html and results.json; --compare: two runs side by side",
-        description="Writes RESULTS_DIR/report.html (a self-contained page that opens from disk) and "
-                    f"RESULTS_DIR/results.json from RESULTS_DIR/{RECORDS_FILE} (an `rsb eval` output directory). "
+        "report", help="write report.html, results.json and summary.*; --compare: two runs side by side",
+        description="Writes RESULTS_DIR/report.html (a self-contained page that opens from disk), "
+                    f"RESULTS_DIR/results.json and the summaries (summary.md, .json, .csv, charts) from "
+                    f"RESULTS_DIR/{RECORDS_FILE} (an `rsb eval` output directory), all from the same records. "
                     "RESULTS_DIR may also be a `vla-eval run` output directory (or its *_aggregate.json) of "
                     "RSBBenchmark: then the paper's tables are printed and written to summary.* beside it too. "
                     "With --compare A B: the two runs' GSR / TSR / nSG per suite side by side, B - A, and whether "
-                    "their 95 %% intervals separate (Markdown). Records of two benchmark versions never pool.")
+                    "their 95 % intervals separate (Markdown). Records of two benchmark versions never pool.")
     p.add_argument("results_dir", metavar="RESULTS_DIR", nargs="?")
     p.add_argument("-o", "--out", default=None, help="page to write (default: RESULTS_DIR/report.html)")
     p.add_argument("--title", default=None, help="page title (default: the directory's name)")
@@ -52,10 +53,11 @@ def report_vla_eval(path: str | os.PathLike, out: str | os.PathLike | None = Non
 
 
 def run_report(args: argparse.Namespace) -> int:
-    from ..reporting.results import RESULTS_FILE, compare, load_results, write_results
+    from ..reporting.results import RESULTS_FILE, compare, load_results
+    from ..reporting.summary import results_from_records
     from ..reporting.vla_eval_results import is_vla_eval_results
-    from ..reporting.writer import ReportError, write_html_report
-    from ..store import RECORDS_FILE, read_records
+    from ..reporting.writer import ReportError, write_html_report, write_report
+    from ..store import RECORDS_FILE, read_manifest, read_records
 
     try:
         if args.compare:
@@ -69,9 +71,17 @@ def run_report(args: argparse.Namespace) -> int:
             src = Path(args.results_dir)
             results = (src if src.is_dir() else src.parent) / RESULTS_FILE
         else:
-            records = read_records(Path(args.results_dir) / RECORDS_FILE)
-            path = write_html_report(args.results_dir, args.out, records=records or None, title=args.title)
-            results = write_results(args.results_dir, records)
+            source = Path(args.results_dir) / RECORDS_FILE
+            records = read_records(source)
+            read_manifest(args.results_dir)  # a damaged run.json fails now, before anything is written
+            if not source.exists():
+                raise ReportError(f"{args.results_dir} has no {RECORDS_FILE}: give the --out directory of an "
+                                  "`rsb eval` run")
+            if not records:
+                raise ReportError(f"{source} holds no episode records yet")
+            # one pass: the summaries, results.json and the page, all from the same records
+            results = write_report(results_from_records(records), args.results_dir, records=records)["results"]
+            path = write_html_report(args.results_dir, args.out, records=records, title=args.title)
     except (ReportError, ValueError, OSError) as err:
         print(f"rsb report: error: {err}", file=sys.stderr)
         return 2

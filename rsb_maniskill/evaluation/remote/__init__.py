@@ -33,7 +33,7 @@ def check_remote_args(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:
     """Before any env is built: the ``remote`` policy's arguments for its protocol (ValueError, one line)."""
     protocol = policy_kwargs.get("protocol", "openpi")
     if protocol == "openpi":
-        from .openpi import check_remote_args as check_openpi
+        from .client import check_remote_args as check_openpi
 
         check_openpi(policy_kwargs, obs_mode)
     elif protocol == "vla-eval":

@@ -6,6 +6,7 @@ module holds the policy side of it: what a request carries and how a reply becom
 """
 from __future__ import annotations
 
+import inspect
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -30,6 +31,26 @@ def _text(value: Any, uri: str) -> str | None:
 
 
 # ---------------------------------------------------------------- client
+def check_remote_args(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:
+    """Before any env is built (``rsb eval remote``, openpi's protocol): the options, the preset's
+    arguments and the obs mode they need (``openpi.py``), and the server: reachable, and sending its
+    metadata, within ``connect_timeout`` (default 60 s). ValueError / ConnectionError, one line."""
+    from .openpi import check_preset_args
+
+    kwargs = {k: v for k, v in policy_kwargs.items() if k != "protocol"}
+    options = [name for name in inspect.signature(RemotePolicy).parameters if name != "obs_transform"]
+    unknown = sorted(set(kwargs) - set(options))
+    if unknown:
+        raise ValueError(f"-a {', '.join(unknown)}: not an option of the remote policy (openpi protocol; options: "
+                         f"{', '.join(options)})")
+    check_preset_args(kwargs, obs_mode)
+    try:
+        RemotePolicy(**kwargs).close()
+    except ConnectionError as err:
+        raise ConnectionError(f"{err}; start the policy server, or fix -a host / -a port (-a connect_timeout=S "
+                              "waits longer for one still loading)") from None
+
+
 class RemotePolicy:
     """A :class:`~rsb_maniskill.evaluation.policy.Policy` whose actions come from a websocket server.
 
@@ -46,7 +67,8 @@ class RemotePolicy:
         mark_episode_start: add ``"episode_start": True`` to the first request of each episode so
             that ``server.py``'s server resets the wrapped policy; off by default because other
             servers do not expect the key.
-        connect_timeout: seconds to keep retrying a refused connection (openpi's client waits forever).
+        connect_timeout: seconds to keep retrying a refused connection (openpi's client waits forever),
+            and to wait for the server's metadata once connected: ConnectionError, one line, after it.
         preset: ``"openpi-aloha"``: send openpi's Aloha keys and layout and read the reply as Aloha-layout
             actions (``openpi.py``); then ``image_size`` (default 224) sets the image size and
             ``action_horizon`` defaults to 10.
@@ -101,13 +123,19 @@ class RemotePolicy:
         self._ws, self.server_metadata = self._connect(connect_timeout)
 
     def _connect(self, timeout: float) -> tuple[Any, dict]:
+        """Connect and read the server's metadata, each within ``timeout`` s."""
         headers = {"Authorization": f"Api-Key {self.api_key}"} if self.api_key else None
         ws = open_websocket(self.uri, timeout, headers)
-        metadata = self._recv(ws)
+        try:
+            metadata = self._recv(ws, timeout)
+        except TimeoutError:
+            ws.close()
+            raise ConnectionError(f"{self.uri} accepted the connection but sent no metadata within {timeout:.0f} s: "
+                                  "not an openpi policy server? (a vla-eval one: -a protocol=vla-eval)") from None
         return ws, metadata
 
-    def _recv(self, ws: Any) -> Any:
-        msg = ws.recv(timeout=self.request_timeout)
+    def _recv(self, ws: Any, timeout: float | None = None) -> Any:
+        msg = ws.recv(timeout=self.request_timeout if timeout is None else timeout)
         if isinstance(msg, str):  # openpi servers send their traceback as text before closing
             raise RuntimeError(f"error in policy server {self.uri}:\n{msg}")
         return unpackb(msg)

@@ -205,7 +205,7 @@ def make_preset(name: str, **kwargs: Any) -> OpenpiAloha:
     return PRESETS[name](**kwargs)
 
 
-def check_remote_args(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:
+def check_preset_args(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:
     """Before any env is built: a ``remote`` policy's preset arguments and the obs mode they need."""
     if policy_kwargs.get("preset") is None:
         if policy_kwargs.get("image_size") is not None:

@@ -1,16 +1,19 @@
 """The page of ``rsb report``: one self-contained HTML page to browse an evaluation.
 
 The page holds the paper tables (the same Markdown as ``summary.md``), per-suite GSR / TSR / nSG
-bars with their Wilson intervals, the error analysis, and a filterable grid of episodes (policy,
-suite, instruction mode, outcome) whose cards show the instruction, the correct and the grasped
-candidate, and the first and last frames of the episode's video when one was recorded (click to
-play it from ``videos/``). Styles, script, data and thumbnails are inline: it opens from disk,
-with no server and no network. Everything is computed from ``episodes.jsonl`` with the functions
+bars with their Wilson intervals, the error analysis (per suite, and Table 7 pooled), the
+per-category and bias tables with their charts, and a filterable grid of episodes (policy, suite,
+instruction mode, outcome) whose cards show the episode's categories, the instruction (a button
+shows a cut one whole), the correct and the grasped candidate, and the first and last frames of the
+episode's video when one was recorded (a click opens a frame at full resolution with the whole
+instruction; the video plays from ``videos/``). Styles, script, data and frames are inline: it
+opens from disk, with no server and no network. Everything is computed from ``episodes.jsonl`` with the functions
 of ``metrics.py`` and ``summary.py``, so the page and the summary files always agree; the line under
 the title names the benchmark version (records of two never share a page) and the code.
 
 Here the page's data is computed; its markup, styles and script are the Jinja templates of
-``templates/`` (``report.html.j2`` includes ``report.css`` and ``report.js``), rendered with
+``templates/`` (``report.html.j2`` includes ``report.css`` and ``report.js``, and draws the bias
+charts with the macro of ``bias_chart.html.j2``), rendered with
 autoescape: the fragments built here (SVG bars, tables from Markdown, the JSON data) are Markup.
 ``writer.write_html_report`` writes the file.
 """
@@ -28,15 +31,21 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from markupsafe import Markup
 
-from ..metrics import OUTCOMES, SuiteMetrics, average, outcome
-from ..records import INSTRUCTION_MODES, dedupe, one_version, record_row
+from ..metrics import OUTCOMES, SuiteMetrics, average, outcome, suite_order
+from ..records import CATEGORIES_FIELD, EVAL_INSTRUCTION_MODES, dedupe, one_version, record_row
 from ..store import BACKBONE_FILE, read_backbone_records, read_manifest
+from .categories import SMALL_MARK
 from .cells import pct
-from .summary import markdown_tables, results_from_records, suite_columns
+from .summary import ERRORS_HEADING, markdown_tables, results_from_records, suite_columns
 
 TEMPLATES = "evaluation/reporting/templates"  # package data of rsb_maniskill
 PAGE_TEMPLATE = "report.html.j2"
-THUMB_WIDTH = 240
+# Video frames are kept at the video's own resolution (ManiSkill's 512 x 512 render camera): the
+# cards show them small, a click opens one at full size, where the 10-choice blocks' letters can
+# be read. At JPEG quality 75 that is ~20 kB a frame (~55 kB per filmed episode in the page, 3x
+# a 240-pixel thumbnail); wider videos are scaled down to FRAME_MAX_WIDTH.
+FRAME_MAX_WIDTH = 640
+FRAME_QUALITY = 75
 OUTCOME_LABELS = {"success": "success", "not_placed": "not placed", "wrong_target": "wrong target",
                   "no_grasp": "no grasp"}
 OUTCOME_COLORS = {"success": "#2ca02c", "not_placed": "#e6a100", "wrong_target": "#d62728", "no_grasp": "#8c8c8c"}
@@ -57,8 +66,19 @@ def _candidate(spec: Mapping[str, Any] | None, block: int) -> dict[str, Any] | N
     return {"letter": spec["letters"][slot], "option": str(spec["options"][slot]), "block": spec["block_names"][block]}
 
 
-def video_thumbnails(path: Path, width: int = THUMB_WIDTH) -> tuple[str, str] | None:
-    """First and last frame of a video as JPEG data URIs, or None when it cannot be read."""
+def _kinds(record: Mapping[str, Any]) -> list[str]:
+    """The record's categories as short card tags: ``["times", "answer 3 digits", "template 21"]``."""
+    from rsb_maniskill.semantic import categories as cat
+
+    tag = {cat.STEPS: "{} steps", cat.ANSWER_SIZE: "answer {}"}
+    cats = record.get(CATEGORIES_FIELD) or {}
+    return [tag.get(d, "{}").format(cat.value_label(d, str(cats[d]))) for d in cat.DIMENSIONS
+            if d in cats and d != cat.SUITE_KIND]
+
+
+def video_thumbnails(path: Path, max_width: int = FRAME_MAX_WIDTH) -> tuple[str, str] | None:
+    """First and last frame of a video as JPEG data URIs at the video's resolution (at most
+    ``max_width`` wide), or None when it cannot be read."""
     import cv2
 
     cap = cv2.VideoCapture(str(path))
@@ -76,17 +96,23 @@ def video_thumbnails(path: Path, width: int = THUMB_WIDTH) -> tuple[str, str] | 
 
     def uri(frame: Any) -> str:
         h, w = frame.shape[:2]
-        small = cv2.resize(frame, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
-        ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, 80])
+        if w > max_width:
+            frame = cv2.resize(frame, (max_width, max(1, round(h * max_width / w))), interpolation=cv2.INTER_AREA)
+        ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, FRAME_QUALITY])
         return "data:image/jpeg;base64," + base64.b64encode(buf.tobytes()).decode("ascii")
 
     return uri(first), uri(last)
 
 
 def episode_cards(records: Iterable[Mapping[str, Any]], results_dir: Path) -> list[dict[str, Any]]:
-    """One plain dict per episode with what its card shows (thumbnails read from ``videos/``)."""
+    """One plain dict per episode with what its card shows (thumbnails read from ``videos/``), row
+    by row, suite by suite, in seed order (workers write records in the order episodes finish)."""
+    records = list(records)
+    rows = {label: i for i, label in enumerate(dict.fromkeys(record_row(r) for r in records))}
+    suites = {s: i for i, s in enumerate(suite_order({r["suite_id"] for r in records}))}
     cards = []
-    for r in records:
+    for r in sorted(records, key=lambda r: (rows[record_row(r)], suites[r["suite_id"]], int(r["seed"]),
+                                            int(r.get("variant") or 0))):
         spec = r.get("episode")
         video = r.get("video")
         thumbs = None
@@ -101,10 +127,13 @@ def episode_cards(records: Iterable[Mapping[str, Any]], results_dir: Path) -> li
             "outcome": outcome(r),
             "instruction": r.get("instruction", ""),
             "donor_seed": r.get("donor_seed"),
+            "variant": r.get("variant"), "variant_kind": r.get("variant_kind"),  # counterfactual scenes
             "correct": _candidate(spec, r.get("target_block", -1)),
             "grasped": _candidate(spec, r.get("first_grasped", -1)),
             "steps": r.get("steps"),
             "said": r.get("text"),  # a talking policy's text, and the option it states
+            "said_chars": r.get("text_chars"),  # its length before the record's cut
+            "kinds": _kinds(r),  # what kind of episode (categories), as tags
             "stated": r.get("stated_letter") if "stated_letter" in r else None,
             "video": f"videos/{video}" if thumbs else None,
             "thumbs": list(thumbs) if thumbs else None,
@@ -165,6 +194,12 @@ def _inline(text: str) -> str:
     return re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", text)
 
 
+def _body_row(cells: Sequence[str]) -> str:
+    # a line marked with the small-cell dagger is greyed: shown, never hidden
+    attr = ' class="small"' if any(SMALL_MARK in c for c in cells) else ""
+    return f"<tr{attr}>" + "".join(f"<td>{_inline(c)}</td>" for c in cells) + "</tr>"
+
+
 def markdown_to_html(md: str) -> Markup:
     """The subset ``summary.markdown_tables`` writes: ``###`` headings, pipe tables, paragraphs."""
     out, table = [], []
@@ -175,8 +210,7 @@ def markdown_to_html(md: str) -> Markup:
         rows = [[c for c in line.strip().strip("|").split("|")] for line in table]
         head, body = rows[0], [r for r in rows[2:]]
         out.append('<div class="scroll"><table><thead><tr>' + "".join(f"<th>{_inline(c)}</th>" for c in head)
-                   + "</tr></thead><tbody>" + "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>"
-                                                      for r in body) + "</tbody></table></div>")
+                   + "</tr></thead><tbody>" + "".join(_body_row(r) for r in body) + "</tbody></table></div>")
         table.clear()
 
     for line in md.splitlines():
@@ -194,8 +228,9 @@ def markdown_to_html(md: str) -> Markup:
 
 # ---------------------------------------------------------------- page
 @lru_cache(maxsize=1)
-def _templates() -> Any:
-    """The Jinja environment of the page's templates (jinja2 imported on first use)."""
+def templates() -> Any:
+    """The Jinja environment of reporting's templates (report.html, the leaderboard's index.html;
+    jinja2 imported on first use)."""
     from jinja2 import Environment, PackageLoader, select_autoescape
 
     # keep_trailing_newline: the included CSS and script end with their own newline
@@ -253,6 +288,23 @@ def _reasoning(records: Sequence[Mapping[str, Any]]) -> Markup | None:
     return markdown_to_html(reasoning_markdown(table)) if table else None
 
 
+def _categories(records: Sequence[Mapping[str, Any]]) -> Markup:
+    """The per-category tables (a note when the records carry no categories)."""
+    from ..categories import category_tables
+    from .categories import categories_markdown
+
+    return markdown_to_html(categories_markdown(category_tables(records)))
+
+
+def _bias(records: Sequence[Mapping[str, Any]]) -> tuple[Markup | None, list[dict[str, Any]]]:
+    """The bias tables, and what the page draws of them (a bar chart per row, suite and axis)."""
+    from ..bias import bias_table
+    from .bias import bias_markdown, bias_plots
+
+    table = bias_table(records)
+    return (markdown_to_html(bias_markdown(table)) if table else None), bias_plots(table)
+
+
 def _gap(records: Sequence[Mapping[str, Any]], results_dir: Path) -> tuple[Markup | None, str | None]:
     """The semantic gap's tables and plot (a backbone's answers beside the policy's actions, ``rsb
     backbone``), or (None, None) when the directory holds no answers."""
@@ -266,6 +318,18 @@ def _gap(records: Sequence[Mapping[str, Any]], results_dir: Path) -> tuple[Marku
     return markdown_to_html(backbone_markdown(answers) + "\n" + gap_markdown(table)), plot
 
 
+def _counterfactual(records: Sequence[Mapping[str, Any]]) -> tuple[Markup | None, str | None]:
+    """The counterfactual-scenes tables and plot (``rsb eval --instruction counterfactual``), or
+    (None, None) when the records hold none."""
+    from ..counterfactual import counterfactual_table
+    from .counterfactual import counterfactual_markdown, plot_counterfactual_uri
+
+    table = counterfactual_table(records)
+    if not table:
+        return None, None
+    return markdown_to_html(counterfactual_markdown(table)), plot_counterfactual_uri(table)
+
+
 def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: str | None = None) -> str:
     """The report page for ``records`` (episode files of ``results_dir`` feed the thumbnails)."""
     from rsb_maniskill.version import benchmark_label, code_label
@@ -275,18 +339,24 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
     cards = episode_cards(records, results_dir)
     suites = suite_columns(results)
     policies = list(dict.fromkeys(c["policy"] for c in cards))
-    modes = [m for m in INSTRUCTION_MODES if any(c["mode"] == m for c in cards)]
+    modes = [m for m in EVAL_INSTRUCTION_MODES if any(c["mode"] == m for c in cards)]
     filters = [("policy", "Policy", policies, {}), ("suite", "Suite", suites, {}),
                ("mode", "Instruction", modes, {}), ("outcome", "Outcome", list(OUTCOMES), OUTCOME_LABELS)]
     gap, gap_plot = _gap(records, results_dir)
-    return _templates().get_template(PAGE_TEMPLATE).render(
+    counterfactual, counterfactual_plot = _counterfactual(records)
+    paper, _, pooled_errors = markdown_tables(results).partition(ERRORS_HEADING)  # Table 7 joins #errors
+    pooled_errors = ERRORS_HEADING + pooled_errors
+    bias, bias_charts = _bias(records)
+    return templates().get_template(PAGE_TEMPLATE).render(
         title=title or f"RSB evaluation: {results_dir.resolve().name}",
         version=benchmark_label(one_version(records) or ""), n_episodes=len(cards), n_rows=len(results),
         n_suites=len(suites), n_videos=sum(1 for c in cards if c["video"]), code=code_label(),
         stamp=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         rows=_summary_rows(results, {c["row"]: c["policy"] for c in cards}, read_manifest(results_dir)),
-        tables=markdown_to_html(markdown_tables(results)), robustness=_robustness(records),
+        tables=markdown_to_html(paper), pooled_errors=markdown_to_html(pooled_errors), robustness=_robustness(records),
+        categories=_categories(records), bias=bias, bias_charts=bias_charts,
         reasoning=_reasoning(records), gap=gap, gap_plot=gap_plot, errors=_error_rows(results),
+        counterfactual=counterfactual, counterfactual_plot=counterfactual_plot,
         outcomes=OUTCOMES, colors=OUTCOME_COLORS, labels=OUTCOME_LABELS,
         filters=[{"key": key, "name": name, "options": options, "labels": labels}
                  for key, name, options, labels in filters],

@@ -18,11 +18,12 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from ..metrics import PAPER_SUITES, Rate, SuiteMetrics, average, summarize
-from ..records import dedupe, one_version, perturb_label, row_label
+from ..records import COUNTERFACTUAL, dedupe, one_version, perturb_label, row_label
 from ..store import RECORDS_FILE, read_manifest, read_records
 from .cells import NA, ci, delta, pct
 
 RESULTS_FILE = "results.json"
+METRIC_NAMES = {"gsr": "GSR", "tsr": "TSR", "nsg": "nSG"}  # as the paper and every table write them
 SCHEMA_FILE = Path(__file__).with_name("results.schema.json")
 SCHEMA_ID = "rsb-ms-results"
 SCHEMA_VERSION = 1
@@ -53,6 +54,8 @@ def results_document(records: Iterable[Mapping[str, Any]], runs: Mapping[str, Ma
     version = one_version(records)
     groups: dict[tuple[str, str, str], list[Mapping[str, Any]]] = defaultdict(list)
     for r in records:
+        if r.get("instruction_mode") == COUNTERFACTUAL:  # a diagnosis, not a score: summary.json's counterfactual
+            continue
         groups[(str(r.get("policy", "?")), r.get("instruction_mode", "normal"), perturb_label(r))].append(r)
     rows = []
     for (policy, mode, perturb), recs in groups.items():
@@ -142,15 +145,15 @@ def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] =
         lines = ["| Suite | Metric | A (n) | B (n) | B - A | Intervals |", "|---|---|:---:|:---:|:---:|:---:|"]
         for suite in [s for s in ra["suites"] if s in rb["suites"]]:
             sa, sb = ra["suites"][suite], rb["suites"][suite]
-            for key in ("gsr", "tsr", "nsg"):
+            for key in METRIC_NAMES:
                 x, y = sa[key], sb[key]
                 diff = delta(y["value"], x["value"])
                 sep = {None: NA, True: "separate", False: "overlap"}[separate(x, y)]
-                lines.append(f"| {suite} | {key.upper()} | {_ci(x)} ({sa['n']}) | {_ci(y)} ({sb['n']}) | {diff} | "
-                             f"{sep} |")
-        for key in ("gsr", "tsr", "nsg"):
+                lines.append(f"| {suite} | {METRIC_NAMES[key]} | {_ci(x)} ({sa['n']}) | {_ci(y)} ({sb['n']}) | "
+                             f"{diff} | {sep} |")
+        for key in METRIC_NAMES:
             x, y = ra["average"][key], rb["average"][key]
-            lines.append(f"| Avg | {key.upper()} | {pct(x)} | {pct(y)} | {delta(y, x)} | |")
+            lines.append(f"| Avg | {METRIC_NAMES[key]} | {pct(x)} | {pct(y)} | {delta(y, x)} | |")
         only = sorted(set(ra["suites"]) ^ set(rb["suites"]))
         note = f"\n\nIn one run only: {', '.join(only)}." if only else ""
         out.append(f"### {ra['row']} (A) vs {rb['row']} (B), %\n\n" + "\n".join(lines) + note)

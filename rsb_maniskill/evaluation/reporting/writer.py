@@ -9,6 +9,7 @@ appends the sections the records call for: robustness (``robustness.py``), reaso
 from __future__ import annotations
 
 import csv
+import html
 import json
 import os
 from pathlib import Path
@@ -29,14 +30,19 @@ class ReportError(RuntimeError):
 
 
 def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summary",
-                 records: Iterable[Mapping[str, Any]] | None = None) -> dict[str, Path]:
+                 records: Iterable[Mapping[str, Any]] | None = None, partial: str | None = None) -> dict[str, Path]:
     """Write ``<stem>.json``, ``<stem>.csv``, ``<stem>.md`` and one ``<stem>_<row>.png`` per row,
     each naming the benchmark version (of ``records``, else this code's); with ``records``, also
     ``results.json`` (``results.py``); when they hold perturbed episodes, the robustness tables go
     into the JSON (``robustness``) and the Markdown too; with records of a policy that talks, Table 5
     goes into them (``reasoning_following``) and into ``<stem>_reasoning.csv``; with ``rsb backbone``
     answers in ``out_dir``, the backbone's accuracy and the semantic gap (``backbone``,
-    ``<stem>_gap.csv``, ``<stem>_gap.png``)."""
+    ``<stem>_gap.csv``, ``<stem>_gap.png``); with records, the per-category and bias tables
+    (``categories``, ``bias``, ``<stem>_categories.csv``, ``<stem>_bias.csv``);
+    with counterfactual-scene records, the follow / switch /
+    stuck rates (``counterfactual``, ``<stem>_counterfactual.csv``, ``<stem>_counterfactual.png``).
+    ``partial`` (a run stopped before its end: ``"partial: interrupted, 12 of 30 episodes"``) heads
+    the Markdown and is the JSON's ``partial``."""
     from rsb_maniskill.version import BENCHMARK_VERSION
 
     out = Path(out_dir)
@@ -48,6 +54,8 @@ def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summ
         "csv": write_csv(results, out / f"{stem}.csv", version),
         "markdown": write_markdown(results, out / f"{stem}.md", version),
     }
+    if partial:
+        mark_partial(paths, partial)
     if records:
         paths["results"] = write_results(out, records)
     table = robustness_table(records)
@@ -58,6 +66,8 @@ def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summ
         append_section(paths, "reasoning_following", reasoning_json(reasoning), reasoning_markdown(reasoning))
         paths["csv:reasoning"] = write_rows(reasoning_rows(reasoning), out / f"{stem}_reasoning.csv")
     paths.update(_write_gap(paths, out, stem, records))
+    paths.update(_write_why(paths, out, stem, records))
+    paths.update(_write_counterfactual(paths, out, stem, records))
     for label, row in results.items():
         if row:
             png = out / f"{stem}_{safe_name(label)}.png"
@@ -82,6 +92,55 @@ def _write_gap(paths: Mapping[str, Path], out: Path, stem: str, records: Sequenc
     return {"csv:gap": write_rows(gap_rows(table[0]), out / f"{stem}_gap.csv"), "png:gap": png}
 
 
+def _write_why(paths: Mapping[str, Path], out: Path, stem: str, records: Sequence[Mapping[str, Any]]
+               ) -> dict[str, Path]:
+    """Why a policy fails: the per-category tables (``categories``, ``<stem>_categories.csv``; a
+    note instead when the records carry no categories) and the bias tables (``bias``,
+    ``<stem>_bias.csv``)."""
+    from ..bias import bias_table
+    from ..categories import category_tables
+    from .bias import bias_json, bias_markdown, bias_rows
+    from .categories import categories_json, categories_markdown, categories_rows
+
+    if not records:
+        return {}
+    tables = category_tables(records)
+    append_section(paths, "categories", categories_json(tables), categories_markdown(tables))
+    bias = bias_table(records)
+    append_section(paths, "bias", bias_json(bias), bias_markdown(bias))
+    written = {"csv:bias": write_rows(bias_rows(bias), out / f"{stem}_bias.csv")}
+    rows = categories_rows(tables)
+    if rows:
+        written["csv:categories"] = write_rows(rows, out / f"{stem}_categories.csv")
+    return written
+
+
+def _write_counterfactual(paths: Mapping[str, Path], out: Path, stem: str, records: Sequence[Mapping[str, Any]]
+                          ) -> dict[str, Path]:
+    """The counterfactual section when the records hold ``--instruction counterfactual`` runs: the
+    summary's ``counterfactual`` section, ``<stem>_counterfactual.csv`` and ``.png``."""
+    from ..counterfactual import counterfactual_json, counterfactual_table
+    from .counterfactual import counterfactual_markdown, counterfactual_rows, plot_counterfactual
+
+    table = counterfactual_table(records)
+    if not table:
+        return {}
+    append_section(paths, "counterfactual", counterfactual_json(table), counterfactual_markdown(table))
+    png = out / f"{stem}_counterfactual.png"
+    png.write_bytes(plot_counterfactual(table))
+    return {"csv:counterfactual": write_rows(counterfactual_rows(table), out / f"{stem}_counterfactual.csv"),
+            "png:counterfactual": png}
+
+
+def mark_partial(paths: Mapping[str, Path], partial: str) -> None:
+    """Say on the summaries that they cover part of the run asked for: the JSON's ``partial``, the
+    Markdown's first line."""
+    summary = json.loads(paths["json"].read_text(encoding="utf-8"))
+    paths["json"].write_text(json.dumps({"partial": partial, **summary}, indent=2) + "\n", encoding="utf-8")
+    paths["markdown"].write_text(f"**{partial}**\n\n" + paths["markdown"].read_text(encoding="utf-8"),
+                                 encoding="utf-8")
+
+
 def append_section(paths: Mapping[str, Path], key: str, data: Any, markdown: str) -> None:
     """Add ``data`` under ``key`` to the summary JSON and ``markdown`` to the end of its Markdown."""
     summary = json.loads(paths["json"].read_text(encoding="utf-8"))
@@ -103,8 +162,10 @@ def write_rows(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> Pa
 
 
 def write_html_report(results_dir: str | os.PathLike, out: str | os.PathLike | None = None,
-                      records: Sequence[Mapping[str, Any]] | None = None, title: str | None = None) -> Path:
-    """Write ``report.html`` for the episodes of ``results_dir`` (or ``records``); returns its path."""
+                      records: Sequence[Mapping[str, Any]] | None = None, title: str | None = None,
+                      partial: str | None = None) -> Path:
+    """Write ``report.html`` for the episodes of ``results_dir`` (or ``records``); returns its path.
+    ``partial`` (as :func:`write_report`'s) is shown under the page's title."""
     from .page import build_html
 
     results_dir = Path(results_dir)
@@ -116,6 +177,8 @@ def write_html_report(results_dir: str | os.PathLike, out: str | os.PathLike | N
         raise ReportError(f"{results_dir / RECORDS_FILE} holds no episode records yet")
     path = Path(out) if out is not None else results_dir / REPORT_FILE
     page = build_html(records, results_dir, title)
+    if partial:  # under the title, before the page's own line
+        page = page.replace("</h1>", f'</h1><p class="meta"><b>{html.escape(partial)}</b></p>', 1)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     tmp.write_text(page, encoding="utf-8")
     os.replace(tmp, path)  # a reader never sees half a page

@@ -1,0 +1,247 @@
+"""Does a policy favour a place or a candidate, whatever the question?
+
+A policy that ignores the question but always goes for the leftmost block, or the red one, has a
+TSR at chance like a policy that picks at random; these tables tell the two apart. Over the
+episodes with a grasp, the *first* grasped candidate is counted by
+
+- ``position``: its rank from the left as the head camera sees the table (``positions.py``; the
+  records' ``left_rank``);
+- ``candidate``: which candidate it is (``spec.block_names``): the colour of a 4-choice block,
+  the letter of a 10-choice block, the category of an everyday object;
+- ``letter``: the option letter bound to it; left out when it always names the same candidate
+  (the fixed colour map binds option A to the red block in every episode, and the 10 lettered
+  blocks carry their option letter), since it is then the candidate axis again,
+
+against what a choice blind to that axis gives (the layout and the option binding do not depend
+on the answer): each candidate of an episode has 1/N of its grasp, so every position and letter
+expects 1/N of the grasps, and an object category its share of the candidates. A chi-square
+goodness-of-fit test (``scipy.stats.chisquare``; its p simulated where counts are small) gives the
+p-value, and each row a one-line verdict. Pure functions of records.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from typing import Any, Iterable, Mapping, Sequence
+
+from rsb_maniskill.objects.family import split_env_id
+
+from .metrics import group_by_suite, num_choices, suite_order
+from .records import LEFT_RANK_FIELD, dedupe, record_row
+
+POSITION, CANDIDATE, LETTER = "position", "candidate", "letter"
+AXES: dict[str, str] = {POSITION: "position", CANDIDATE: "candidate", LETTER: "option letter"}
+MIN_GRASPS = 20  # fewer first grasps: shown, not tested
+# A verdict calls a preference below this p-value. A report makes up to 3 tests per policy row and
+# suite (18 on the six paper suites): at 0.05 a policy without any preference would be called
+# biased somewhere in most reports.
+ALPHA = 0.01
+MIN_EXPECTED = 5.0  # a category expecting fewer grasps: p by simulation, not the chi-square law (Cochran's rule)
+MC_DRAWS, MC_SEED = 20_000, 0xB1A5  # that simulation: p resolves to 1 / 20,001, the same on every run
+
+
+def position_label(rank: int, n: int) -> str:
+    """``"leftmost"``, ``"2nd from left"``, ..., ``"rightmost"``."""
+    if rank == 0:
+        return "leftmost"
+    if rank == n - 1:
+        return "rightmost"
+    k = rank + 1
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix} from left"
+
+
+def position_column(rank: int, n: int) -> str:
+    """A table's column of a position: ``"1 (leftmost)"``, ``"2"``, ..., ``"10 (rightmost)"``."""
+    return f"{rank + 1} ({position_label(rank, n)})" if rank in (0, n - 1) else str(rank + 1)
+
+
+def p_text(p: float | None) -> str:
+    """``"p < 0.001"``, ``"p = 0.004"``, ``"p = 0.42"``."""
+    if p is None:
+        return "p n/a"
+    if p < 0.001:
+        return "p < 0.001"
+    return f"p = {p:.3f}" if p < 0.01 else f"p = {p:.2f}"
+
+
+def chi_square(observed: Sequence[float], expected: Sequence[float]) -> tuple[float | None, float | None]:
+    """(statistic, p) of the goodness of fit of ``observed`` counts to ``expected`` (scaled to the
+    same total; categories expecting none are left out); (None, None) with fewer than
+    :data:`MIN_GRASPS` counts or fewer than two categories. Where a category expects fewer than
+    :data:`MIN_EXPECTED` (10 candidates and under 50 grasps; everyday objects) the chi-square law
+    is a loose fit, so p is read off the statistic's own law instead: :data:`MC_DRAWS` multinomial
+    draws under the expected shares, from a fixed seed (the same records, the same p)."""
+    import numpy as np
+    from scipy.stats import chisquare
+
+    obs, exp = np.asarray(observed, dtype=float), np.asarray(expected, dtype=float)
+    keep = exp > 0
+    obs, exp = obs[keep], exp[keep]
+    n = int(round(obs.sum()))
+    if n < MIN_GRASPS or len(obs) < 2:
+        return None, None
+    exp = exp * n / exp.sum()
+    stat, p = chisquare(obs, exp)
+    if (exp < MIN_EXPECTED).any():
+        draws = np.random.default_rng(MC_SEED).multinomial(n, exp / n, size=MC_DRAWS)
+        stats = ((draws - exp) ** 2 / exp).sum(axis=1)
+        p = (1 + int((stats >= stat * (1 - 1e-9)).sum())) / (MC_DRAWS + 1)
+    return float(stat), float(p)
+
+
+@dataclass(frozen=True)
+class Preference:
+    """The first grasps of one policy row on one suite along one axis, against a blind choice."""
+
+    axis: str
+    labels: tuple[str, ...]  # categories, in table order
+    phrases: tuple[str, ...]  # how a verdict names each: "the leftmost block", "the red block", "option A"
+    observed: tuple[int, ...]
+    expected: tuple[float, ...]  # grasps a choice blind to this axis would give each (same total)
+    chi2: float | None
+    p: float | None
+
+    @property
+    def n(self) -> int:
+        return sum(self.observed)
+
+    @property
+    def uniform(self) -> bool:
+        """Every category expects the same share (positions, letters, blocks)."""
+        return max(self.expected) - min(self.expected) < 1e-9 * max(1.0, max(self.expected))
+
+    @property
+    def preferred(self) -> int:
+        """Index of the category most over its expected count (Pearson residual)."""
+        return max(range(len(self.labels)),
+                   key=lambda i: (self.observed[i] - self.expected[i]) / max(self.expected[i], 1e-9) ** 0.5)
+
+    @property
+    def significant(self) -> bool:
+        return self.p is not None and self.p < ALPHA
+
+    def verdict(self) -> str:
+        """One line: ``prefers the leftmost block: 41 % of grasps, expected 25 %, p < 0.001``."""
+        if self.p is None:
+            return f"too few grasps to test (n = {self.n})"
+        if not self.significant:
+            return f"no preference detected ({p_text(self.p)})"
+        i = self.preferred
+        return (f"prefers {self.phrases[i]}: {100 * self.observed[i] / self.n:.0f} % of grasps, "
+                f"expected {100 * self.expected[i] / self.n:.0f} %, {p_text(self.p)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "n": self.n, "verdict": self.verdict(), "significant": self.significant}
+
+
+def preference(axis: str, observed: Mapping[str, int], expected: Mapping[str, float],
+               phrases: Mapping[str, str], order: Sequence[str]) -> Preference:
+    """A :class:`Preference` over the categories ``order`` (counts default to 0), tested."""
+    obs = tuple(int(observed.get(k, 0)) for k in order)
+    exp = tuple(float(expected.get(k, 0.0)) for k in order)
+    chi2, p = chi_square(obs, exp)
+    return Preference(axis, tuple(order), tuple(phrases[k] for k in order), obs, exp, chi2, p)
+
+
+@dataclass(frozen=True)
+class SuiteBias:
+    """One policy row on one suite: how many first grasps were counted, and each axis tested."""
+
+    suite_id: str
+    n_choices: int
+    n_episodes: int
+    n_grasped: int  # episodes with a first grasp: the grasps counted
+    axes: dict[str, Preference]
+    missing: dict[str, str] = field(default_factory=dict)  # axis -> why the records cannot give it
+    letter_is_candidate: bool = False  # each option letter always named the same candidate
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"suite_id": self.suite_id, "n_choices": self.n_choices, "n_episodes": self.n_episodes,
+                "n_grasped": self.n_grasped, "axes": {k: v.to_dict() for k, v in self.axes.items()},
+                "missing": dict(self.missing), "letter_is_candidate": self.letter_is_candidate}
+
+
+def axis_title(axis: str, suite_id: str) -> str:
+    """What an axis counts on a suite: ``"position (left to right)"``, ``"colour"``, ``"letter
+    block"``, ``"object category"``, ``"option letter"``."""
+    if axis == POSITION:
+        return "position (left to right, head camera)"
+    if axis == CANDIDATE:
+        if split_env_id(suite_id)[1] != "blocks":
+            return "object category"
+        return "letter block" if num_choices(suite_id) == 10 else "colour"
+    return AXES[axis]
+
+
+def _noun(spec: Mapping[str, Any]) -> str:
+    return "object" if spec.get("targets") == "objects" else "block"
+
+
+def _name_phrase(name: str) -> str:
+    """"the red block", "block F", "the mug" (as the instructions name candidates)."""
+    return name if name.startswith("block ") else f"the {name}"
+
+
+def _position_phrase(rank: int, n: int, noun: str) -> str:
+    label = position_label(rank, n)
+    return f"the {label} {noun}" if rank in (0, n - 1) else f"the {noun} {label}"
+
+
+def suite_bias(records: Sequence[Mapping[str, Any]], suite_id: str) -> SuiteBias:
+    """The bias of the records of one policy row on one suite."""
+    n = num_choices(suite_id)
+    grasped = [r for r in records if int(r.get("first_grasped", -1)) >= 0]
+    counts: dict[str, Counter] = {a: Counter() for a in AXES}
+    expect: dict[str, Counter] = {a: Counter() for a in AXES}
+    phrases: dict[str, dict[str, str]] = {a: {} for a in AXES}
+    first_index: dict[str, int] = {}  # candidate name -> lowest candidate index it had (table order)
+    bindings: set[tuple[str, str]] = set()
+    missing: dict[str, str] = {}
+    n_ranked = sum(1 for r in grasped if r.get(LEFT_RANK_FIELD))
+    n_spec = sum(1 for r in grasped if r.get("episode"))
+    for r in grasped:
+        g = int(r["first_grasped"])
+        spec = r.get("episode") or {}
+        noun = _noun(spec)
+        ranks = r.get(LEFT_RANK_FIELD)
+        if ranks and n_ranked == len(grasped):
+            counts[POSITION][position_column(int(ranks[g]), n)] += 1
+            for k in range(n):
+                expect[POSITION][position_column(k, n)] += 1 / n
+                phrases[POSITION][position_column(k, n)] = _position_phrase(k, n, noun)
+        if spec and n_spec == len(grasped):
+            names, letters, boo = spec["block_names"], spec["letters"], list(spec["block_of_option"])
+            counts[CANDIDATE][names[g]] += 1
+            counts[LETTER][letters[boo.index(g)]] += 1
+            for slot, b in enumerate(boo):
+                expect[CANDIDATE][names[b]] += 1 / n
+                expect[LETTER][letters[slot]] += 1 / n
+                phrases[CANDIDATE][names[b]] = _name_phrase(names[b])
+                phrases[LETTER][letters[slot]] = f"option {letters[slot]}"
+                first_index[names[b]] = min(first_index.get(names[b], b), b)
+                bindings.add((names[b], letters[slot]))
+    if grasped and n_ranked < len(grasped):
+        missing[POSITION] = f"{len(grasped) - n_ranked} of {len(grasped)} records without left-to-right ranks"
+    if grasped and n_spec < len(grasped):
+        missing[CANDIDATE] = missing[LETTER] = f"{len(grasped) - n_spec} of {len(grasped)} records without their spec"
+    one_to_one = len({a for a, _ in bindings}) == len(bindings) == len({b for _, b in bindings})
+    orders = {POSITION: [position_column(k, n) for k in range(n)],
+              CANDIDATE: sorted(first_index, key=lambda k: (first_index[k], k)),
+              LETTER: sorted(expect[LETTER])}
+    axes = {a: preference(a, counts[a], expect[a], phrases[a], orders[a]) for a in AXES
+            if expect[a] and not (a == LETTER and one_to_one)}
+    return SuiteBias(suite_id, n, len(records), len(grasped), axes, missing, bool(bindings) and one_to_one)
+
+
+def bias_table(records: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, SuiteBias]]:
+    """{row label: {suite: its bias}} for every row of ``records`` (deduplicated), suites in the
+    paper's order."""
+    rows: dict[str, list[Mapping[str, Any]]] = {}
+    for r in dedupe(records):
+        rows.setdefault(record_row(r), []).append(r)
+    out = {}
+    for label, recs in rows.items():
+        groups = group_by_suite(recs)
+        out[label] = {s: suite_bias(groups[s], s) for s in suite_order(groups)}
+    return out

@@ -1,0 +1,200 @@
+"""Counterfactual scenes, over records: does the policy's choice follow the instruction?
+
+``rsb eval --instruction counterfactual`` runs K variants of every protocol scene (same seed,
+layout and candidates; the answer on a different candidate in each, ``semantic/counterfactual.py``).
+Its records carry ``variant``, ``variant_kind``, the variant's ``target_block`` and what was
+grasped first, ``first_grasped`` (-1: nothing). Over them, per suite and pooled:
+
+- **follow rate** = variants whose grasped candidate is the variant's target / variants with a
+  grasp (``follow``); also over all variants (``follow_all``: a variant without a grasp counts as
+  not followed), and per kind (remap: the binding moved; requestion: the question changed).
+- **switch rate** = pairs of variants of one scene, both with a grasp and with different targets,
+  whose grasped candidates differ / such pairs. A policy that reads the instruction switches.
+- **stuck rate** = scenes whose every variant (at least two) was grasped, all on the same candidate
+  / scenes whose every variant was grasped: the policy ignores the instruction in that scene.
+
+Chance, for a policy that grasps one of the N candidates uniformly at random, independently in
+every variant: follow 1/N; switch 1 - 1/N; stuck (1/N)^(K-1) for a scene of K variants. Pooled
+chances are the per-suite chances averaged with the weights of the pooled denominator, so they are
+what such a policy would score on the same episodes.
+
+The intervals are Wilson 95 % over the denominator's units, except for switch: the K(K-1)/2 pairs
+of a scene share variants, so a scene's pairs hang together for most policies (a scene the policy
+is stuck in has all of its pairs unswitched). The switch rate is the mean over all pairs, its
+interval Wilson's for that rate over floor(m/2) pairs a scene (m: its grasped variants), the pairs
+a scene has that share no variant: the mean over all pairs varies no more than the mean over
+disjoint ones, so the interval is a conservative one. (The variants of a scene in the follow rate
+may hang together too, as the episodes of one question would in TSR.)
+"""
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+from itertools import combinations
+from typing import Any, Iterable, Mapping, Sequence
+
+from .metrics import Rate, num_choices, wilson_interval
+from .records import COUNTERFACTUAL, dedupe, record_row
+
+POOLED = "pooled"  # the key of the pooled column, beside the suite ids
+KINDS = ("remap", "requestion")  # the variants that move the answer (variant 0 is the protocol episode)
+CHANCE_FORMULAS = {"follow": "1/N", "switch": "1 - 1/N", "stuck": "(1/N)^(K-1)"}
+
+
+@dataclass(frozen=True)
+class Counts:
+    """The numerators and denominators of one suite (or of several, pooled), with chance sums."""
+
+    scenes: int = 0
+    variants: int = 0
+    grasped: int = 0
+    followed: int = 0
+    kind_grasped: Mapping[str, int] = field(default_factory=dict)
+    kind_followed: Mapping[str, int] = field(default_factory=dict)
+    pairs: int = 0
+    switched: int = 0
+    disjoint_pairs: int = 0  # floor(m / 2) a scene: the switch interval's sample size
+    full_scenes: int = 0  # scenes whose every variant was grasped (K >= 2)
+    stuck: int = 0
+    chance_followed: float = 0.0  # expected numerators of a uniform random grasper
+    chance_switched: float = 0.0
+    chance_stuck: float = 0.0
+
+    def __add__(self, o: "Counts") -> "Counts":
+        kinds = set(self.kind_grasped) | set(o.kind_grasped)
+        return Counts(**{k: getattr(self, k) + getattr(o, k) for k in _SUMMED},
+                      kind_grasped={k: self.kind_grasped.get(k, 0) + o.kind_grasped.get(k, 0) for k in kinds},
+                      kind_followed={k: self.kind_followed.get(k, 0) + o.kind_followed.get(k, 0) for k in kinds})
+
+
+_SUMMED = ("scenes", "variants", "grasped", "followed", "pairs", "switched", "disjoint_pairs", "full_scenes", "stuck",
+           "chance_followed", "chance_switched", "chance_stuck")
+
+
+@dataclass(frozen=True)
+class CounterfactualMetrics:
+    """Follow, switch and stuck rates of one suite (or pooled), with the chance lines."""
+
+    n_choices: int | None  # None when pooled over suites of different N
+    variants_per_scene: int | None  # K, None when scenes differ
+    counts: Counts
+    follow: Rate  # over variants with a grasp
+    follow_all: Rate  # over all variants
+    follow_by_kind: dict[str, Rate]
+    switch: Rate
+    stuck: Rate
+    chance_follow: float | None
+    chance_switch: float | None
+    chance_stuck: float | None
+
+    @classmethod
+    def of(cls, counts: Counts, n_choices: int | None, k: int | None) -> "CounterfactualMetrics":
+        c = counts
+        return cls(n_choices, k, c, Rate.of(c.followed, c.grasped), Rate.of(c.followed, c.variants),
+                   {kind: Rate.of(c.kind_followed.get(kind, 0), c.kind_grasped.get(kind, 0)) for kind in KINDS},
+                   switch_rate(c.switched, c.pairs, c.disjoint_pairs), Rate.of(c.stuck, c.full_scenes),
+                   _ratio(c.chance_followed, c.grasped), _ratio(c.chance_switched, c.pairs),
+                   _ratio(c.chance_stuck, c.full_scenes))
+
+    def to_dict(self) -> dict[str, Any]:
+        def rate(r: Rate) -> dict[str, float | None]:
+            return {"value": r.value, "low": r.low, "high": r.high}
+
+        c = self.counts
+        return {"n_choices": self.n_choices, "variants_per_scene": self.variants_per_scene, "scenes": c.scenes,
+                "variants": c.variants, "grasped": c.grasped, "pairs": c.pairs, "disjoint_pairs": c.disjoint_pairs,
+                "full_scenes": c.full_scenes,
+                "follow": rate(self.follow), "follow_all": rate(self.follow_all),
+                "follow_by_kind": {k: rate(r) for k, r in self.follow_by_kind.items()},
+                "switch": rate(self.switch), "stuck": rate(self.stuck),
+                "chance": {"follow": self.chance_follow, "switch": self.chance_switch, "stuck": self.chance_stuck}}
+
+
+def _ratio(x: float, n: int) -> float | None:
+    return x / n if n else None
+
+
+def switch_rate(switched: int, pairs: int, disjoint: int) -> Rate:
+    """``switched / pairs`` with the Wilson interval of that rate over ``disjoint`` pairs."""
+    if not pairs:
+        return Rate(None, None, None)
+    p = switched / pairs
+    lo, hi = wilson_interval(p * disjoint, disjoint) if disjoint else (0.0, 1.0)
+    return Rate(p, lo, hi)
+
+
+def grasped(record: Mapping[str, Any]) -> int | None:
+    """The candidate grasped first in an episode, None when none was."""
+    g = int(record.get("first_grasped", -1))
+    return g if g >= 0 else None
+
+
+def scene_counts(variants: Sequence[Mapping[str, Any]], n_choices: int) -> Counts:
+    """The counts of one scene: its variants' records (one per variant index)."""
+    picks = [grasped(r) for r in variants]
+    targets = [int(r["target_block"]) for r in variants]
+    kinds = [str(r.get("variant_kind", "")) for r in variants]
+    kind_grasped: dict[str, int] = defaultdict(int)
+    kind_followed: dict[str, int] = defaultdict(int)
+    for g, t, kind in zip(picks, targets, kinds):
+        if g is not None and kind in KINDS:
+            kind_grasped[kind] += 1
+            kind_followed[kind] += g == t
+    pairs = [(a, b) for (a, ta), (b, tb) in combinations(zip(picks, targets), 2)
+             if a is not None and b is not None and ta != tb]
+    full = len(picks) >= 2 and all(g is not None for g in picks)
+    n_grasped = sum(g is not None for g in picks)
+    return Counts(
+        scenes=1, variants=len(picks), grasped=n_grasped,
+        followed=sum(g == t for g, t in zip(picks, targets) if g is not None),
+        kind_grasped=dict(kind_grasped), kind_followed=dict(kind_followed),
+        pairs=len(pairs), switched=sum(a != b for a, b in pairs), disjoint_pairs=min(n_grasped // 2, len(pairs)),
+        full_scenes=int(full), stuck=int(full and len(set(picks)) == 1),
+        chance_followed=n_grasped / n_choices, chance_switched=len(pairs) * (1 - 1 / n_choices),
+        chance_stuck=(1 / n_choices) ** (len(picks) - 1) if full else 0.0)
+
+
+def counterfactual_records(records: Iterable[Mapping[str, Any]]) -> list[dict]:
+    """The counterfactual-mode records, deduplicated (variant by variant)."""
+    return [r for r in dedupe(records) if r.get("instruction_mode") == COUNTERFACTUAL]
+
+
+Table = dict[str, dict[str, CounterfactualMetrics]]  # row -> suite (and POOLED) -> metrics
+
+
+def counterfactual_table(records: Iterable[Mapping[str, Any]]) -> Table:
+    """Per table row (``"oracle (counterfactual)"``) and suite, and pooled over the row's suites;
+    empty without counterfactual records. Suites in the order first met."""
+    scenes: dict[str, dict[str, dict[int, list]]] = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
+    for r in counterfactual_records(records):
+        scenes[record_row(r)][str(r["suite_id"])][int(r["seed"])].append(r)
+    out: Table = {}
+    for row, suites in scenes.items():
+        out[row] = {}
+        pooled, ns, ks = Counts(), set(), set()
+        for suite, by_seed in suites.items():
+            n = num_choices(suite)
+            total, sizes = Counts(), set()
+            for variants in by_seed.values():
+                variants.sort(key=lambda r: int(r.get("variant", 0)))
+                total = total + scene_counts(variants, n)
+                sizes.add(len(variants))
+            k = sizes.pop() if len(sizes) == 1 else None
+            out[row][suite] = CounterfactualMetrics.of(total, n, k)
+            pooled, ns, ks = pooled + total, ns | {n}, ks | {k}
+        if len(suites) > 1:
+            out[row][POOLED] = CounterfactualMetrics.of(pooled, ns.pop() if len(ns) == 1 else None,
+                                                        ks.pop() if len(ks) == 1 else None)
+    return out
+
+
+def counterfactual_json(table: Table) -> dict[str, Any]:
+    """The ``counterfactual`` section of summary.json."""
+    return {"definitions": {"follow": "grasped candidate == the variant's target, over variants with a grasp "
+                                      "(follow_all: over all variants)",
+                            "switch": "grasped candidates differ, over pairs of variants of a scene with different "
+                                      "targets, both grasped",
+                            "stuck": "one candidate grasped in every variant of a scene, over scenes whose every "
+                                     "variant was grasped",
+                            "chance": CHANCE_FORMULAS},
+            "rows": {row: {suite: m.to_dict() for suite, m in suites.items()} for row, suites in table.items()}}

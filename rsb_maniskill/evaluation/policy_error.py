@@ -1,0 +1,75 @@
+"""What the evaluation raises when a policy misbehaves, and how the loops name the episode it did it in.
+
+:class:`PolicyError` is the one error type for "the policy misbehaved": its ``reset`` / ``act``
+(or their batched forms, or its factory) raised, or it returned what the env cannot take
+(``policy.as_chunk`` and the batched checks). The loops run each policy call under
+:func:`blame_policy`, which names the policy and the episode and keeps the traceback, so that
+``rsb eval`` prints one line (the traceback with ``rsb --debug``), also from a worker process.
+"""
+from __future__ import annotations
+
+import traceback
+from contextlib import contextmanager
+from typing import Any, Iterator, Sequence
+
+SHOWN_CHARS = 60  # how much of an unexpected output an error message quotes
+
+
+class PolicyError(ValueError):
+    """The policy misbehaved: its ``reset`` / ``act`` (or batched forms) raised, or returned what the
+    env cannot take. ``str()`` is one line: the policy, the episode (``where``: suite, seed,
+    instruction mode) and ``message``; ``detail`` is the traceback (for ``rsb --debug``). It
+    pickles whole, so a worker process sends it back as it is."""
+
+    def __init__(self, message: str, *, policy: str | None = None, where: str | None = None,
+                 detail: str | None = None) -> None:
+        super().__init__(message)
+        self.message, self.policy, self.where, self.detail = message, policy, where, detail
+
+    def __str__(self) -> str:
+        who = f"policy {self.policy!r}" if self.policy else "the policy"
+        return f"{who}{f' on {self.where}' if self.where else ''}: {self.message}"
+
+    def __reduce__(self) -> tuple:
+        return _policy_error, (self.message, self.policy, self.where, self.detail)
+
+
+def _policy_error(message: str, policy: str | None, where: str | None, detail: str | None) -> PolicyError:
+    return PolicyError(message, policy=policy, where=where, detail=detail)
+
+
+def episode_where(suite_id: str, seeds: Sequence[Any], instruction_mode: str) -> str:
+    """How an error names the episode(s) it happened in: ``"RSB-Math-4 seed 10000003 (normal instruction)"``."""
+    seeds = list(seeds)
+    shown = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}..{seeds[-1]}"
+    return f"{suite_id} {shown} ({instruction_mode} instruction)"
+
+
+@contextmanager
+def blame_policy(call: str, *, policy: str, where: str) -> Iterator[None]:
+    """The block calls the policy (``call``: "reset", "act", ...) and checks its output: a
+    :class:`PolicyError` raised in it gets the policy and the episode named, any other exception
+    becomes one (the policy raised it), keeping its traceback. Ctrl-C passes through."""
+    try:
+        yield
+    except PolicyError as err:
+        err.policy, err.where = err.policy or policy, err.where or where
+        err.detail = err.detail or traceback.format_exc()
+        raise
+    except Exception as err:
+        said = first_line(str(err))
+        raise PolicyError(f"{call} raised {type(err).__name__}{f': {said}' if said else ''}", policy=policy,
+                          where=where, detail=traceback.format_exc()) from err
+
+
+def first_line(text: str) -> str:
+    """A message in one line: its first, and " ..." when there were more (a server's traceback, say)."""
+    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    return lines[0] + (" ..." if len(lines) > 1 else "") if lines else ""
+
+
+def shown(value: Any) -> str:
+    """A short description of an unexpected output: its type and the start of its repr."""
+    text = repr(value)
+    text = text if len(text) <= SHOWN_CHARS else text[:SHOWN_CHARS] + "..."
+    return f"{type(value).__name__} {text}"

@@ -8,14 +8,12 @@ and still leaves a valid part.
 """
 from __future__ import annotations
 
-import gc
 import importlib
 import os
 import signal
 import traceback
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 from mani_skill.utils.wrappers.record import RecordEpisode
 
@@ -75,7 +73,7 @@ def run_worker(cfg: GenerateConfig, plan: WorkPlan, part_h5: str | Path, video_d
     expert_cls = load_expert(cfg.expert)
     summary = worker_summary(plan.worker, part_h5)
     meta: dict[int, dict] = {}  # seed -> what the part's json entry gets once it is closed
-    with InterruptGuard() as guard, _frozen_heap():
+    with InterruptGuard() as guard:
         env = DemoRecorder(gym.make(cfg.env_id, **make_env_kwargs(cfg)), output_dir=str(part_h5.parent),
                            trajectory_name=part_h5.stem, save_video=cfg.save_video, save_on_reset=False,
                            record_reward=True, video_fps=CONTROL_FREQ, source_type="motionplanning",
@@ -96,21 +94,6 @@ def run_worker(cfg: GenerateConfig, plan: WorkPlan, part_h5: str | Path, video_d
             if meta:
                 dataset.annotate_episodes(part_h5, meta)
     return summary
-
-
-@contextmanager
-def _frozen_heap() -> Iterator[None]:
-    """Leaves the objects alive now out of garbage collection while the worker runs.
-
-    On the CPU backend every reset builds a fresh scene, and ManiSkill's rebuild runs a full
-    ``gc.collect()``; the imports leave ~300k objects (torch, ManiSkill) that it would scan each
-    time (~0.15 s a reset; ~0.05 s frozen, docs/expert.md). Frozen, they are skipped; the scenes,
-    built afterwards, are still collected."""
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
 
 
 def _run_share(cfg: GenerateConfig, plan: WorkPlan, env: DemoRecorder, expert_cls: Callable,

@@ -1,9 +1,11 @@
 """What every RSB env does besides ManiSkill's BaseEnv: check the GPU physics library and hold
 the process's render engine before building (both because of how SAPIEN behaves on GPU machines,
-docs/gpu.md), and name itself by a module-qualified id in its spec (env_ids.py)."""
+docs/gpu.md), keep scene rebuilds cheap, and name itself by a module-qualified id in its spec
+(env_ids.py)."""
 from __future__ import annotations
 
 import dataclasses
+import gc
 
 from gymnasium.envs.registration import EnvSpec
 
@@ -12,6 +14,23 @@ from mani_skill.envs.sapien_env import BaseEnv
 from rsb_maniskill import _render, compat
 from rsb_maniskill.env_ids import qualified_id
 from rsb_maniskill.physx_gpu import check_for_sim_backend
+
+_HEAP_FROZEN = False  # once a process
+
+
+def freeze_import_heap() -> None:
+    """Leave the objects alive before the first scene (the imports: torch, ManiSkill, SAPIEN, the
+    question pools; ~300k) out of garbage collection, once a process.
+
+    On the CPU backend every reset builds a fresh scene (tasks/answer_selection.py), and ManiSkill
+    runs a full ``gc.collect()`` before each build; scanning those objects cost ~190 ms a reset
+    (RSB-Math-4, state, 2 cores), frozen ~1 ms (``benchmarks/task_speed.py``). What is built later,
+    the scenes included, is collected as usual."""
+    global _HEAP_FROZEN
+    if not _HEAP_FROZEN:
+        gc.collect()  # nothing that is already garbage gets frozen
+        gc.freeze()
+        _HEAP_FROZEN = True
 
 
 class RSBEnv(BaseEnv):
@@ -35,5 +54,6 @@ class RSBEnv(BaseEnv):
         super().__init__(*args, **kwargs)
 
     def _setup_scene(self):
+        freeze_import_heap()  # before the first scene's objects exist: they are collected at the next rebuild
         _render.hold_render_engine(compat.render_device(self))  # before the first render object of the scene
         super()._setup_scene()

@@ -26,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "leaderboard", help="several runs side by side: index.html, leaderboard.md and .csv; vla-eval records",
         description="Puts the runs given side by side as the paper's main table: models as rows, suites as columns "
-                    "(GSR, TSR, nSG with Wilson 95 %% intervals, Avg over the paper's six suites), the Random line "
+                    "(GSR, TSR, nSG with Wilson 95 % intervals, Avg over the paper's six suites), the Random line "
                     "(TSR = 1/N), each model's checkpoint, protocol and benchmark version; writes DIR/index.html "
                     "(self-contained, sortable), DIR/leaderboard.md and DIR/leaderboard.csv. A RESULTS is a "
                     "results.json, an `rsb eval` --out directory, a `lerobot-eval` records_dir or a `vla-eval run` "

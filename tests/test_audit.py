@@ -149,7 +149,8 @@ def test_train_split_audit_has_no_lexical_probe():
 
 
 def test_numeric_guessers_read_the_number_a_text_option_starts_with():
-    sp = dataclasses.replace(EpisodeSampler("RSB-General-4", "test").sample(seed=0),
+    # any 4-choice spec with these options (Math needs no question data; the guesser reads the options)
+    sp = dataclasses.replace(EpisodeSampler("RSB-Math-4", "test").sample(seed=0),
                              options=("240 grams, 6.5 grams", "220 grams, 5.75 grams", "230 grams, 6 grams",
                                       "215 grams, 5.65 grams"))
     sp = dataclasses.replace(sp, answer_slot=2, correct_letter=sp.letters[2])

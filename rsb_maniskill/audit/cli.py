@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from collections import defaultdict
 from pathlib import Path
 
+from rsb_maniskill.outdirs import writable_dir
 from rsb_maniskill.semantic.counterfactual import MODE as COUNTERFACTUAL
 
 AUDIT_MODES = ("normal", COUNTERFACTUAL)  # the protocol episodes, their counterfactual variants
@@ -87,10 +87,7 @@ def _check_out(path: str) -> None:
     """``--out`` made and written to now, before the audit runs (minutes): ValueError otherwise."""
     out = Path(path)
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".write-probe{os.getpid()}"
-        probe.touch()
-        probe.unlink()
+        writable_dir(out)
     except OSError as err:
         raise ValueError(f"cannot write to --out {out}: {err.strerror or err}; choose another directory") from None
 

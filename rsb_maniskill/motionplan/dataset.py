@@ -15,6 +15,8 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import h5py
 
+from rsb_maniskill.outdirs import probe_writable
+
 TMP_TAG = ".tmp"
 
 
@@ -56,9 +58,7 @@ def check_writable_dir(directory: Path) -> list[Path]:
         for d in reversed(missing):
             d.mkdir()
             created.append(d)
-        probe = directory / f".write-probe{os.getpid()}"
-        probe.touch()
-        probe.unlink()
+        probe_writable(directory)
     except OSError as err:
         remove_empty_dirs(created)
         raise DatasetError(f"cannot write to output directory {directory}: {err.strerror or err}. "

@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import inspect
 import json
-import os
 import types
 import typing
 from pathlib import Path
 from typing import Any, Mapping, Sequence
+
+from rsb_maniskill.outdirs import writable_dir
 
 from ..protocol import EVAL_ENV_KWARGS, EVAL_SEED_BASE
 from ..store import safe_name
@@ -226,10 +227,7 @@ def results_dir(out: str | None, label: str) -> Path:
     (the label as a safe name)."""
     path = Path(out) if out else RESULTS_ROOT / safe_name(label)
     try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / f".write-probe{os.getpid()}"
-        probe.touch()
-        probe.unlink()
+        writable_dir(path)
     except OSError as err:
         raise EvalError(f"cannot write to results directory {path}: {err.strerror or err}; "
                         "choose another --out") from err

@@ -5,12 +5,11 @@ only writes them: Markdown for summary.md and report.html, flat rows for the CSV
 """
 from __future__ import annotations
 
-import base64
-import io
 from typing import Any
 
 from ..counterfactual import CHANCE_FORMULAS, POOLED, CounterfactualMetrics, Table
 from .cells import NA, markdown_table, pct, rate_cell
+from .figures import png_uri, png_with_legend_below
 
 RATES = ("follow", "switch", "stuck")  # the plotted rates, each beside its chance line
 COLORS = {"follow": "#2171b5", "switch": "#41ab5d", "stuck": "#d94801"}
@@ -101,14 +100,9 @@ def plot_counterfactual(table: Table) -> bytes:
         ax.set_title(row, fontsize=10)
         ax.grid(axis="y", alpha=0.3)
         ax.set_axisbelow(True)
-    handles, labels = fig.axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0.45 / fig.get_figheight(), 1, 1))  # room for the legend below
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    return buf.getvalue()
+    return png_with_legend_below(fig, ncol=4, legend_height=0.45)
 
 
 def plot_counterfactual_uri(table: Table) -> str:
     """The plot as a data URI, for report.html."""
-    return "data:image/png;base64," + base64.b64encode(plot_counterfactual(table)).decode("ascii")
+    return png_uri(plot_counterfactual(table))

@@ -13,14 +13,13 @@ same question and the same instruction given (so a run on other question data, o
 """
 from __future__ import annotations
 
-import base64
-import io
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
 from ..metrics import Rate, outcome, suite_metrics, suite_order
 from ..records import dedupe, perturb_label, row_label
 from .cells import markdown_table, rate_cell
+from .figures import png_uri, png_with_legend_below
 
 CROSSING = ("right/right", "right/wrong", "wrong/right", "wrong/wrong")  # backbone / arm, over grasped episodes
 
@@ -230,13 +229,8 @@ def plot_gap(gaps: Sequence[Gap]) -> bytes:
         ax.set_title(f"{backbone} (backbone) vs {policy} (policy)", fontsize=10)
         ax.grid(axis="y", alpha=0.3)
         ax.set_axisbelow(True)
-    handles, labels = fig.axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0.55 / fig.get_figheight(), 1, 1))  # room for the legend below
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    return buf.getvalue()
+    return png_with_legend_below(fig, ncol=2, legend_height=0.55)
 
 
 def plot_gap_uri(gaps: Sequence[Gap]) -> str:
-    return "data:image/png;base64," + base64.b64encode(plot_gap(gaps)).decode("ascii")
+    return png_uri(plot_gap(gaps))

@@ -256,12 +256,17 @@ def add_executor_args(parser: Any) -> None:
 def executor_from_args(executor: str, address: str | None, gpus_per_task: float = 0) -> RayExecutor | None:
     """The executor the flags name: None for local (the caller picks InProcess or ProcessPool).
 
-    Raises ValueError on ``--address`` without ``--executor ray`` and ImportError without Ray."""
+    Raises ValueError on ``--address`` without ``--executor ray`` or where no cluster answers, and
+    ImportError without Ray."""
     if executor == "local":
         if address:
             raise ValueError("--address names a Ray cluster: add --executor ray")
         return None
-    from rsb_maniskill.workers_ray import RayExecutor  # the optional half: only when asked for
+    from rsb_maniskill.workers_ray import RayExecutor, check_address  # the optional half: only when asked for
 
     RayExecutor._ray()  # fail now, with the install hint, not after the first suite
-    return RayExecutor(address=address, gpus_per_task=gpus_per_task)
+    executor = RayExecutor(address=address, gpus_per_task=gpus_per_task)
+    if address:  # join the cluster now: a wrong address fails in seconds, before anything is written
+        check_address(address)
+        executor.start()
+    return executor

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import time
 import traceback
 from typing import Any, Sequence
@@ -17,6 +18,26 @@ from typing import Any, Sequence
 from rsb_maniskill.workers import Emit, Interrupted, InterruptGuard, RunOutcome, Target, TaskOutcome
 
 RAY_HINT = "the Ray executor needs `pip install 'rsb_maniskill[ray]'` (ray on every machine of the cluster)"
+CONNECT_TIMEOUT_S = 10.0  # a cluster's head answers in milliseconds; Ray itself retries for minutes
+START_HINT = "start one (ray start --head on its head machine) or leave --address out for a local cluster"
+
+
+def check_address(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+    """Raise ValueError, in seconds, where nothing listens at ``--address HOST:PORT``.
+
+    ``ray.init`` retries an unreachable head for minutes, printing its logs; a TCP connect tells a
+    typo apart at once. ``auto`` is left to Ray, which fails at once without a cluster here."""
+    if address == "auto":
+        return
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise ValueError(f"--address {address!r}: not a Ray cluster address; use HOST:PORT (e.g. 10.0.0.1:6379), "
+                         "ray://HOST:PORT or auto")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as err:
+        why = "no answer in %g s" % timeout_s if isinstance(err, TimeoutError) else (err.strerror or str(err))
+        raise ValueError(f"--address {address}: no Ray cluster answers there ({why.lower()}); {START_HINT}") from err
 
 
 class RayExecutor:
@@ -63,7 +84,11 @@ class RayExecutor:
             common = dict(include_dashboard=False, logging_level=logging.WARNING, log_to_driver=True,
                           runtime_env={"env_vars": env_vars} if env_vars else None)
             if self.address:
-                ray.init(address=self.address, **common)
+                try:
+                    ray.init(address=self.address, **common)
+                except ConnectionError as err:  # --address auto with no cluster on this machine
+                    said = str(err).split(". ")[0].rstrip(".")  # Ray's first sentence: what it did not find
+                    raise ValueError(f"--address {self.address}: {said}; {START_HINT}") from err
             else:
                 ray.init(num_cpus=self.num_cpus, _node_ip_address="127.0.0.1", **common)
             self._started = True

@@ -128,6 +128,35 @@ def test_address_needs_the_ray_executor(tmp_path, capsys):
     assert "--executor ray" in capsys.readouterr().err
 
 
+def _closed_port() -> int:
+    import socket
+
+    with socket.socket() as s:  # bound and closed again: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("command", [["eval", "blind", "--suites", SUITE, "-n", "1", "-q"],
+                                     ["generate", SUITE, "-n", "1", "-q"], ["dataset", "build", "--suites", SUITE]])
+def test_an_address_where_no_cluster_answers_is_one_line_in_seconds(command, tmp_path, capsys):
+    """Ray retries an unreachable head for minutes; a TCP connect fails in a second, and nothing is written."""
+    import time
+
+    from rsb_maniskill.cli import main
+
+    port = _closed_port()
+    for address, said in ((f"127.0.0.1:{port}", f"--address 127.0.0.1:{port}: no Ray cluster answers there ("),
+                          ("10.0.0.1", "--address '10.0.0.1': not a Ray cluster address; use HOST:PORT")):
+        start = time.monotonic()
+        code = main([*command, "--out", str(tmp_path / "out"), "--executor", "ray", "--address", address])
+        err = capsys.readouterr().err
+        assert code == 2 and time.monotonic() - start < 30, err
+        lines = [line for line in err.splitlines() if ": error: " in line]
+        assert len(lines) == 1 and said in lines[0] and "Traceback" not in err, err
+        assert "leave --address out for a local cluster" in lines[0] or "HOST:PORT" in lines[0]
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.slow
 def test_sigterm_stops_a_ray_run_and_keeps_finished_episodes(tmp_path):
     """SIGTERM to `rsb eval --executor ray`: tasks cancelled, exit 130, whole records, resumable."""

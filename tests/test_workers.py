@@ -339,3 +339,28 @@ def test_rsb_generate_prints_its_choice(capsys, tmp_path):
     err = capsys.readouterr().err
     assert f"workers: 1 process (auto: {workers_plan.usable_cpus()} usable CPU" in err
     assert "no camera to render; 1 episode, at least 16 a worker)" in err
+
+
+def test_address_auto_without_a_cluster_is_one_line(tmp_path):
+    """`--address auto` where this machine runs no cluster: Ray's own error, as one line, before anything
+    is written. (Not beside the Ray executor's tests: Ray's auto joins any cluster it sees running here,
+    the one their fixture starts included.)"""
+    import subprocess
+    import sys
+
+    import psutil
+
+    if any(p.info["name"] == "gcs_server" for p in psutil.process_iter(["name"])):
+        pytest.skip("a Ray cluster runs on this machine: --address auto joins it")
+
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env.update(PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    out = tmp_path / "res"
+    proc = subprocess.run([sys.executable, "-m", "rsb_maniskill.cli", "eval", "blind", "--suites", "RSB-Math-4",
+                           "-n", "1", "--out", str(out), "-q", "--executor", "ray", "--address", "auto"],
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("rsb eval: error: --address auto: Could not find any "
+                                                           "running Ray instance; start one"), proc.stderr
+    assert "Traceback" not in proc.stderr and not out.exists()
+

@@ -115,10 +115,10 @@ def cmd_build(args: argparse.Namespace) -> int:
                           data_dir=args.data_dir, progress=sys.stderr.isatty())
         summaries = build_datasets(cfg, executor)
     except (ExportError, ValueError, ImportError) as err:
-        print(f"rsb dataset: error: {err}", file=sys.stderr)
+        print(f"rsb dataset build: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:
-        print(f"rsb dataset: {err or 'interrupted; rerun the same command to continue'}", file=sys.stderr)
+        print(f"rsb dataset build: {err or 'interrupted; rerun the same command to continue'}", file=sys.stderr)
         return 130
     *suites, totals = summaries
     for s in suites:

@@ -13,6 +13,7 @@ from rsb_maniskill.audit import audit_specs, audit_suite, credit
 from rsb_maniskill.audit.guessers import named_guessers
 from rsb_maniskill.audit.text import digit_string, edit_distance
 from rsb_maniskill.cli import main
+from rsb_maniskill.evaluation.metrics import wilson_interval
 from rsb_maniskill.semantic import EpisodeSampler
 
 REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")
@@ -199,6 +200,44 @@ def test_the_counterfactual_variants_pass_the_audit(suite_id):
     assert any(g.name == "mentioned first" for g in a.guessers)  # the wording guessers read the variants
     assert a.passed, [(g.name, round(g.accuracy, 3), round(g.low, 3)) for g in a.flagged]
     assert a.ambiguous == 0 and a.overlap.clean
+    # the variants of a scene share its question (remaps: its options too): intervals count scenes
+    largest = next(g for g in a.guessers if g.name == "largest")  # Direct: no options, so it abstains
+    lo, hi = wilson_interval(round(largest.accuracy * a.episodes), a.episodes)
+    assert largest.high - largest.low > 1.2 * (hi - lo) or (largest.applies == 0 and "Direct" in sid)
+
+
+def test_the_design_effect_counts_a_repeated_episode_once():
+    """Each outcome three times in its group: the interval of the 400 distinct ones; groups of one
+    keep the plain interval (but for the n / (n - 1) of the cluster-robust variance)."""
+    from rsb_maniskill.audit.reference import design_effect, rate
+
+    base = (np.random.default_rng(0).random(400) < 0.3).astype(float)
+    tripled, scenes = np.repeat(base, 3), np.repeat(np.arange(400), 3)
+    assert design_effect(tripled, scenes) == pytest.approx(3 * 400 / 399)
+    acc, lo, hi = rate(tripled, scenes)
+    lo1, hi1 = wilson_interval(base.sum() * 399 / 400, 399)
+    assert acc == pytest.approx(base.mean()) and (lo, hi) == pytest.approx((lo1, hi1))
+    assert (lo, hi) == pytest.approx(rate(base)[1:], abs=0.002)  # 400 distinct episodes, not 1,200
+    assert rate(base, np.arange(400))[1:] == pytest.approx(rate(base)[1:], abs=0.001)
+    assert design_effect(np.ones(30), np.repeat(np.arange(10), 3)) == 1.0  # no variance: nothing to scale
+
+
+def test_audit_intervals_count_questions_not_episodes():
+    """The same 300 episodes audited three times over: each interval is (about) that of the 300
+    (a guesser's view of a question does not change when it is asked again); Direct suites ask no
+    question, so their episodes are their own groups."""
+    from rsb_maniskill.audit.run import question_clusters
+
+    te = EpisodeSampler("RSB-Math-4", "test")
+    once = [te.episode(10_000_000 + i) for i in range(300)]
+    a1, a3 = audit_specs("once", [], once), audit_specs("thrice", [], once * 3)
+    for name in ("largest", "median", "letter A"):
+        g1, g3 = (next(g for g in a.guessers if g.name == name) for a in (a1, a3))
+        assert g3.accuracy == pytest.approx(g1.accuracy)
+        assert (g3.low, g3.high) == pytest.approx((g1.low, g1.high), abs=0.004), name
+    assert len(set(question_clusters(once * 3))) == len({sp.question_id for sp in once})
+    direct = [EpisodeSampler("RSB-Direct-4", "test").episode(10_000_000 + i) for i in range(50)]
+    assert len(set(question_clusters(direct))) == 50  # not its 4 target "questions"
 
 
 def test_an_index_shortcut_in_the_variants_fails_the_audit():

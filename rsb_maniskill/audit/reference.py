@@ -17,13 +17,35 @@ from .guessers import credit
 from .readers import BoundReader
 
 
-def rate(credits: np.ndarray) -> tuple[float, float, float]:
+def rate(credits: np.ndarray, clusters: np.ndarray | None = None) -> tuple[float, float, float]:
     """Mean credit and its Wilson 95 % interval (credit is a 0/1 outcome or a tie share, whose
-    variance is at most the binomial one, so the interval is conservative)."""
+    variance is at most the binomial one, so the interval is conservative).
+
+    ``clusters``: one id per episode where episodes come in dependent groups (the episodes that
+    ask one question: a guesser reads it alike each time). The interval then counts ``n / deff``
+    episodes, deff the groups' :func:`design_effect`: Kish's effective sample size."""
     n = len(credits)
     s = float(credits.sum())
-    lo, hi = wilson_interval(int(round(s)), n)
+    if clusters is None:
+        lo, hi = wilson_interval(int(round(s)), n)
+        return s / n, lo, hi
+    n_eff = n / design_effect(credits, clusters)
+    lo, hi = wilson_interval(s / n * n_eff, n_eff)
     return s / n, lo, hi
+
+
+def design_effect(credits: np.ndarray, clusters: np.ndarray) -> float:
+    """Cluster-robust variance of the mean credit over its variance were the episodes independent
+    (both from the credits themselves, so tie shares cancel out), at least 1."""
+    n = len(credits)
+    _, group = np.unique(clusters, return_inverse=True)
+    c = int(group.max()) + 1
+    var = float(np.var(credits))
+    if c < 2 or var == 0:
+        return 1.0
+    resid = np.bincount(group, weights=credits - credits.mean(), minlength=c)
+    robust = c / (c - 1) * float(np.sum(resid ** 2)) / n ** 2
+    return max(1.0, robust / (var / n))
 
 
 def lift(accuracy: float, n_choices: int) -> float:
@@ -46,8 +68,8 @@ class ReaderResult:
     unavailable: str = ""  # why the reader could not run (a missing optional package), else ""
 
 
-def read(reader: BoundReader, specs: Sequence[EpisodeSpec]) -> ReaderResult:
-    """Score one reader on ``specs`` (all with the same N)."""
+def read(reader: BoundReader, specs: Sequence[EpisodeSpec], clusters: np.ndarray | None = None) -> ReaderResult:
+    """Score one reader on ``specs`` (all with the same N); ``clusters`` as :func:`rate` takes them."""
     n = specs[0].n_choices
     try:
         scores = list(reader.batch([sp.question for sp in specs], [sp.options for sp in specs]))
@@ -64,6 +86,6 @@ def read(reader: BoundReader, specs: Sequence[EpisodeSpec]) -> ReaderResult:
             raise ValueError(f"reader {reader.name}: {len(s)} scores for {n} options")
         if len(set(s)) > 1:
             cr[i], ap[i] = credit(s, sp.answer_slot), True
-    acc, lo, hi = rate(cr)
+    acc, lo, hi = rate(cr, clusters)
     return ReaderResult(reader.name, reader.description, acc, lo, hi, lift(acc, n), lift(lo, n), lift(hi, n),
                         int(ap.sum()))

@@ -157,7 +157,8 @@ def markdown(audits: Sequence[SuiteAudit]) -> str:
             f"whole 95 % interval lies above chance + {100 * margin:.0f} points (overall, or on the episodes it "
             "applies to), when an option set holds two answers, or when train and test share a question or fact. "
             "Question-aware readers are references; a 10-choice suite fails only when a reader lifts it above its "
-            "4-choice twin (the twin rule).", "",
+            "4-choice twin (the twin rule). Intervals count questions, not episodes: the episodes that ask one "
+            "question are one dependent group, weighed by its effective size (design effect).", "",
             summary_markdown(audits), ""]
     readers = readers_markdown(audits)
     head += [readers, ""] if readers else []

@@ -13,6 +13,7 @@ from rsb_maniskill.objects.family import DEFAULT_TARGETS
 from rsb_maniskill.semantic.normalize import option_key
 from rsb_maniskill.semantic.sampler import EpisodeSampler
 from rsb_maniskill.semantic.spec import EpisodeSpec
+from rsb_maniskill.semantic.suites import SUITES, suite_source
 
 from .guessers import Guesser, candidate_guessers, credit, named_guessers
 from .lexical import lexical_probe
@@ -91,15 +92,28 @@ class SuiteAudit:
 
 
 def _result(name: str, desc: str, kind: str, reads_q: bool, credits: np.ndarray, applies: np.ndarray,
-            chance: float, margin: float) -> GuesserResult:
-    acc, lo, hi = _rate(credits)
+            chance: float, margin: float, clusters: np.ndarray | None = None) -> GuesserResult:
+    acc, lo, hi = _rate(credits, clusters)
     r = GuesserResult(name, desc, kind, reads_q, acc, lo, hi, int(applies.sum()))
     flagged = lo > chance + margin
     if MIN_SUBSET <= r.applies < len(credits):
-        r.applies_accuracy, r.applies_low, r.applies_high = _rate(credits[applies])
+        r.applies_accuracy, r.applies_low, r.applies_high = _rate(
+            credits[applies], None if clusters is None else clusters[applies])
         flagged = flagged or r.applies_low > chance + margin
     r.flagged = bool(flagged)
     return r
+
+
+def question_clusters(specs: Sequence[EpisodeSpec]) -> list[tuple]:
+    """The dependent groups of an audit: episodes that ask the same question.
+
+    A pool holds fewer questions than an audit draws episodes (RSB-HardMath's 1,319 test questions
+    for 3,000 scenes; a counterfactual scene asks its question in three of its four variants), and
+    what a guesser reads of a question is the same each time it is asked: the evidence is the
+    questions. A Direct suite asks none (its instruction names the target): each episode stands
+    alone."""
+    asks = {name: name in SUITES and suite_source(name).pool is not None for name in {sp.suite for sp in specs}}
+    return [(sp.suite, sp.split, sp.question_id if asks[sp.suite] else f"seed {sp.seed}") for sp in specs]
 
 
 def ambiguous_sets(specs: Sequence[EpisodeSpec]) -> list[list[str]]:
@@ -115,17 +129,26 @@ def ambiguous_sets(specs: Sequence[EpisodeSpec]) -> list[list[str]]:
 def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[EpisodeSpec], *,
                 split: str = "test", margin: float = MARGIN, overlap: SplitOverlap | None = None,
                 seed: int = 0, read_instruction: bool = False,
-                readers: Sequence[BoundReader] = (), guessers: Sequence[Guesser] = ()) -> SuiteAudit:
+                readers: Sequence[BoundReader] = (), guessers: Sequence[Guesser] = (),
+                clusters: Sequence[Any] | None = None) -> SuiteAudit:
     """Audit ``test`` episodes; the learned probe is fit on ``train`` episodes (never the same seeds).
     ``read_instruction``: also the guessers of the instruction's wording (``wording.py``).
     ``readers``: question-aware readers scored as reference rows (``readers.py``).
-    ``guessers``: more named guessers (the counterfactual variants' index guessers)."""
+    ``guessers``: more named guessers (the counterfactual variants' index guessers).
+    ``clusters``: one id per test episode, episodes of one id a dependent group; by default the
+    question each asks (:func:`question_clusters`). Every interval counts the groups by their
+    effective size (``reference.rate``)."""
     if not test:
         raise ValueError(f"{suite_id}: no episodes to audit")
     n = test[0].n_choices
     if any(sp.n_choices != n for sp in list(train) + list(test)):
         raise ValueError(f"{suite_id}: episodes with different numbers of choices cannot be audited together")
     chance = 1.0 / n
+    ids: dict[Any, int] = {}  # any hashable id -> 0, 1, ...
+    groups = np.array([ids.setdefault(c, len(ids)) for c in (question_clusters(test) if clusters is None
+                                                             else clusters)], dtype=np.int64)
+    if len(groups) != len(test):
+        raise ValueError(f"{suite_id}: {len(groups)} cluster ids for {len(test)} episodes")
     results = []
     extra = instruction_guessers(test) if read_instruction else []
     for g in named_guessers(n, test[0].letters) + candidate_guessers(test) + extra + list(guessers):
@@ -136,7 +159,7 @@ def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[Epis
                 cr[i] = chance
             else:
                 cr[i], ap[i] = credit(s, sp.answer_slot), True
-        results.append(_result(g.name, g.description, "named", g.reads_question, cr, ap, chance, margin))
+        results.append(_result(g.name, g.description, "named", g.reads_question, cr, ap, chance, margin, groups))
     features: list[tuple[str, float]] = []
     tokens: tuple[list, list] = ([], [])
     if len(train) >= MIN_PROBE_TRAIN:
@@ -144,17 +167,18 @@ def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[Epis
         features = probe.top_features
         results.append(_result("learned probe", "gradient-boosted trees on per-option features relative to the set, "
                                f"fit on {probe.train_episodes:,} train-split episodes; never sees the question",
-                               "learned", False, probe.credits, np.ones(len(test), dtype=bool), chance, margin))
+                               "learned", False, probe.credits, np.ones(len(test), dtype=bool), chance, margin,
+                               groups))
     if len(train) >= MIN_PROBE_TRAIN and split != "train":  # memorised answers are no shortcut on the train split
         lex = lexical_probe(train, test, seed=seed)
         tokens = (lex.answer_tokens, lex.distractor_tokens)
         results.append(_result(LEXICAL_PROBE, "logistic regression on each option's word 1-2 grams, character 2-5 "
                                f"grams and the words it shares with its set, fit on {lex.train_episodes:,} "
                                "train-split episodes; never sees the question", "learned", False, lex.credits,
-                               np.ones(len(test), dtype=bool), chance, margin))
+                               np.ones(len(test), dtype=bool), chance, margin, groups))
     amb = ambiguous_sets(test)
     return SuiteAudit(suite_id, split, n, len(test), len(train), margin, results, features, len(amb),
-                      amb[:_EXAMPLES], overlap or SplitOverlap(), [read(r, test) for r in readers], *tokens)
+                      amb[:_EXAMPLES], overlap or SplitOverlap(), [read(r, test, groups) for r in readers], *tokens)
 
 
 def suite_overlap(train: EpisodeSampler, test: EpisodeSampler) -> SplitOverlap:

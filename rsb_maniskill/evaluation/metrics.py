@@ -28,11 +28,12 @@ def num_choices(suite_id: str) -> int:
     return parse_suite_id(split_env_id(suite_id)[0])[1]
 
 
-def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
+def wilson_interval(k: float, n: float, z: float = Z95) -> tuple[float, float]:
     """Wilson score interval of a binomial proportion k/n.
 
     Chosen over the normal approximation because it stays inside [0, 1] and keeps its coverage at
     rates near 0 or 1, which is where RSB results live (TSR of a few percent, oracle near 100%).
+    ``k`` and ``n`` may be effective counts (clustered samples: ``n`` over the design effect).
     Returns (nan, nan) when n = 0.
     """
     if n < 0 or k < 0 or k > n:

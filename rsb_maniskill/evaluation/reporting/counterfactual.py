@@ -9,7 +9,7 @@ from typing import Any
 
 from ..counterfactual import CHANCE_FORMULAS, POOLED, CounterfactualMetrics, Table
 from .cells import NA, markdown_table, pct, rate_cell
-from .figures import png_uri, png_with_legend_below
+from .figures import png_uri, png_with_legend_below, rate_bars
 
 RATES = ("follow", "switch", "stuck")  # the plotted rates, each beside its chance line
 COLORS = {"follow": "#2171b5", "switch": "#41ab5d", "stuck": "#d94801"}
@@ -79,14 +79,8 @@ def plot_counterfactual(table: Table) -> bytes:
         names = list(suites)
         x = np.arange(len(names))
         for j, key in enumerate(RATES):
-            rates = [getattr(suites[s], key) for s in names]
-            vals = np.array([np.nan if r.value is None else 100 * r.value for r in rates])
-            lo = np.array([np.nan if r.low is None else 100 * r.low for r in rates])
-            hi = np.array([np.nan if r.high is None else 100 * r.high for r in rates])
             pos = x + (j - 1) * w
-            ax.bar(pos, vals, w, color=COLORS[key], edgecolor="black", linewidth=0.5, label=LABELS[key])
-            ax.errorbar(pos, vals, yerr=np.clip(np.vstack([vals - lo, hi - vals]), 0, None), fmt="none",
-                        ecolor="black", elinewidth=0.8, capsize=3)
+            rate_bars(ax, pos, [getattr(suites[s], key) for s in names], w, COLORS[key], LABELS[key])
             chance = [getattr(suites[s], f"chance_{key}") for s in names]
             for xi, c in zip(pos, chance):
                 if c is not None:

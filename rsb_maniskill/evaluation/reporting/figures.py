@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import base64
 import io
-from typing import Any
+from typing import Any, Sequence
 
 
 def png_with_legend_below(fig: Any, ncol: int, legend_height: float) -> bytes:
@@ -22,3 +22,18 @@ def png_with_legend_below(fig: Any, ncol: int, legend_height: float) -> bytes:
 def png_uri(png: bytes) -> str:
     """A ``data:`` URI of PNG bytes, for an ``<img>`` of a page that opens from disk."""
     return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def rate_bars(ax: Any, pos: Any, rates: Sequence[Any], width: float, color: str, label: str) -> tuple[Any, Any]:
+    """Bars of ``rates`` (``metrics.Rate``: value, low, high; None drawn as a gap) in %, at ``pos``,
+    with their Wilson 95 % whiskers. Returns the bar heights and the whiskers' tops (in %)."""
+    import numpy as np
+
+    def pct(values: Sequence[float | None]) -> Any:
+        return np.array([np.nan if v is None else 100 * v for v in values])
+
+    vals, lo, hi = pct([r.value for r in rates]), pct([r.low for r in rates]), pct([r.high for r in rates])
+    ax.bar(pos, vals, width, color=color, edgecolor="black", linewidth=0.5, label=label)
+    ax.errorbar(pos, vals, yerr=np.clip(np.vstack([vals - lo, hi - vals]), 0, None), fmt="none",
+                ecolor="black", elinewidth=0.8, capsize=3)
+    return vals, hi

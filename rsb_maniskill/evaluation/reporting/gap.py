@@ -19,7 +19,7 @@ from typing import Any, Iterable, Mapping, Sequence
 from ..metrics import Rate, outcome, suite_metrics, suite_order
 from ..records import dedupe, perturb_label, row_label
 from .cells import markdown_table, rate_cell
-from .figures import png_uri, png_with_legend_below
+from .figures import png_uri, png_with_legend_below, rate_bars
 
 CROSSING = ("right/right", "right/wrong", "wrong/right", "wrong/wrong")  # backbone / arm, over grasped episodes
 
@@ -208,14 +208,8 @@ def plot_gap(gaps: Sequence[Gap]) -> bytes:
         ax = fig.add_subplot(len(pairs), 1, k + 1)
         x = np.arange(len(row))
         for j, key in enumerate(BAR_COLORS):
-            rates = [getattr(g, key) for g in row]
-            vals = np.array([np.nan if r.value is None else 100 * r.value for r in rates])
-            lo = np.array([np.nan if r.low is None else 100 * r.low for r in rates])
-            hi = np.array([np.nan if r.high is None else 100 * r.high for r in rates])
             pos = x + (j - 1) * w
-            ax.bar(pos, vals, w, color=BAR_COLORS[key], edgecolor="black", linewidth=0.5, label=BAR_LABELS[key])
-            ax.errorbar(pos, vals, yerr=np.clip(np.vstack([vals - lo, hi - vals]), 0, None), fmt="none",
-                        ecolor="black", elinewidth=0.8, capsize=3)
+            vals, hi = rate_bars(ax, pos, [getattr(g, key) for g in row], w, BAR_COLORS[key], BAR_LABELS[key])
             for xi, v, top in zip(pos, vals, hi):
                 if np.isfinite(v):
                     ax.text(xi, (top if np.isfinite(top) else v) + 1.5, f"{v:.0f}", ha="center", fontsize=7)

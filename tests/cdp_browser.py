@@ -170,3 +170,15 @@ class Browser:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def checked_screenshot(browser: Browser, path: str | os.PathLike, keep_env: str) -> Path:
+    """A self-contained page's last checks and its full-page screenshot: no console error or
+    exception, nothing fetched but the file and data: URIs. The PNG is copied to ``$keep_env``
+    when that is set, to look at."""
+    assert browser.errors() == []
+    assert {u.split(":", 1)[0] for u in browser.requested_urls()} <= {"file", "data"}
+    shot = browser.screenshot(path)
+    if os.environ.get(keep_env):
+        shutil.copy(shot, os.environ[keep_env])
+    return shot

@@ -23,6 +23,18 @@ def question_data(monkeypatch) -> Path:
 
 
 @pytest.fixture
+def no_data_dir(monkeypatch):
+    """No ``RSB_DATA_DIR`` and no cached pools, before and after: each test names its data itself
+    (a module that needs this marks itself ``pytestmark = pytest.mark.usefixtures("no_data_dir")``)."""
+    from rsb_maniskill.semantic import clear_cache
+
+    monkeypatch.delenv("RSB_DATA_DIR", raising=False)
+    clear_cache()
+    yield
+    clear_cache()
+
+
+@pytest.fixture
 def silent_proxy(monkeypatch):
     """No network, also on a machine that has one: HTTPS_PROXY (subprocesses inherit it) is a proxy
     on 127.0.0.1 that accepts connections and never answers (a firewall that drops)."""

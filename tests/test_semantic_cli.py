@@ -10,18 +10,13 @@ import pytest
 
 from rsb_maniskill import network
 from rsb_maniskill.cli import main
-from rsb_maniskill.semantic import EpisodeSampler, clear_cache
+from rsb_maniskill.semantic import EpisodeSampler
 
 FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
 REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")  # read before the autouse fixture clears it
 
 
-@pytest.fixture(autouse=True)
-def _fresh(monkeypatch):
-    monkeypatch.delenv("RSB_DATA_DIR", raising=False)
-    clear_cache()
-    yield
-    clear_cache()
+pytestmark = pytest.mark.usefixtures("no_data_dir")  # RSB_DATA_DIR unset, pools uncached
 
 
 def test_questions_prints_episodes(capsys):

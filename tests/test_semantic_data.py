@@ -11,7 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from rsb_maniskill import network
-from rsb_maniskill.semantic import DataNotFoundError, EpisodeSampler, SemanticDataError, clear_cache
+from rsb_maniskill.semantic import DataNotFoundError, EpisodeSampler, SemanticDataError
 from rsb_maniskill.semantic import data as data_mod
 from rsb_maniskill.semantic.gsm8k import clean_solution, gsm8k_pool, parse_final_answer
 
@@ -19,12 +19,7 @@ FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
 REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")  # read before the autouse fixture clears it
 
 
-@pytest.fixture(autouse=True)
-def _fresh(monkeypatch):
-    monkeypatch.delenv("RSB_DATA_DIR", raising=False)
-    clear_cache()
-    yield
-    clear_cache()
+pytestmark = pytest.mark.usefixtures("no_data_dir")  # RSB_DATA_DIR unset, pools uncached
 
 
 def test_parse_final_answer():

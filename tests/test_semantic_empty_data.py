@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from rsb_maniskill.cli import main
-from rsb_maniskill.semantic import DataNotFoundError, EpisodeSampler, SemanticError, clear_cache, get_pool, pools
+from rsb_maniskill.semantic import DataNotFoundError, EpisodeSampler, SemanticError, get_pool, pools
 from rsb_maniskill.semantic.errors import EmptyDataError
 from rsb_maniskill.semantic.pools import Pool
 from rsb_maniskill.semantic.suites import SuiteSource
@@ -41,12 +41,7 @@ CASES = {
 }
 
 
-@pytest.fixture(autouse=True)
-def _fresh(monkeypatch):
-    monkeypatch.delenv("RSB_DATA_DIR", raising=False)
-    clear_cache()
-    yield
-    clear_cache()
+pytestmark = pytest.mark.usefixtures("no_data_dir")  # RSB_DATA_DIR unset, pools uncached
 
 
 def spoilt_copy(tmp_path: Path, case: str) -> tuple[Path, Path]:

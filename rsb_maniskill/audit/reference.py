@@ -68,7 +68,7 @@ class ReaderResult:
     unavailable: str = ""  # why the reader could not run (a missing optional package), else ""
 
 
-def read(reader: BoundReader, specs: Sequence[EpisodeSpec], clusters: np.ndarray | None = None) -> ReaderResult:
+def read(reader: BoundReader, specs: Sequence[EpisodeSpec], clusters: np.ndarray) -> ReaderResult:
     """Score one reader on ``specs`` (all with the same N); ``clusters`` as :func:`rate` takes them."""
     n = specs[0].n_choices
     try:

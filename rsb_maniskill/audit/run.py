@@ -92,13 +92,12 @@ class SuiteAudit:
 
 
 def _result(name: str, desc: str, kind: str, reads_q: bool, credits: np.ndarray, applies: np.ndarray,
-            chance: float, margin: float, clusters: np.ndarray | None = None) -> GuesserResult:
+            chance: float, margin: float, clusters: np.ndarray) -> GuesserResult:
     acc, lo, hi = _rate(credits, clusters)
     r = GuesserResult(name, desc, kind, reads_q, acc, lo, hi, int(applies.sum()))
     flagged = lo > chance + margin
     if MIN_SUBSET <= r.applies < len(credits):
-        r.applies_accuracy, r.applies_low, r.applies_high = _rate(
-            credits[applies], None if clusters is None else clusters[applies])
+        r.applies_accuracy, r.applies_low, r.applies_high = _rate(credits[applies], clusters[applies])
         flagged = flagged or r.applies_low > chance + margin
     r.flagged = bool(flagged)
     return r
@@ -129,14 +128,12 @@ def ambiguous_sets(specs: Sequence[EpisodeSpec]) -> list[list[str]]:
 def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[EpisodeSpec], *,
                 split: str = "test", margin: float = MARGIN, overlap: SplitOverlap | None = None,
                 seed: int = 0, read_instruction: bool = False,
-                readers: Sequence[BoundReader] = (), guessers: Sequence[Guesser] = (),
-                clusters: Sequence[Any] | None = None) -> SuiteAudit:
+                readers: Sequence[BoundReader] = (), guessers: Sequence[Guesser] = ()) -> SuiteAudit:
     """Audit ``test`` episodes; the learned probe is fit on ``train`` episodes (never the same seeds).
     ``read_instruction``: also the guessers of the instruction's wording (``wording.py``).
     ``readers``: question-aware readers scored as reference rows (``readers.py``).
     ``guessers``: more named guessers (the counterfactual variants' index guessers).
-    ``clusters``: one id per test episode, episodes of one id a dependent group; by default the
-    question each asks (:func:`question_clusters`). Every interval counts the groups by their
+    Every interval counts the episodes that ask one question (:func:`question_clusters`) by their
     effective size (``reference.rate``)."""
     if not test:
         raise ValueError(f"{suite_id}: no episodes to audit")
@@ -144,11 +141,8 @@ def audit_specs(suite_id: str, train: Sequence[EpisodeSpec], test: Sequence[Epis
     if any(sp.n_choices != n for sp in list(train) + list(test)):
         raise ValueError(f"{suite_id}: episodes with different numbers of choices cannot be audited together")
     chance = 1.0 / n
-    ids: dict[Any, int] = {}  # any hashable id -> 0, 1, ...
-    groups = np.array([ids.setdefault(c, len(ids)) for c in (question_clusters(test) if clusters is None
-                                                             else clusters)], dtype=np.int64)
-    if len(groups) != len(test):
-        raise ValueError(f"{suite_id}: {len(groups)} cluster ids for {len(test)} episodes")
+    ids: dict[tuple, int] = {}  # a group's key -> 0, 1, ...
+    groups = np.array([ids.setdefault(key, len(ids)) for key in question_clusters(test)], dtype=np.int64)
     results = []
     extra = instruction_guessers(test) if read_instruction else []
     for g in named_guessers(n, test[0].letters) + candidate_guessers(test) + extra + list(guessers):

@@ -2,12 +2,12 @@
 beat chance? Simulator-free, like the semantic engine it audits. See docs/semantic.md."""
 from __future__ import annotations
 
-from .guessers import Guesser, credit, named_guessers
-from .lexical import LexicalResult, lexical_probe
-from .readers import NumberReachabilityReader, Reader, SimilarityReader, default_readers, load_reader
-from .reference import ReaderResult, lift
-from .run import MARGIN, GuesserResult, SuiteAudit, ambiguous_sets, audit_specs, audit_suite
-from .twins import TwinFailure, twin_failures
+from rsb_maniskill.audit.guessers import Guesser, credit, named_guessers
+from rsb_maniskill.audit.lexical import LexicalResult, lexical_probe
+from rsb_maniskill.audit.readers import NumberReachabilityReader, Reader, SimilarityReader, default_readers, load_reader
+from rsb_maniskill.audit.reference import ReaderResult, lift
+from rsb_maniskill.audit.run import MARGIN, GuesserResult, SuiteAudit, ambiguous_sets, audit_specs, audit_suite
+from rsb_maniskill.audit.twins import TwinFailure, twin_failures
 
 __all__ = ["MARGIN", "Guesser", "GuesserResult", "LexicalResult", "NumberReachabilityReader", "Reader", "ReaderResult",
            "SimilarityReader", "SuiteAudit", "TwinFailure", "ambiguous_sets", "audit_specs", "audit_suite", "credit",

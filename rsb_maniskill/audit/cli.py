@@ -119,7 +119,7 @@ def _modes(asked: list[str] | None, split: str) -> list[str]:
 
 def _readers(args: argparse.Namespace) -> list:
     """Built-in readers (unless --no-readers), then each --reader (ValueError with the fix)."""
-    from .readers import default_readers, load_reader
+    from rsb_maniskill.audit.readers import default_readers, load_reader
 
     return ([] if args.no_readers else default_readers()) + [load_reader(spec) for spec in args.reader]
 
@@ -127,10 +127,10 @@ def _readers(args: argparse.Namespace) -> list:
 def cmd_audit(args: argparse.Namespace) -> int:
     from rsb_maniskill.semantic.errors import SemanticError
 
-    from . import report
-    from .counterfactual import audit_variants
-    from .run import LEXICAL_PROBE, audit_specs, audit_suite
-    from .twins import twin_failures
+    from rsb_maniskill.audit import report
+    from rsb_maniskill.audit.counterfactual import audit_variants
+    from rsb_maniskill.audit.run import LEXICAL_PROBE, audit_specs, audit_suite
+    from rsb_maniskill.audit.twins import twin_failures
 
     if args.episodes < 1:
         print("rsb audit: error: -n must be >= 1", file=sys.stderr)

@@ -18,7 +18,7 @@ import numpy as np
 
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
-from .guessers import credit
+from rsb_maniskill.audit.guessers import credit
 
 WORD_NGRAMS = (1, 2)
 CHAR_NGRAMS = (2, 5)

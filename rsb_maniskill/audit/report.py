@@ -7,9 +7,9 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
-from .reference import ReaderResult
-from .run import LEXICAL_PROBE, SuiteAudit
-from .twins import TwinFailure, twin_failures, twin_pairs
+from rsb_maniskill.audit.reference import ReaderResult
+from rsb_maniskill.audit.run import LEXICAL_PROBE, SuiteAudit
+from rsb_maniskill.audit.twins import TwinFailure, twin_failures, twin_pairs
 
 
 def _pct(x: float | None) -> str:

@@ -15,14 +15,14 @@ from rsb_maniskill.semantic.sampler import EpisodeSampler
 from rsb_maniskill.semantic.spec import EpisodeSpec
 from rsb_maniskill.semantic.suites import SUITES, suite_source
 
-from .guessers import Guesser, candidate_guessers, credit, named_guessers
-from .lexical import lexical_probe
-from .probe import learned_probe
-from .readers import BoundReader
-from .reference import ReaderResult, read
-from .reference import rate as _rate
-from .splits import SplitOverlap, split_overlap
-from .wording import instruction_guessers
+from rsb_maniskill.audit.guessers import Guesser, candidate_guessers, credit, named_guessers
+from rsb_maniskill.audit.lexical import lexical_probe
+from rsb_maniskill.audit.probe import learned_probe
+from rsb_maniskill.audit.readers import BoundReader
+from rsb_maniskill.audit.reference import ReaderResult, read
+from rsb_maniskill.audit.reference import rate as _rate
+from rsb_maniskill.audit.splits import SplitOverlap, split_overlap
+from rsb_maniskill.audit.wording import instruction_guessers
 
 MARGIN = 0.03  # a guesser fails the audit when its whole 95 % interval lies above chance + 3 points
 MIN_SUBSET = 100  # smallest number of episodes a guesser must apply to for its own verdict

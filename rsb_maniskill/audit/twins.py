@@ -8,7 +8,7 @@ import re
 from dataclasses import dataclass
 from typing import Sequence
 
-from .run import SuiteAudit
+from rsb_maniskill.audit.run import SuiteAudit
 
 
 @dataclass(frozen=True)

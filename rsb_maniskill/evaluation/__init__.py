@@ -11,9 +11,9 @@ The reports are not re-exported here: import them from ``reporting/``.
 """
 from __future__ import annotations
 
-from .backbone import Backbone, ask_episodes, load_backbone
-from .jobs import EvalJob, drive, run_episodes, run_job
-from .metrics import (
+from rsb_maniskill.evaluation.backbone import Backbone, ask_episodes, load_backbone
+from rsb_maniskill.evaluation.jobs import EvalJob, drive, run_episodes, run_job
+from rsb_maniskill.evaluation.metrics import (
     PAPER_SUITES,
     Average,
     ErrorAnalysis,
@@ -26,7 +26,7 @@ from .metrics import (
     summarize,
     wilson_interval,
 )
-from .policy import (
+from rsb_maniskill.evaluation.policy import (
     BatchedPolicy,
     PerEnvPolicies,
     Policy,
@@ -37,7 +37,7 @@ from .policy import (
     policy_name,
     register_policy,
 )
-from .protocol import (
+from rsb_maniskill.evaluation.protocol import (
     EPISODES_PER_SUITE,
     EVAL_ENV_KWARGS,
     EVAL_SEED_BASE,
@@ -46,10 +46,10 @@ from .protocol import (
     eval_seeds,
     shuffled_instruction,
 )
-from .records import INSTRUCTION_MODES, RECORD_FIELDS, build_record
-from .runner import EpisodeSettings, batched_loop, episode_loop
-from .statements import MAX_TEXT_CHARS, reasoning_following
-from .store import RecordWriter, completed_seeds, read_records
+from rsb_maniskill.evaluation.records import INSTRUCTION_MODES, RECORD_FIELDS, build_record
+from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop, episode_loop
+from rsb_maniskill.evaluation.statements import MAX_TEXT_CHARS, reasoning_following
+from rsb_maniskill.evaluation.store import RecordWriter, completed_seeds, read_records
 
 __all__ = [
     "Average", "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "EpisodeSettings", "ErrorAnalysis",

@@ -68,7 +68,7 @@ BACKBONES: dict[str, str] = {
 
 def resolve_backbone(spec: str) -> Callable[..., Any]:
     """The factory a built-in name or ``package.module:factory`` names, without calling it."""
-    from .policy import import_factory
+    from rsb_maniskill.evaluation.policy import import_factory
 
     if spec in BACKBONES:
         return import_factory(BACKBONES[spec], "backbone")
@@ -95,7 +95,7 @@ class _Questions:
         from rsb_maniskill.objects.family import split_env_id
         from rsb_maniskill.semantic import EpisodeSampler
 
-        from .protocol import EVAL_ENV_KWARGS
+        from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
 
         base, targets = split_env_id(suite_id)
         sampler_keys = ("data_dir", "color_map")
@@ -138,9 +138,9 @@ def ask_episodes(backbone: Backbone, suite_id: str, seeds: Sequence[int], out_pa
                  env_kwargs: Mapping[str, Any] | None = None, progress: bool = True) -> list[dict]:
     """Ask ``backbone`` the episodes ``seeds`` of ``suite_id`` (those not yet in ``out_path``),
     appending one record each; returns every record of this row and suite, old and new."""
-    from .protocol import SHUFFLE_SEED, ShuffledDonors, ablate
-    from .statements import EpisodeText
-    from .store import RecordWriter, read_backbone_records
+    from rsb_maniskill.evaluation.protocol import SHUFFLE_SEED, ShuffledDonors, ablate
+    from rsb_maniskill.evaluation.statements import EpisodeText
+    from rsb_maniskill.evaluation.store import RecordWriter, read_backbone_records
 
     seeds = [int(s) for s in seeds]
     mine = [r for r in read_backbone_records(out_path)

@@ -26,8 +26,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.objects.family import split_env_id
 
-from .metrics import group_by_suite, num_choices, suite_order
-from .records import LEFT_RANK_FIELD, dedupe, record_row
+from rsb_maniskill.evaluation.metrics import group_by_suite, num_choices, suite_order
+from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD, dedupe, record_row
 
 POSITION, CANDIDATE, LETTER = "position", "candidate", "letter"
 AXES: dict[str, str] = {POSITION: "position", CANDIDATE: "candidate", LETTER: "option letter"}

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 from itertools import combinations
 from typing import Any, Iterable, Mapping, Sequence
 
-from .metrics import Rate, num_choices, wilson_interval
-from .records import COUNTERFACTUAL, dedupe, record_row
+from rsb_maniskill.evaluation.metrics import Rate, num_choices, wilson_interval
+from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, record_row
 
 POOLED = "pooled"  # the key of the pooled column, beside the suite ids
 KINDS = ("remap", "requestion")  # the variants that move the answer (variant 0 is the protocol episode)

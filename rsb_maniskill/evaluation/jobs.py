@@ -21,12 +21,12 @@ from rsb_maniskill.env_ids import CPU_SIM_BACKEND
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.workers import Executor, InProcess, Interrupted, ProcessPool, deal
 
-from .policy import is_batched, load_policy, policy_name, policy_spec
-from .policy_error import PolicyError, blame_policy, first_line
-from .protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED, record_episode
-from .records import perturb_label as record_perturb
-from .runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
-from .store import RecordWriter, read_records
+from rsb_maniskill.evaluation.policy import is_batched, load_policy, policy_name, policy_spec
+from rsb_maniskill.evaluation.policy_error import PolicyError, blame_policy, first_line
+from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED, record_episode
+from rsb_maniskill.evaluation.records import perturb_label as record_perturb
+from rsb_maniskill.evaluation.runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
+from rsb_maniskill.evaluation.store import RecordWriter, read_records
 
 Write = Callable[[dict], None]
 

@@ -30,7 +30,7 @@ from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from .policy_error import PolicyError, shown
+from rsb_maniskill.evaluation.policy_error import PolicyError, shown
 
 
 @runtime_checkable

@@ -26,7 +26,7 @@ from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.perturb import parse_perturb
 
-from .policy import (
+from rsb_maniskill.evaluation.policy import (
     PerEnvPolicies,
     as_chunk,
     as_chunks,
@@ -36,9 +36,9 @@ from .policy import (
     split_output,
     split_outputs,
 )
-from .policy_error import blame_policy, episode_where
-from .positions import left_ranks
-from .protocol import (
+from rsb_maniskill.evaluation.policy_error import blame_policy, episode_where
+from rsb_maniskill.evaluation.positions import left_ranks
+from rsb_maniskill.evaluation.protocol import (
     SHUFFLE_SEED,
     Episode,
     ShuffledDonors,
@@ -49,9 +49,9 @@ from .protocol import (
     variant_fields,
     variant_reset,
 )
-from .records import COUNTERFACTUAL, EVAL_INSTRUCTION_MODES, build_record, perturb_fields
-from .statements import EpisodeText
-from .store import safe_name
+from rsb_maniskill.evaluation.records import COUNTERFACTUAL, EVAL_INSTRUCTION_MODES, build_record, perturb_fields
+from rsb_maniskill.evaluation.statements import EpisodeText
+from rsb_maniskill.evaluation.store import safe_name
 
 DEFAULT_MAX_STEPS = TASK_MAX_EPISODE_STEPS  # the tasks' own limit
 

@@ -20,7 +20,7 @@ import warnings
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
-from .records import VERSION_FIELD, VersionMixError, dedupe, one_version, validate_record
+from rsb_maniskill.evaluation.records import VERSION_FIELD, VersionMixError, dedupe, one_version, validate_record
 
 RECORDS_FILE = "episodes.jsonl"
 MANIFEST_FILE = "run.json"

@@ -84,8 +84,8 @@ def _cameras(text: str) -> list[str]:
 
 
 def cmd_lerobot(args: argparse.Namespace) -> int:
-    from .build import export_lerobot
-    from .lerobot import ExportError
+    from rsb_maniskill.export.build import export_lerobot
+    from rsb_maniskill.export.lerobot import ExportError
 
     try:
         executor, num_procs = _executor(args)
@@ -104,8 +104,8 @@ def cmd_lerobot(args: argparse.Namespace) -> int:
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    from .build import BuildConfig, build_datasets
-    from .lerobot import ExportError
+    from rsb_maniskill.export.build import BuildConfig, build_datasets
+    from rsb_maniskill.export.lerobot import ExportError
 
     try:
         executor, num_procs = _executor(args)

@@ -29,10 +29,10 @@ from typing import Any
 
 from rsb_maniskill.workers import Executor, InProcess, ProcessPool
 
-from . import dataset
-from .config import GenerateConfig, GenerateError, output_path
-from .shards import WorkPlan, plan_work
-from .summary import GenerateSummary, describe, rsb_header
+from rsb_maniskill.motionplan import dataset
+from rsb_maniskill.motionplan.config import GenerateConfig, GenerateError, output_path
+from rsb_maniskill.motionplan.shards import WorkPlan, plan_work
+from rsb_maniskill.motionplan.summary import GenerateSummary, describe, rsb_header
 
 # generate(GenerateConfig) -> GenerateSummary, and what goes with it
 __all__ = ["GenerateConfig", "GenerateError", "GenerateSummary", "describe", "generate"]
@@ -139,7 +139,7 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
 
 def run_plan(task: tuple[GenerateConfig, WorkPlan, str, str | None], emit: Any) -> dict:
     """Executor target: one worker's share (the simulator is imported here, not by this module)."""
-    from .worker import run_worker
+    from rsb_maniskill.motionplan.worker import run_worker
 
     cfg, plan, part, video_dir = task
     return run_worker(cfg, plan, part, video_dir, emit)
@@ -148,7 +148,7 @@ def run_plan(task: tuple[GenerateConfig, WorkPlan, str, str | None], emit: Any) 
 def _run_workers(cfg: GenerateConfig, plans: list[WorkPlan], parts: dict[int, Path], video_dir: Path | None,
                  requested: int, executor: Executor | None = None) -> list[dict]:
     """Runs the workers (in this process when there is one) behind a progress bar; their summaries."""
-    from .worker import worker_summary
+    from rsb_maniskill.motionplan.worker import worker_summary
 
     progress = _Progress(requested, cfg.progress, cfg.verbose)
     tasks = [(cfg, p, str(parts[p.worker]), str(video_dir) if video_dir else None) for p in plans]

@@ -21,7 +21,7 @@ from pathlib import Path
 from rsb_maniskill.env_ids import CPU_SIM_BACKEND
 from rsb_maniskill.robot import CONTROL_MODE
 
-from .dataset import DatasetError, check_pair, json_path_of, load_json, write_json_atomic
+from rsb_maniskill.motionplan.dataset import DatasetError, check_pair, json_path_of, load_json, write_json_atomic
 
 
 def _register_envs() -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Generator
 
-from .config import GenerateConfig, GenerateError
+from rsb_maniskill.motionplan.config import GenerateConfig, GenerateError
 
 
 @dataclass

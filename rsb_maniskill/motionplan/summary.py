@@ -9,7 +9,7 @@ from pathlib import Path
 
 from rsb_maniskill.version import BENCHMARK_VERSION, UNVERSIONED, benchmark_label, code_commit, package_version
 
-from .config import GenerateConfig
+from rsb_maniskill.motionplan.config import GenerateConfig
 
 
 @dataclass

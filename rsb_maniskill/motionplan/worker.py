@@ -20,9 +20,9 @@ from mani_skill.utils.wrappers.record import RecordEpisode
 from rsb_maniskill.batch import first_value
 from rsb_maniskill.workers import Interrupted, InterruptGuard
 
-from . import dataset
-from .config import SOURCE_DESC, GenerateConfig, GenerateError, make_env_kwargs
-from .shards import WorkPlan, seed_schedule
+from rsb_maniskill.motionplan import dataset
+from rsb_maniskill.motionplan.config import SOURCE_DESC, GenerateConfig, GenerateError, make_env_kwargs
+from rsb_maniskill.motionplan.shards import WorkPlan, seed_schedule
 
 
 class DemoRecorder(RecordEpisode):

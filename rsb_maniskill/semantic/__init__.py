@@ -5,12 +5,12 @@ and shared by the tasks, the scripted expert, the evaluator and the exporters. S
 """
 from __future__ import annotations
 
-from .errors import DataNotFoundError, SemanticDataError, SemanticError
-from .paraphrase import paraphrases
-from .pools import clear_cache, get_pool
-from .sampler import EpisodeSampler
-from .spec import EpisodeSpec
-from .suites import (
+from rsb_maniskill.semantic.errors import DataNotFoundError, SemanticDataError, SemanticError
+from rsb_maniskill.semantic.paraphrase import paraphrases
+from rsb_maniskill.semantic.pools import clear_cache, get_pool
+from rsb_maniskill.semantic.sampler import EpisodeSampler
+from rsb_maniskill.semantic.spec import EpisodeSpec
+from rsb_maniskill.semantic.suites import (
     COLOR_MAPS,
     INSTRUCTION_SETS,
     LETTERS_4,
@@ -25,7 +25,7 @@ from .suites import (
     register_suite,
     suite_source,
 )
-from .templates import render_instruction
+from rsb_maniskill.semantic.templates import render_instruction
 
 __all__ = [
     "COLOR_MAPS", "DataNotFoundError", "EpisodeSampler", "EpisodeSpec", "INSTRUCTION_SETS",

@@ -30,13 +30,13 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Sequence
 
-from ..objects.catalog import CATEGORY_KEYS, category_name
-from ..objects.family import get_family
-from .normalize import numeric_values
-from .records import normalize_text
-from .suites import letters_for
-from .templates import Template, render_template, template_family
-from .wording import COLOUR_WORDS, OBJECT_NAMES, reference_names
+from rsb_maniskill.objects.catalog import CATEGORY_KEYS, category_name
+from rsb_maniskill.objects.family import get_family
+from rsb_maniskill.semantic.normalize import numeric_values
+from rsb_maniskill.semantic.records import normalize_text
+from rsb_maniskill.semantic.suites import letters_for
+from rsb_maniskill.semantic.templates import Template, render_template, template_family
+from rsb_maniskill.semantic.wording import COLOUR_WORDS, OBJECT_NAMES, reference_names
 
 _LETTERS = "ABCDEFGHIK"  # every option letter of the suites (J is never used)
 _OPERATOR = r"(?:\b(?:plus|minus|times|multiplied by|divided by)\b|[-+*/×÷]|\bx\b)"

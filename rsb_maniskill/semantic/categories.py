@@ -23,7 +23,7 @@ from __future__ import annotations
 import re
 from typing import Any, Iterable
 
-from .records import Question
+from rsb_maniskill.semantic.records import Question
 
 OPERATOR, STEPS, ANSWER_SIZE = "operator", "steps", "answer_size"
 SOURCE, MMLU_CATEGORY = "source", "mmlu_category"

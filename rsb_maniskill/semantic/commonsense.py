@@ -19,10 +19,10 @@ from collections import Counter
 from functools import lru_cache
 from typing import NamedTuple
 
-from . import knowledge as kb
-from .normalize import option_key, related_words
-from .records import Question
-from .stable import stable_bucket
+from rsb_maniskill.semantic import knowledge as kb
+from rsb_maniskill.semantic.normalize import option_key, related_words
+from rsb_maniskill.semantic.records import Question
+from rsb_maniskill.semantic.stable import stable_bucket
 
 TRAIN_PERCENT = 50
 

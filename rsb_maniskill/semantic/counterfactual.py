@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .sampler import EpisodeSampler
-from .spec import EpisodeSpec
-from .stable import episode_rng
+from rsb_maniskill.semantic.sampler import EpisodeSampler
+from rsb_maniskill.semantic.spec import EpisodeSpec
+from rsb_maniskill.semantic.stable import episode_rng
 
 MODE = "counterfactual"  # the instruction mode that runs the variants (rsb eval, rsb audit)
 MAX_VARIANTS = 4  # default K: min(N, MAX_VARIANTS) variants a scene

@@ -18,7 +18,7 @@ from typing import Any
 
 from rsb_maniskill import network
 
-from .errors import DataNotFoundError, EmptyDataError, SemanticDataError
+from rsb_maniskill.semantic.errors import DataNotFoundError, EmptyDataError, SemanticDataError
 
 ENV_VAR = "RSB_DATA_DIR"
 

@@ -6,7 +6,7 @@ import math
 from collections import Counter, defaultdict
 from typing import Iterable, Sequence
 
-from .normalize import question_key
+from rsb_maniskill.semantic.normalize import question_key
 
 NEAR_DUPLICATE_JACCARD = 0.8  # word-trigram Jaccard at or above which two questions count as one
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import os
 from collections import Counter
 
-from . import commonsense, mmlu_pro
-from .data import mmlu_pro_rows
-from .pools import Pool, data_key
-from .records import Question
+from rsb_maniskill.semantic import commonsense, mmlu_pro
+from rsb_maniskill.semantic.data import mmlu_pro_rows
+from rsb_maniskill.semantic.pools import Pool, data_key
+from rsb_maniskill.semantic.records import Question
 
 _MMLU_PRO: dict[str, tuple[dict[str, list[Question]], Counter]] = {}
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 import os
 import re
 
-from .data import gsm8k_rows
-from .errors import SemanticDataError
-from .normalize import question_key
-from .pools import Pool
-from .records import Question, format_number, normalize_text
+from rsb_maniskill.semantic.data import gsm8k_rows
+from rsb_maniskill.semantic.errors import SemanticDataError
+from rsb_maniskill.semantic.normalize import question_key
+from rsb_maniskill.semantic.pools import Pool
+from rsb_maniskill.semantic.records import Question, format_number, normalize_text
 
 _ANNOTATION = re.compile(r"<<[^>]*>>")
 _FINAL = re.compile(r"^(-?)(\d{1,3}(?:,\d{3})+|\d+)(?:\.(\d+))?$")

@@ -18,9 +18,9 @@ import os
 import re
 from functools import lru_cache
 
-from .pools import Pool
-from .records import Question
-from .stable import stable_key
+from rsb_maniskill.semantic.pools import Pool
+from rsb_maniskill.semantic.records import Question
+from rsb_maniskill.semantic.stable import stable_key
 
 TRAIN_SIZE = 500
 TEST_SIZE = 1000

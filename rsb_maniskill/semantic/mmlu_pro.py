@@ -20,12 +20,12 @@ from typing import Collection, Iterable, Sequence
 
 import numpy as np
 
-from ..objects.family import BLOCK_COLORS
-from .data import empty_data_error
-from .duplicates import duplicate_groups
-from .normalize import leading_numbers, option_key, question_key, similarity_matrix
-from .records import Question, normalize_text
-from .stable import stable_bucket, stable_key
+from rsb_maniskill.objects.family import BLOCK_COLORS
+from rsb_maniskill.semantic.data import empty_data_error
+from rsb_maniskill.semantic.duplicates import duplicate_groups
+from rsb_maniskill.semantic.normalize import leading_numbers, option_key, question_key, similarity_matrix
+from rsb_maniskill.semantic.records import Question, normalize_text
+from rsb_maniskill.semantic.stable import stable_bucket, stable_key
 
 N_OPTIONS = 10  # the pool holds questions with ten options of their own (RSB-General-10 shows all)
 TRAIN_PERCENT = 80  # of question groups: the evaluation pool keeps over 1,000 questions

@@ -6,10 +6,10 @@ rather than one template's wording. The rewording never leaves the episode's set
 """
 from __future__ import annotations
 
-from ..objects.family import get_family
-from .spec import EpisodeSpec
-from .suites import suite_source
-from .templates import render_direct, render_instruction, sibling_template_ids
+from rsb_maniskill.objects.family import get_family
+from rsb_maniskill.semantic.spec import EpisodeSpec
+from rsb_maniskill.semantic.suites import suite_source
+from rsb_maniskill.semantic.templates import render_direct, render_instruction, sibling_template_ids
 
 
 def paraphrases(spec: EpisodeSpec) -> tuple[str, ...]:

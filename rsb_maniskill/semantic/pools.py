@@ -11,11 +11,11 @@ import sys
 from collections import Counter
 from dataclasses import dataclass, field
 
-from .data import REFILL_HINT, data_source_label, resolve_data_dir
-from .distractors import Bins, value_bins
-from .errors import EmptyDataError
-from .records import Question
-from .suites import SOURCES, check_split, suite_source
+from rsb_maniskill.semantic.data import REFILL_HINT, data_source_label, resolve_data_dir
+from rsb_maniskill.semantic.distractors import Bins, value_bins
+from rsb_maniskill.semantic.errors import EmptyDataError
+from rsb_maniskill.semantic.records import Question
+from rsb_maniskill.semantic.suites import SOURCES, check_split, suite_source
 
 
 @dataclass

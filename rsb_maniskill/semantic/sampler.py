@@ -6,17 +6,17 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..objects.family import DEFAULT_TARGETS, get_family
-from ..perturb import language, parse_perturb
-from . import mmlu_pro, wording
-from .categories import episode_categories
-from .distractors import numeric_options, weighted_options
-from .pools import Pool, get_pool
-from .records import Question, format_number
-from .spec import EpisodeSpec
-from .stable import axis_rng, episode_rng
-from .suites import COLOR_MAPS, INSTRUCTION_SETS, check_split, letters_for, parse_suite_id, suite_source
-from .templates import get_template, render_direct, render_instruction, template_ids
+from rsb_maniskill.objects.family import DEFAULT_TARGETS, get_family
+from rsb_maniskill.perturb import language, parse_perturb
+from rsb_maniskill.semantic import mmlu_pro, wording
+from rsb_maniskill.semantic.categories import episode_categories
+from rsb_maniskill.semantic.distractors import numeric_options, weighted_options
+from rsb_maniskill.semantic.pools import Pool, get_pool
+from rsb_maniskill.semantic.records import Question, format_number
+from rsb_maniskill.semantic.spec import EpisodeSpec
+from rsb_maniskill.semantic.stable import axis_rng, episode_rng
+from rsb_maniskill.semantic.suites import COLOR_MAPS, INSTRUCTION_SETS, check_split, letters_for, parse_suite_id, suite_source
+from rsb_maniskill.semantic.templates import get_template, render_direct, render_instruction, template_ids
 
 
 def _sentence(text: str) -> str:

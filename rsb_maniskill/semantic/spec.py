@@ -6,7 +6,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from ..objects.family import DEFAULT_TARGETS
+from rsb_maniskill.objects.family import DEFAULT_TARGETS
 
 _TUPLE_FIELDS = ("options", "letters", "block_of_option", "block_names", "candidates")
 

@@ -18,7 +18,7 @@ import re
 from dataclasses import dataclass
 from typing import Sequence
 
-from .records import normalize_text
+from rsb_maniskill.semantic.records import normalize_text
 
 
 @dataclass(frozen=True)

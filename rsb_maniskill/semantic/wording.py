@@ -19,8 +19,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .records import normalize_text
-from .templates import Template, render_direct, render_template
+from rsb_maniskill.semantic.records import normalize_text
+from rsb_maniskill.semantic.templates import Template, render_direct, render_template
 
 # lang_reference, per level: 4-choice block colours, lettered blocks, and everyday categories.
 COLOUR_WORDS = {"red": "crimson", "green": "emerald", "blue": "sapphire", "yellow": "golden"}

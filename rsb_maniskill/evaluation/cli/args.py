@@ -18,8 +18,8 @@ from typing import Any, Mapping, Sequence
 
 from rsb_maniskill.outdirs import writable_dir
 
-from ..protocol import EVAL_ENV_KWARGS, EVAL_SEED_BASE
-from ..store import safe_name
+from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, EVAL_SEED_BASE
+from rsb_maniskill.evaluation.store import safe_name
 
 # Fixed by the protocol (the evaluation split): not settable with --env-arg.
 PROTOCOL_KEYS: tuple[str, ...] = tuple(EVAL_ENV_KWARGS)
@@ -237,7 +237,7 @@ def results_dir(out: str | None, label: str) -> Path:
 def check_policy_args(spec: str, policy_kwargs: Mapping[str, Any]) -> None:
     """``-a`` against the arguments of the policy's factory (``remote``: its protocol's options, checked
     with the server)."""
-    from ..policy import check_factory_args
+    from rsb_maniskill.evaluation.policy import check_factory_args
 
     if spec == "remote":
         return

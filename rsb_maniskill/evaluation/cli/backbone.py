@@ -13,8 +13,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..store import ManifestError, RecordsError
-from .args import (
+from rsb_maniskill.evaluation.store import ManifestError, RecordsError
+from rsb_maniskill.evaluation.cli.args import (
     BACKBONE_KEYS,
     EVAL_FLAG_KEYS,
     EvalError,
@@ -32,10 +32,10 @@ OWN_ENV_KEYS = {key: "rsb backbone builds its env with its own" for key in EVAL_
 def register(subparsers: argparse._SubParsersAction) -> None:
     from rsb_maniskill.env_ids import add_suites_argument
 
-    from ..backbone import BACKBONES
-    from ..protocol import EPISODES_PER_SUITE
-    from ..records import INSTRUCTION_MODES
-    from ..store import BACKBONE_FILE, RECORDS_FILE
+    from rsb_maniskill.evaluation.backbone import BACKBONES
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
+    from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
+    from rsb_maniskill.evaluation.store import BACKBONE_FILE, RECORDS_FILE
 
     p = subparsers.add_parser(
         "backbone", help="ask a backbone the protocol's questions as the policy gets them (the semantic gap)",
@@ -72,10 +72,10 @@ def run_backbone(args: argparse.Namespace) -> int:
 
 
 def _run_backbone(args: argparse.Namespace) -> int:
-    from ..backbone import ask_episodes, load_backbone, resolve_backbone
-    from ..protocol import eval_seeds
-    from ..reporting.gap import backbone_markdown, gap_markdown, gap_table
-    from ..store import BACKBONE_FILE, RECORDS_FILE, check_manifest, read_backbone_records, read_records
+    from rsb_maniskill.evaluation.backbone import ask_episodes, load_backbone, resolve_backbone
+    from rsb_maniskill.evaluation.protocol import eval_seeds
+    from rsb_maniskill.evaluation.reporting.gap import backbone_markdown, gap_markdown, gap_table
+    from rsb_maniskill.evaluation.store import BACKBONE_FILE, RECORDS_FILE, check_manifest, read_backbone_records, read_records
 
     suites = args.suites  # resolved at parse time (env_ids.add_suites_argument)
     if args.num_episodes < 1:
@@ -120,8 +120,8 @@ def _run_backbone(args: argparse.Namespace) -> int:
     print(backbone_markdown(answers))
     episodes = read_records(out / RECORDS_FILE) if (out / RECORDS_FILE).exists() else []
     if episodes:
-        from ..reporting.summary import results_from_records
-        from ..reporting.writer import write_html_report, write_report
+        from rsb_maniskill.evaluation.reporting.summary import results_from_records
+        from rsb_maniskill.evaluation.reporting.writer import write_html_report, write_report
 
         paths = write_report(results_from_records(episodes), out, records=episodes)
         print(gap_markdown(gap_table(episodes, answers)))

@@ -23,9 +23,9 @@ from typing import Any
 
 from rsb_maniskill.debug import print_error
 
-from ..policy_error import PolicyError
-from ..store import ManifestError, RecordsError
-from .args import (
+from rsb_maniskill.evaluation.policy_error import PolicyError
+from rsb_maniskill.evaluation.store import ManifestError, RecordsError
+from rsb_maniskill.evaluation.cli.args import (
     MANIFEST_KEYS,
     SEEDS_TEXT,
     EvalError,
@@ -46,9 +46,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     from rsb_maniskill.robot import CONTROL_MODE
     from rsb_maniskill.workers_plan import add_worker_args
 
-    from ..policy import POLICIES
-    from ..protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS
-    from ..records import EVAL_INSTRUCTION_MODES
+    from rsb_maniskill.evaluation.policy import POLICIES
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS
+    from rsb_maniskill.evaluation.records import EVAL_INSTRUCTION_MODES
 
     state_only = [name for name, spec in POLICIES.items() if spec.obs_mode == "state"]
 
@@ -118,7 +118,7 @@ def perturbations(perturb: list[str], sweep: list[str]) -> list[dict[str, int]]:
 
 def check_variants(variants: int | None, modes: list[str], suites: list[str]) -> None:
     """``--variants K``: only with ``--instruction counterfactual``, and 2 <= K <= N for every suite."""
-    from ..protocol import COUNTERFACTUAL, scene_variants
+    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, scene_variants
 
     if variants is None:
         return
@@ -133,14 +133,14 @@ def check_variants(variants: int | None, modes: list[str], suites: list[str]) ->
 
 def episodes_per_scene(suite: str, mode: str, variants: int | None) -> int:
     """Episodes a scene gives in ``mode``: K in counterfactual mode, else 1."""
-    from ..protocol import COUNTERFACTUAL, scene_variants
+    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, scene_variants
 
     return scene_variants(suite, variants) if mode == COUNTERFACTUAL else 1
 
 
 def check_policy_spec(spec: str, num_envs: int = 1) -> None:
     """Fail before any env is built when a spec cannot resolve, or cannot run on parallel envs."""
-    from ..policy import policy_spec, resolve_factory
+    from rsb_maniskill.evaluation.policy import policy_spec, resolve_factory
 
     if num_envs > 1 and policy_spec(spec).single_env:
         raise EvalError(f"policy {spec!r} drives one env at a time: use --num-procs, not --num-envs")
@@ -158,7 +158,7 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
 
 def run_eval(args: argparse.Namespace) -> int:
     # SIGTERM (a scheduler's stop) ends the run like Ctrl-C: workers stopped, summary written.
-    from ..jobs import JobError
+    from rsb_maniskill.evaluation.jobs import JobError
 
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
@@ -179,8 +179,8 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
     """Every suite x instruction mode x perturbation, one after the other."""
     from rsb_maniskill.env_ids import CPU_SIM_BACKEND, GPU_SIM_BACKEND
 
-    from ..jobs import EvalJob, run_job
-    from ..protocol import COUNTERFACTUAL, eval_seeds
+    from rsb_maniskill.evaluation.jobs import EvalJob, run_job
+    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, eval_seeds
 
     for suite in suites:
         for mode, perturb in ((m, p) for m in args.instruction for p in perturbs):
@@ -197,8 +197,8 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
 
 def _print_counterfactual(records: list[dict]) -> None:
     """The follow / switch / stuck tables of counterfactual runs (nothing without them)."""
-    from ..counterfactual import counterfactual_table
-    from ..reporting.counterfactual import counterfactual_markdown
+    from rsb_maniskill.evaluation.counterfactual import counterfactual_table
+    from rsb_maniskill.evaluation.reporting.counterfactual import counterfactual_markdown
 
     table = counterfactual_table(records)
     if table:
@@ -210,10 +210,10 @@ def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.version import BENCHMARK_VERSION
     from rsb_maniskill.workers_plan import executor_from_args, obs_mode_renders, resolve_workers
 
-    from ..jobs import JobError
-    from ..policy import policy_spec
-    from ..protocol import eval_seeds
-    from ..store import RECORDS_FILE, RunStart, check_manifest, read_records
+    from rsb_maniskill.evaluation.jobs import JobError
+    from rsb_maniskill.evaluation.policy import policy_spec
+    from rsb_maniskill.evaluation.protocol import eval_seeds
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, RunStart, check_manifest, read_records
 
     suites = args.suites
     for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-envs", args.num_envs, 1),
@@ -253,7 +253,7 @@ def _run_eval(args: argparse.Namespace) -> int:
     check_env_settings(suites, env_kwargs, obs_mode, args.control_mode)
     check_data(suites, env_kwargs.get("data_dir"), env_kwargs.get("color_map"))
     if args.policy == "remote":
-        from ..remote import check_remote_args
+        from rsb_maniskill.evaluation.remote import check_remote_args
 
         try:
             check_remote_args(policy_kwargs, args.obs_mode or "rgb")
@@ -289,11 +289,11 @@ def _run_eval(args: argparse.Namespace) -> int:
 
     from rsb_maniskill.perturb import label as perturb_label
 
-    from ..records import perturb_label as record_perturb
-    from ..reporting.reasoning import reasoning_markdown, reasoning_table
-    from ..reporting.robustness import robustness_markdown, robustness_table
-    from ..reporting.summary import markdown_tables, results_from_records
-    from ..reporting.writer import write_html_report, write_report
+    from rsb_maniskill.evaluation.records import perturb_label as record_perturb
+    from rsb_maniskill.evaluation.reporting.reasoning import reasoning_markdown, reasoning_table
+    from rsb_maniskill.evaluation.reporting.robustness import robustness_markdown, robustness_table
+    from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records
+    from rsb_maniskill.evaluation.reporting.writer import write_html_report, write_report
 
     wanted = {(s, m, perturb_label(p)) for s in suites for m in args.instruction for p in perturbs}
     all_records = read_records(records_path)

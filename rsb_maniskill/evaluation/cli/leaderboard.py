@@ -19,9 +19,9 @@ DEFAULT_TITLE = "RSB leaderboard"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from ..protocol import EPISODES_PER_SUITE
-    from ..records import INSTRUCTION_MODES
-    from ..reporting.vla_eval_leaderboard import WEIGHT_TYPES
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
+    from rsb_maniskill.evaluation.records import INSTRUCTION_MODES
+    from rsb_maniskill.evaluation.reporting.vla_eval_leaderboard import WEIGHT_TYPES
 
     p = subparsers.add_parser(
         "leaderboard", help="several runs side by side: index.html, leaderboard.md and .csv; vla-eval records",
@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _check_args(args: argparse.Namespace) -> None:
-    from ..reporting.leaderboard import LeaderboardError
+    from rsb_maniskill.evaluation.reporting.leaderboard import LeaderboardError
 
     if not args.out and not args.vla_eval:
         raise LeaderboardError("nothing to write: give --out DIR (the leaderboard) and/or --vla-eval FILE")
@@ -69,9 +69,9 @@ def _check_args(args: argparse.Namespace) -> None:
 
 
 def run_leaderboard(args: argparse.Namespace) -> int:
-    from ..reporting.leaderboard import LeaderboardError, build_leaderboard, load_run, select_rows
-    from ..reporting.leaderboard_files import render_leaderboard, write_leaderboard, write_text
-    from ..reporting.vla_eval_leaderboard import vla_eval_document
+    from rsb_maniskill.evaluation.reporting.leaderboard import LeaderboardError, build_leaderboard, load_run, select_rows
+    from rsb_maniskill.evaluation.reporting.leaderboard_files import render_leaderboard, write_leaderboard, write_text
+    from rsb_maniskill.evaluation.reporting.vla_eval_leaderboard import vla_eval_document
 
     try:  # read, check and render everything first: a refusal writes nothing
         _check_args(args)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from ..store import RECORDS_FILE
+    from rsb_maniskill.evaluation.store import RECORDS_FILE
 
     p = subparsers.add_parser(
         "report", help="write report.html, results.json and summary.*; --compare: two runs side by side",
@@ -40,9 +40,9 @@ def report_vla_eval(path: str | os.PathLike, out: str | os.PathLike | None = Non
                     title: str | None = None) -> Path:
     """Write ``summary.{md,json,csv}``, the charts and ``report.html`` (or ``out``) beside vla-eval
     results and print the paper's tables; returns the page."""
-    from ..reporting.summary import markdown_tables, results_from_records
-    from ..reporting.vla_eval_results import read_vla_eval_records
-    from ..reporting.writer import write_html_report, write_report
+    from rsb_maniskill.evaluation.reporting.summary import markdown_tables, results_from_records
+    from rsb_maniskill.evaluation.reporting.vla_eval_results import read_vla_eval_records
+    from rsb_maniskill.evaluation.reporting.writer import write_html_report, write_report
 
     records = read_vla_eval_records(path)
     results_dir = Path(path) if Path(path).is_dir() else Path(path).parent
@@ -53,11 +53,11 @@ def report_vla_eval(path: str | os.PathLike, out: str | os.PathLike | None = Non
 
 
 def run_report(args: argparse.Namespace) -> int:
-    from ..reporting.results import RESULTS_FILE, compare, load_results
-    from ..reporting.summary import results_from_records
-    from ..reporting.vla_eval_results import is_vla_eval_results
-    from ..reporting.writer import ReportError, write_html_report, write_report
-    from ..store import RECORDS_FILE, read_manifest, read_records
+    from rsb_maniskill.evaluation.reporting.results import RESULTS_FILE, compare, load_results
+    from rsb_maniskill.evaluation.reporting.summary import results_from_records
+    from rsb_maniskill.evaluation.reporting.vla_eval_results import is_vla_eval_results
+    from rsb_maniskill.evaluation.reporting.writer import ReportError, write_html_report, write_report
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
 
     try:
         if args.compare:

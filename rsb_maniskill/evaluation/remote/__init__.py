@@ -19,11 +19,11 @@ PROTOCOLS = ("openpi", "vla-eval")
 def remote_policy(protocol: str = "openpi", **kwargs: Any) -> Any:
     """The ``remote`` policy: an openpi client (``RemotePolicy``) or a vla-eval one (``VlaEvalPolicy``)."""
     if protocol == "openpi":
-        from .client import RemotePolicy
+        from rsb_maniskill.evaluation.remote.client import RemotePolicy
 
         return RemotePolicy(**kwargs)
     if protocol == "vla-eval":
-        from .vla_eval import VlaEvalPolicy
+        from rsb_maniskill.evaluation.remote.vla_eval import VlaEvalPolicy
 
         return VlaEvalPolicy(**kwargs)
     raise ValueError(f"unknown protocol {protocol!r}; known: {', '.join(PROTOCOLS)}")
@@ -33,11 +33,11 @@ def check_remote_args(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:
     """Before any env is built: the ``remote`` policy's arguments for its protocol (ValueError, one line)."""
     protocol = policy_kwargs.get("protocol", "openpi")
     if protocol == "openpi":
-        from .client import check_remote_args as check_openpi
+        from rsb_maniskill.evaluation.remote.client import check_remote_args as check_openpi
 
         check_openpi(policy_kwargs, obs_mode)
     elif protocol == "vla-eval":
-        from .vla_eval import probe_server
+        from rsb_maniskill.evaluation.remote.vla_eval import probe_server
 
         probe_server(policy_kwargs, obs_mode)
     else:

@@ -11,8 +11,8 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from ..policy import as_chunk, join_outputs
-from .wire import flatten_obs, open_websocket, packb, unpackb
+from rsb_maniskill.evaluation.policy import as_chunk, join_outputs
+from rsb_maniskill.evaluation.remote.wire import flatten_obs, open_websocket, packb, unpackb
 
 
 def _row(obs: Any, i: int) -> Any:
@@ -35,7 +35,7 @@ def check_remote_args(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:
     """Before any env is built (``rsb eval remote``, openpi's protocol): the options, the preset's
     arguments and the obs mode they need (``openpi.py``), and the server: reachable, and sending its
     metadata, within ``connect_timeout`` (default 60 s). ValueError / ConnectionError, one line."""
-    from .openpi import check_preset_args
+    from rsb_maniskill.evaluation.remote.openpi import check_preset_args
 
     kwargs = {k: v for k, v in policy_kwargs.items() if k != "protocol"}
     options = [name for name in inspect.signature(RemotePolicy).parameters if name != "obs_transform"]
@@ -95,7 +95,7 @@ class RemotePolicy:
     ) -> None:
         self.preset = None
         if preset is not None:
-            from .openpi import make_preset
+            from rsb_maniskill.evaluation.remote.openpi import make_preset
 
             if obs_transform is not None:
                 raise ValueError("give RemotePolicy either a preset or an obs_transform, not both")

@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from ..policy import as_chunk, as_chunks, is_batched, load_policy, split_output, split_outputs
-from .openpi import PRESETS, make_preset
-from .wire import INSTALL_HINT, packb, unflatten_obs, unpackb
+from rsb_maniskill.evaluation.policy import as_chunk, as_chunks, is_batched, load_policy, split_output, split_outputs
+from rsb_maniskill.evaluation.remote.openpi import PRESETS, make_preset
+from rsb_maniskill.evaluation.remote.wire import INSTALL_HINT, packb, unflatten_obs, unpackb
 
 logger = logging.getLogger(__name__)
 

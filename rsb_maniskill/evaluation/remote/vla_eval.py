@@ -35,10 +35,10 @@ import numpy as np
 
 from rsb_maniskill.batch import env_row
 
-from ..policy import as_chunk
-from ..records import VLA_EVAL_RUNNER
-from .vla_eval_layout import VlaEvalLayout, check_server_spec, make_layout, vla_eval_module
-from .wire import open_websocket
+from rsb_maniskill.evaluation.policy import as_chunk
+from rsb_maniskill.evaluation.records import VLA_EVAL_RUNNER
+from rsb_maniskill.evaluation.remote.vla_eval_layout import VlaEvalLayout, check_server_spec, make_layout, vla_eval_module
+from rsb_maniskill.evaluation.remote.wire import open_websocket
 
 TASK = {"name": "RSB", "suite": "RSB"}  # the episode_start task: the policy is not told the suite or seed
 

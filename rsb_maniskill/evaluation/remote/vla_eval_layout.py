@@ -41,7 +41,7 @@ from rsb_maniskill.robot import (
     to_aloha14,
 )
 
-from .openpi import aloha14_from_qpos
+from rsb_maniskill.evaluation.remote.openpi import aloha14_from_qpos
 
 INSTALL_HINT = "vla-eval's protocol needs `pip install 'vla-eval>=0.8,<0.9'` (extra: rsb_maniskill[vla_eval])"
 GRIPPERS = ("open", "closed")

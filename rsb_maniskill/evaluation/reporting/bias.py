@@ -12,10 +12,10 @@ from typing import Any, Mapping
 
 from rsb_maniskill.objects.family import BLOCK_COLORS
 
-from ..bias import ALPHA, AXES, MIN_GRASPS, POSITION, Preference, SuiteBias, axis_title
-from ..metrics import Rate, suite_order
-from .categories import SMALL_MARK
-from .cells import NA, markdown_table, pct
+from rsb_maniskill.evaluation.bias import ALPHA, AXES, MIN_GRASPS, POSITION, Preference, SuiteBias, axis_title
+from rsb_maniskill.evaluation.metrics import Rate, suite_order
+from rsb_maniskill.evaluation.reporting.categories import SMALL_MARK
+from rsb_maniskill.evaluation.reporting.cells import NA, markdown_table, pct
 
 Table = Mapping[str, Mapping[str, SuiteBias]]
 BAR_COLOR = "#6baed6"  # bars of positions, letters and objects (a 4-choice block's bar takes its colour)

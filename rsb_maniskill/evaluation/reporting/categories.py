@@ -13,8 +13,8 @@ from typing import Any, Mapping
 
 from rsb_maniskill.semantic.categories import DIMENSIONS, SUITE_KIND, value_label
 
-from ..categories import SMALL_CELL, CategoryCell, RowCategories
-from .cells import markdown_table, rate_cell
+from rsb_maniskill.evaluation.categories import SMALL_CELL, CategoryCell, RowCategories
+from rsb_maniskill.evaluation.reporting.cells import markdown_table, rate_cell
 
 Tables = Mapping[str, RowCategories]
 SMALL_MARK = "†"  # after the episode count of a cell under SMALL_CELL episodes (the page greys its line)

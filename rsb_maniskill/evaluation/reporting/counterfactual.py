@@ -7,9 +7,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..counterfactual import CHANCE_FORMULAS, POOLED, CounterfactualMetrics, Table
-from .cells import NA, markdown_table, pct, rate_cell
-from .figures import png_uri, png_with_legend_below, rate_bars
+from rsb_maniskill.evaluation.counterfactual import CHANCE_FORMULAS, POOLED, CounterfactualMetrics, Table
+from rsb_maniskill.evaluation.reporting.cells import NA, markdown_table, pct, rate_cell
+from rsb_maniskill.evaluation.reporting.figures import png_uri, png_with_legend_below, rate_bars
 
 RATES = ("follow", "switch", "stuck")  # the plotted rates, each beside its chance line
 COLORS = {"follow": "#2171b5", "switch": "#41ab5d", "stuck": "#d94801"}

@@ -16,10 +16,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
-from ..metrics import Rate, outcome, suite_metrics, suite_order
-from ..records import dedupe, perturb_label, row_label
-from .cells import markdown_table, rate_cell
-from .figures import png_uri, png_with_legend_below, rate_bars
+from rsb_maniskill.evaluation.metrics import Rate, outcome, suite_metrics, suite_order
+from rsb_maniskill.evaluation.records import dedupe, perturb_label, row_label
+from rsb_maniskill.evaluation.reporting.cells import markdown_table, rate_cell
+from rsb_maniskill.evaluation.reporting.figures import png_uri, png_with_legend_below, rate_bars
 
 CROSSING = ("right/right", "right/wrong", "wrong/right", "wrong/wrong")  # backbone / arm, over grasped episodes
 

@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from ..metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, Rate, average, num_choices, suite_order
-from ..protocol import EPISODES_PER_SUITE
-from .results import RESULTS_FILE, SCHEMA_ID, SCHEMA_VERSION, load_results, results_document
+from rsb_maniskill.evaluation.metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, Rate, average, num_choices, suite_order
+from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
+from rsb_maniskill.evaluation.reporting.results import RESULTS_FILE, SCHEMA_ID, SCHEMA_VERSION, load_results, results_document
 
 RANDOM = "Random (1/N)"  # the random-selection line of the paper's tables
 # Keys of a protocol, besides the benchmark version: rows that differ in one never share a column.
@@ -79,7 +79,7 @@ class Leaderboard:
 def load_run(path: str | os.PathLike) -> Run:
     """The run at ``path``: an RSB ``results.json`` or a vla-eval ``*_aggregate.json``; or a results
     directory (``episodes.jsonl``, else vla-eval results, else ``results.json``)."""
-    from .vla_eval_results import is_vla_eval_results, read_vla_eval_records, records_from_results
+    from rsb_maniskill.evaluation.reporting.vla_eval_results import is_vla_eval_results, read_vla_eval_records, records_from_results
 
     p = Path(path)
     try:

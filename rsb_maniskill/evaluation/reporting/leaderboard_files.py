@@ -17,9 +17,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..metrics import num_choices
-from .cells import NA, ci, markdown_table, pct
-from .leaderboard import Entry, Leaderboard, protocol_text
+from rsb_maniskill.evaluation.metrics import num_choices
+from rsb_maniskill.evaluation.reporting.cells import NA, ci, markdown_table, pct
+from rsb_maniskill.evaluation.reporting.leaderboard import Entry, Leaderboard, protocol_text
 
 PAGE_TEMPLATE = "leaderboard.html.j2"
 FILES = {"markdown": "leaderboard.md", "csv": "leaderboard.csv", "html": "index.html"}
@@ -99,7 +99,7 @@ def _md_cell(value: str, interval: str) -> str:
 
 def notes(board: Leaderboard) -> list[str]:
     """What the marks and the Random line mean."""
-    from ..protocol import EPISODES_PER_SUITE
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
 
     out = [f"{SHORT} fewer episodes than the protocol's {EPISODES_PER_SUITE} in a suite: wider intervals, not a "
            f"full-protocol row. {OFF_SEEDS} a suite's episodes are not the protocol's seeds.",
@@ -196,7 +196,7 @@ def page_rows(board: Leaderboard) -> list[dict[str, Any]]:
 def leaderboard_html(board: Leaderboard, title: str) -> str:
     from rsb_maniskill.version import benchmark_label, code_label
 
-    from .page import templates
+    from rsb_maniskill.evaluation.reporting.page import templates
 
     return templates().get_template(PAGE_TEMPLATE).render(
         title=title, version=benchmark_label(board.benchmark_version), protocol=protocol_text(board.protocol),

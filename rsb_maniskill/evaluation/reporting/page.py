@@ -31,12 +31,12 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from markupsafe import Markup
 
-from ..metrics import OUTCOMES, SuiteMetrics, average, outcome, suite_order
-from ..records import CATEGORIES_FIELD, EVAL_INSTRUCTION_MODES, dedupe, one_version, record_row
-from ..store import BACKBONE_FILE, read_backbone_records, read_manifest
-from .categories import SMALL_MARK
-from .cells import pct
-from .summary import ERRORS_HEADING, markdown_tables, results_from_records, suite_columns
+from rsb_maniskill.evaluation.metrics import OUTCOMES, SuiteMetrics, average, outcome, suite_order
+from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, EVAL_INSTRUCTION_MODES, dedupe, one_version, record_row
+from rsb_maniskill.evaluation.store import BACKBONE_FILE, read_backbone_records, read_manifest
+from rsb_maniskill.evaluation.reporting.categories import SMALL_MARK
+from rsb_maniskill.evaluation.reporting.cells import pct
+from rsb_maniskill.evaluation.reporting.summary import ERRORS_HEADING, markdown_tables, results_from_records, suite_columns
 
 TEMPLATES = "evaluation/reporting/templates"  # package data of rsb_maniskill
 PAGE_TEMPLATE = "report.html.j2"
@@ -274,7 +274,7 @@ def _error_rows(results: Mapping[str, Mapping[str, SuiteMetrics]]) -> list[dict[
 def _robustness(records: Sequence[Mapping[str, Any]]) -> Markup | None:
     """The robustness tables (per axis and level, GSR / TSR / nSG and their change from level 0),
     or None when no episode was perturbed."""
-    from .robustness import robustness_markdown, robustness_table
+    from rsb_maniskill.evaluation.reporting.robustness import robustness_markdown, robustness_table
 
     table = robustness_table(records)
     return markdown_to_html(robustness_markdown(table)) if table else None
@@ -282,7 +282,7 @@ def _robustness(records: Sequence[Mapping[str, Any]]) -> Markup | None:
 
 def _reasoning(records: Sequence[Mapping[str, Any]]) -> Markup | None:
     """Table 5 (what a talking policy stated against what it grasped), or None when no policy talked."""
-    from .reasoning import reasoning_markdown, reasoning_table
+    from rsb_maniskill.evaluation.reporting.reasoning import reasoning_markdown, reasoning_table
 
     table = reasoning_table(records)
     return markdown_to_html(reasoning_markdown(table)) if table else None
@@ -290,16 +290,16 @@ def _reasoning(records: Sequence[Mapping[str, Any]]) -> Markup | None:
 
 def _categories(records: Sequence[Mapping[str, Any]]) -> Markup:
     """The per-category tables (a note when the records carry no categories)."""
-    from ..categories import category_tables
-    from .categories import categories_markdown
+    from rsb_maniskill.evaluation.categories import category_tables
+    from rsb_maniskill.evaluation.reporting.categories import categories_markdown
 
     return markdown_to_html(categories_markdown(category_tables(records)))
 
 
 def _bias(records: Sequence[Mapping[str, Any]]) -> tuple[Markup | None, list[dict[str, Any]]]:
     """The bias tables, and what the page draws of them (a bar chart per row, suite and axis)."""
-    from ..bias import bias_table
-    from .bias import bias_markdown, bias_plots
+    from rsb_maniskill.evaluation.bias import bias_table
+    from rsb_maniskill.evaluation.reporting.bias import bias_markdown, bias_plots
 
     table = bias_table(records)
     return (markdown_to_html(bias_markdown(table)) if table else None), bias_plots(table)
@@ -308,7 +308,7 @@ def _bias(records: Sequence[Mapping[str, Any]]) -> tuple[Markup | None, list[dic
 def _gap(records: Sequence[Mapping[str, Any]], results_dir: Path) -> tuple[Markup | None, str | None]:
     """The semantic gap's tables and plot (a backbone's answers beside the policy's actions, ``rsb
     backbone``), or (None, None) when the directory holds no answers."""
-    from .gap import backbone_markdown, gap_markdown, gap_table, plot_gap_uri
+    from rsb_maniskill.evaluation.reporting.gap import backbone_markdown, gap_markdown, gap_table, plot_gap_uri
 
     if not (results_dir / BACKBONE_FILE).exists():
         return None, None
@@ -321,8 +321,8 @@ def _gap(records: Sequence[Mapping[str, Any]], results_dir: Path) -> tuple[Marku
 def _counterfactual(records: Sequence[Mapping[str, Any]]) -> tuple[Markup | None, str | None]:
     """The counterfactual-scenes tables and plot (``rsb eval --instruction counterfactual``), or
     (None, None) when the records hold none."""
-    from ..counterfactual import counterfactual_table
-    from .counterfactual import counterfactual_markdown, plot_counterfactual_uri
+    from rsb_maniskill.evaluation.counterfactual import counterfactual_table
+    from rsb_maniskill.evaluation.reporting.counterfactual import counterfactual_markdown, plot_counterfactual_uri
 
     table = counterfactual_table(records)
     if not table:

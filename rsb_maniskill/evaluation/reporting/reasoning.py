@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from typing import Any, Iterable, Mapping
 
-from ..metrics import Rate, group_by_suite, suite_order
-from ..records import dedupe, perturb_label, row_label
-from ..statements import FAILURE_LABELS, FAILURES, STATEMENTS, ReasoningFollowing, reasoning_following, talks
-from .cells import markdown_table, rate_cell
+from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, suite_order
+from rsb_maniskill.evaluation.records import dedupe, perturb_label, row_label
+from rsb_maniskill.evaluation.statements import FAILURE_LABELS, FAILURES, STATEMENTS, ReasoningFollowing, reasoning_following, talks
+from rsb_maniskill.evaluation.reporting.cells import markdown_table, rate_cell
 
 Table = Mapping[str, Mapping[str, ReasoningFollowing]]
 STATED = {"right": "Stated right", "wrong": "Stated wrong", "none": "No statement"}

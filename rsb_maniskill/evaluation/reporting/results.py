@@ -17,10 +17,10 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from ..metrics import PAPER_SUITES, Rate, SuiteMetrics, average, summarize
-from ..records import COUNTERFACTUAL, dedupe, one_version, perturb_label, row_label
-from ..store import RECORDS_FILE, read_manifest, read_records
-from .cells import NA, ci, delta, pct
+from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate, SuiteMetrics, average, summarize
+from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, one_version, perturb_label, row_label
+from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
+from rsb_maniskill.evaluation.reporting.cells import NA, ci, delta, pct
 
 RESULTS_FILE = "results.json"
 METRIC_NAMES = {"gsr": "GSR", "tsr": "TSR", "nsg": "nSG"}  # as the paper and every table write them
@@ -34,7 +34,7 @@ def _rate(rate: Rate) -> dict[str, float | None]:
 
 
 def _suite(m: SuiteMetrics, seeds: set[int]) -> dict[str, Any]:
-    from ..protocol import eval_seeds
+    from rsb_maniskill.evaluation.protocol import eval_seeds
 
     protocol = seeds == set(eval_seeds(m.suite_id, max(1, m.n_episodes)))  # the protocol's first n episodes
     return {"n_choices": m.n_choices, "n": m.n_episodes, "protocol_seeds": protocol,
@@ -48,7 +48,7 @@ def results_document(records: Iterable[Mapping[str, Any]], runs: Mapping[str, Ma
     the run), when the directory has one."""
     from rsb_maniskill.version import BENCHMARK, version_fields
 
-    from ..protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS, EVAL_SEED_BASE
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS, EVAL_SEED_BASE
 
     records = dedupe(records)
     version = one_version(records)

@@ -12,9 +12,9 @@ from typing import Any, Iterable, Mapping
 
 from rsb_maniskill.perturb import AXES
 
-from ..metrics import SuiteMetrics, summarize
-from ..records import dedupe, perturb_label, row_label
-from .cells import NA, delta, markdown_table, rate_cell
+from rsb_maniskill.evaluation.metrics import SuiteMetrics, summarize
+from rsb_maniskill.evaluation.records import dedupe, perturb_label, row_label
+from rsb_maniskill.evaluation.reporting.cells import NA, delta, markdown_table, rate_cell
 
 Table = dict[str, dict[str, dict[str, dict[int, SuiteMetrics]]]]  # row -> suite -> axis -> level -> metrics
 

@@ -16,9 +16,9 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.objects.family import OBJECTS_SUFFIX
 
-from ..metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, SuiteMetrics, average, suite_order, summarize
-from ..records import dedupe, one_version, record_row
-from .cells import ci, markdown_table, pct
+from rsb_maniskill.evaluation.metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, Average, SuiteMetrics, average, suite_order, summarize
+from rsb_maniskill.evaluation.records import dedupe, one_version, record_row
+from rsb_maniskill.evaluation.reporting.cells import ci, markdown_table, pct
 
 Results = Mapping[str, Mapping[str, SuiteMetrics]]
 # The heading of paper Table 7 (the last table): the page shows it in its error analysis section.

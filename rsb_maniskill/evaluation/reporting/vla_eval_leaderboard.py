@@ -29,10 +29,10 @@ from collections import defaultdict
 from datetime import datetime, timezone
 from typing import Any, Mapping, Sequence
 
-from ..metrics import PAPER_SUITES
-from ..records import INSTRUCTION_MODES, row_label
-from .cells import pct
-from .leaderboard import LeaderboardError, Run, told_apart
+from rsb_maniskill.evaluation.metrics import PAPER_SUITES
+from rsb_maniskill.evaluation.records import INSTRUCTION_MODES, row_label
+from rsb_maniskill.evaluation.reporting.cells import pct
+from rsb_maniskill.evaluation.reporting.leaderboard import LeaderboardError, Run, told_apart
 
 BENCHMARK_KEY = "rsb_ms"  # + "_v1_1": the benchmark version
 WEIGHT_TYPES = ("shared", "finetuned")  # vla-eval: the same checkpoint across benchmarks / trained on RSB data
@@ -70,7 +70,7 @@ def _notes(run: Run, rows: Mapping[str, Mapping[str, Any]], perturb: str, overal
     """What a reader of the entry needs to know: the protocol, how the keys read, episodes, nSG."""
     from rsb_maniskill.version import benchmark_label
 
-    from ..protocol import EPISODES_PER_SUITE
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
 
     doc, proto = run.doc, run.doc["protocol"]
     first = next(iter(rows.values()))

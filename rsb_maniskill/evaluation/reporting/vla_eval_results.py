@@ -18,8 +18,8 @@ import warnings
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..records import VERSION_FIELD, VLA_EVAL_RUNNER
-from ..store import RECORDS_FILE
+from rsb_maniskill.evaluation.records import VERSION_FIELD, VLA_EVAL_RUNNER
+from rsb_maniskill.evaluation.store import RECORDS_FILE
 
 AGGREGATE_GLOB = "*_aggregate.json"  # vla-eval's results files
 

@@ -15,12 +15,12 @@ import os
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from ..records import one_version
-from ..store import BACKBONE_FILE, RECORDS_FILE, read_backbone_records, read_records, safe_name
-from .reasoning import reasoning_json, reasoning_markdown, reasoning_rows, reasoning_table
-from .results import write_results
-from .robustness import robustness_markdown, robustness_rows, robustness_table
-from .summary import Results, plot_summary, write_csv, write_json, write_markdown
+from rsb_maniskill.evaluation.records import one_version
+from rsb_maniskill.evaluation.store import BACKBONE_FILE, RECORDS_FILE, read_backbone_records, read_records, safe_name
+from rsb_maniskill.evaluation.reporting.reasoning import reasoning_json, reasoning_markdown, reasoning_rows, reasoning_table
+from rsb_maniskill.evaluation.reporting.results import write_results
+from rsb_maniskill.evaluation.reporting.robustness import robustness_markdown, robustness_rows, robustness_table
+from rsb_maniskill.evaluation.reporting.summary import Results, plot_summary, write_csv, write_json, write_markdown
 
 REPORT_FILE = "report.html"
 
@@ -78,7 +78,7 @@ def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summ
 def _write_gap(paths: Mapping[str, Path], out: Path, stem: str, records: Sequence[Mapping[str, Any]]
                ) -> dict[str, Path]:
     """The backbone section when ``out`` holds ``rsb backbone`` answers; the gap's CSV and plot."""
-    from .gap import backbone_markdown, gap_json, gap_markdown, gap_rows, gap_table, plot_gap
+    from rsb_maniskill.evaluation.reporting.gap import backbone_markdown, gap_json, gap_markdown, gap_rows, gap_table, plot_gap
 
     if not (out / BACKBONE_FILE).exists():
         return {}
@@ -97,10 +97,10 @@ def _write_why(paths: Mapping[str, Path], out: Path, stem: str, records: Sequenc
     """Why a policy fails: the per-category tables (``categories``, ``<stem>_categories.csv``; a
     note instead when the records carry no categories) and the bias tables (``bias``,
     ``<stem>_bias.csv``)."""
-    from ..bias import bias_table
-    from ..categories import category_tables
-    from .bias import bias_json, bias_markdown, bias_rows
-    from .categories import categories_json, categories_markdown, categories_rows
+    from rsb_maniskill.evaluation.bias import bias_table
+    from rsb_maniskill.evaluation.categories import category_tables
+    from rsb_maniskill.evaluation.reporting.bias import bias_json, bias_markdown, bias_rows
+    from rsb_maniskill.evaluation.reporting.categories import categories_json, categories_markdown, categories_rows
 
     if not records:
         return {}
@@ -119,8 +119,8 @@ def _write_counterfactual(paths: Mapping[str, Path], out: Path, stem: str, recor
                           ) -> dict[str, Path]:
     """The counterfactual section when the records hold ``--instruction counterfactual`` runs: the
     summary's ``counterfactual`` section, ``<stem>_counterfactual.csv`` and ``.png``."""
-    from ..counterfactual import counterfactual_json, counterfactual_table
-    from .counterfactual import counterfactual_markdown, counterfactual_rows, plot_counterfactual
+    from rsb_maniskill.evaluation.counterfactual import counterfactual_json, counterfactual_table
+    from rsb_maniskill.evaluation.reporting.counterfactual import counterfactual_markdown, counterfactual_rows, plot_counterfactual
 
     table = counterfactual_table(records)
     if not table:
@@ -166,7 +166,7 @@ def write_html_report(results_dir: str | os.PathLike, out: str | os.PathLike | N
                       partial: str | None = None) -> Path:
     """Write ``report.html`` for the episodes of ``results_dir`` (or ``records``); returns its path.
     ``partial`` (as :func:`write_report`'s) is shown under the page's title."""
-    from .page import build_html
+    from rsb_maniskill.evaluation.reporting.page import build_html
 
     results_dir = Path(results_dir)
     if records is None:

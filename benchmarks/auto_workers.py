@@ -24,7 +24,7 @@ import sys
 import tempfile
 import time
 
-from rsb_maniskill.workers_plan import nvidia_gpus, obs_mode_renders, plan_workers, usable_cpus
+from rsb_maniskill.parallel.plan import nvidia_gpus, obs_mode_renders, plan_workers, usable_cpus
 
 AUTO = "auto"
 

@@ -87,7 +87,7 @@ def _child(spec: str) -> None:
 
 def _expert_only(out: Path, n: int) -> float:
     from rsb_maniskill.motionplan.generate import GenerateConfig, generate
-    from rsb_maniskill.workers import InProcess
+    from rsb_maniskill.parallel.pool import InProcess
 
     t0 = time.perf_counter()
     generate(GenerateConfig(env_id="RSB-Math-4", out=str(out), questions=f"0:{n}", progress=False), InProcess())
@@ -119,7 +119,7 @@ def main() -> None:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")  # pool sizes: local data or the fallback, no network waits
     if args._child:
         return _child(args._child)
-    from rsb_maniskill._render import lavapipe_share, software_rendering
+    from rsb_maniskill.sim.render import lavapipe_share, software_rendering
 
     size = tuple(int(v) for v in args.camera_size.split("x"))
     share = lavapipe_share(2)  # raster threads of each of 2 workers

@@ -19,7 +19,7 @@ from pathlib import Path
 from rsb_maniskill.evaluation import eval_seeds
 from rsb_maniskill.evaluation.jobs import EvalJob, run_job
 from rsb_maniskill.evaluation.store import RECORDS_FILE
-from rsb_maniskill.workers_ray import RayExecutor
+from rsb_maniskill.parallel.ray_pool import RayExecutor
 
 
 def timed(job: EvalJob, workers: int, executor=None) -> tuple[float, list[dict]]:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rsb_maniskill.workers import InProcess, ProcessPool, deal
+from rsb_maniskill.parallel.pool import InProcess, ProcessPool, deal
 
 DEFAULT_FAILURES = "outputs/expert_failures.jsonl"
 

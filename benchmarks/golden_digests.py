@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from rsb_maniskill import golden
+from rsb_maniskill.audit import golden
 from rsb_maniskill.objects.family import split_env_id
 from rsb_maniskill.semantic import EpisodeSampler
 from rsb_maniskill.semantic.suites import SOURCES

@@ -25,7 +25,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from rsb_maniskill.workers import InProcess, ProcessPool
+from rsb_maniskill.parallel.pool import InProcess, ProcessPool
 
 TARGET = 0.97
 DEFAULT_SUITES = ("RSB-Math-4", "RSB-Math-10", "RSB-Math-4-Objects")

@@ -33,9 +33,9 @@ from vla_eval.specs import RAW
 
 from rsb_maniskill.evaluation import eval_seeds
 from rsb_maniskill.evaluation.jobs import EvalJob, make_env, run_job
-from rsb_maniskill.evaluation.policy import RandomPolicy
-from rsb_maniskill.evaluation.remote.vla_eval_layout import PRESETS
 from rsb_maniskill.evaluation.store import RECORDS_FILE
+from rsb_maniskill.policies.reference import RandomPolicy
+from rsb_maniskill.policies.remote.vla_eval_layout import PRESETS
 
 
 class RandomChunks(PredictModelServer):

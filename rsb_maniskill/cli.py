@@ -16,17 +16,17 @@ from typing import NoReturn
 from rsb_maniskill.debug import DEBUG_ENV, debug_mode, print_error
 
 _COMMAND_MODULES = (
-    "rsb_maniskill.demo",
-    "rsb_maniskill.doctor",
-    "rsb_maniskill.golden",
-    "rsb_maniskill.semantic_cli",
-    "rsb_maniskill.audit.cli",
-    "rsb_maniskill.motionplan.cli",
-    "rsb_maniskill.evaluation.cli.eval",
-    "rsb_maniskill.evaluation.cli.backbone",
-    "rsb_maniskill.evaluation.cli.report",
-    "rsb_maniskill.evaluation.cli.leaderboard",
-    "rsb_maniskill.export.cli",
+    "rsb_maniskill.commands.demo",
+    "rsb_maniskill.commands.doctor",
+    "rsb_maniskill.commands.verify",
+    "rsb_maniskill.commands.questions",
+    "rsb_maniskill.commands.audit",
+    "rsb_maniskill.commands.generate",
+    "rsb_maniskill.commands.eval",
+    "rsb_maniskill.commands.backbone",
+    "rsb_maniskill.commands.report",
+    "rsb_maniskill.commands.leaderboard",
+    "rsb_maniskill.commands.export",
 )
 
 

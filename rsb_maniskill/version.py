@@ -5,7 +5,7 @@ episodes are (question, options, letters, option -> candidate map, instruction, 
 layout) bumps it, and nothing else does. Results of two benchmark versions are not comparable,
 so every output carries it (records, summaries, results.json, report.html, demo files, datasets)
 and ``rsb report`` refuses to pool them. docs/versions.md lists what each version changed;
-``rsb_maniskill/golden_episodes.json`` pins the episodes of this one (``rsb verify``).
+``rsb_maniskill/audit/golden_episodes.json`` pins the episodes of this one (``rsb verify``).
 
 The **package version** (``rsb_maniskill``) follows the code: a release that changes no episode
 keeps the benchmark version. It and the dependency pins have one owner, ``pyproject.toml``: read

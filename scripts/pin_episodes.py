@@ -1,6 +1,6 @@
 """Pin the episodes of the benchmark version: the digests ``rsb verify`` and tests/test_golden.py check.
 
-Writes ``rsb_maniskill/golden_episodes.json`` (on the real GSM8K / MMLU-Pro: ``--data-dir`` or
+Writes ``rsb_maniskill/audit/golden_episodes.json`` (on the real GSM8K / MMLU-Pro: ``--data-dir`` or
 ``$RSB_DATA_DIR``) and ``tests/fixtures/golden_fixture.json`` (on the tests' small fixture data,
 what the tests use without ``$RSB_DATA_DIR``). A change to any suite's episodes is a new benchmark
 version, so the digests of a version are written once:
@@ -32,7 +32,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rsb_maniskill import golden  # noqa: E402
+from rsb_maniskill.audit import golden  # noqa: E402
 from rsb_maniskill.version import BENCHMARK, BENCHMARK_VERSION  # noqa: E402
 
 FIXTURE_DATA = ROOT / "tests" / "fixtures" / "semantic_data"

@@ -81,6 +81,6 @@ $PIP install -q -e ".[dev,expert,eval,hub,export,ray,baselines,vla_eval]"
 if have_nvidia; then
   # GPU physics needs SAPIEN's PhysX GPU library, fetched from GitHub: stage it now, while there
   # is network (compute nodes often have none). Prints where it went.
-  $VENV/bin/python -m rsb_maniskill.physx_gpu || echo "setup: warning: PhysX GPU library not staged; GPU physics (physx_cuda) will need it (see docs/gpu.md)" >&2
+  $VENV/bin/python -m rsb_maniskill.sim.physx_gpu || echo "setup: warning: PhysX GPU library not staged; GPU physics (physx_cuda) will need it (see docs/gpu.md)" >&2
 fi
 echo "setup: done ($($VENV/bin/python -c 'import mani_skill, sapien, torch; print("mani_skill", mani_skill.__version__, "sapien", sapien.__version__, "torch", torch.__version__)'))"

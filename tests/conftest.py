@@ -49,7 +49,7 @@ def gpu_physics() -> None:
     """Skips a test that needs GPU physics where this machine can't run it (no CUDA device, or no
     PhysX GPU library and no way to fetch it), with the reason and the fix ``rsb doctor`` prints.
     Use as ``@pytest.mark.usefixtures("gpu_physics")``."""
-    from rsb_maniskill.physx_gpu import gpu_physics_unavailable
+    from rsb_maniskill.sim.physx_gpu import gpu_physics_unavailable
 
     reason = gpu_physics_unavailable()
     if reason:

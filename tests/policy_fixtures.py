@@ -1,4 +1,4 @@
-"""Policies the tests serve from another process (``python -m rsb_maniskill.evaluation.remote.server
+"""Policies the tests serve from another process (``python -m rsb_maniskill.policies.remote.server
 policy_fixtures:EnvIdPolicy`` with tests/ on PYTHONPATH)."""
 from __future__ import annotations
 

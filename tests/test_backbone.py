@@ -13,8 +13,8 @@ from rsb_maniskill.audit.readers import SimilarityBackbone
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.backbone import ArithmeticBackbone, ask_episodes, load_backbone
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, eval_seeds, shuffled_instruction
-from rsb_maniskill.evaluation.reporting.gap import gap_markdown, gap_table
 from rsb_maniskill.evaluation.store import BACKBONE_FILE, read_backbone_records
+from rsb_maniskill.reporting.gap import gap_markdown, gap_table
 from rsb_maniskill.semantic import EpisodeSampler
 
 
@@ -124,7 +124,7 @@ def test_similarity_is_the_audits_reader_on_the_instruction(question_data):
 
 @pytest.mark.timeout(60)
 def test_remote_backbone_answers_as_the_local_one(tmp_path):
-    from rsb_maniskill.evaluation.remote.server import PolicyServer
+    from rsb_maniskill.policies.remote.server import PolicyServer
 
     seeds = eval_seeds("RSB-Math-4", 6)
     local = ask_episodes(ArithmeticBackbone(), "RSB-Math-4", seeds, tmp_path / "a.jsonl", label="x", progress=False)

@@ -351,7 +351,7 @@ def test_a_summary_written_at_an_interruption_says_it_is_partial(tmp_path, capsy
 def test_the_errors_pickle_whole():
     """What a worker process sends back is the error itself: message, policy, episode and traceback."""
     from rsb_maniskill.evaluation.jobs import JobError
-    from rsb_maniskill.evaluation.policy_error import PolicyError
+    from rsb_maniskill.policies.errors import PolicyError
 
     err = PolicyError("act returned None", policy="p", where="RSB-Math-4 seed 7 (normal instruction)", detail="tb")
     back = pickle.loads(pickle.dumps(err))
@@ -366,8 +366,8 @@ def test_a_batched_policy_is_blamed_for_its_wave():
     """The parallel-env loop names the policy and the envs' seeds of the call that went wrong."""
     from test_eval_batched import SEEDS, FakeBatchedEnv, ScriptedPolicy
 
-    from rsb_maniskill.evaluation.policy_error import PolicyError
     from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop
+    from rsb_maniskill.policies.errors import PolicyError
 
     class Nan(ScriptedPolicy):
         def act(self, obs):

@@ -21,9 +21,9 @@ from rsb_maniskill.evaluation.bias import (
 )
 from rsb_maniskill.evaluation.positions import left_ranks, ranks_from_xyz
 from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD
-from rsb_maniskill.evaluation.reporting.bias import bias_markdown, bias_plots
-from rsb_maniskill.evaluation.reporting.summary import results_from_records
-from rsb_maniskill.evaluation.reporting.writer import write_report
+from rsb_maniskill.reporting.bias import bias_markdown, bias_plots
+from rsb_maniskill.reporting.summary import results_from_records
+from rsb_maniskill.reporting.writer import write_report
 from rsb_maniskill.semantic import EpisodeSampler
 
 SEEDS = range(10_000_000, 10_000_400)

@@ -13,10 +13,10 @@ from test_eval_runner import FakeRSBEnv, ScriptedPolicy
 
 from rsb_maniskill.evaluation.categories import SMALL_CELL, category_cell, category_tables
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, LEFT_RANK_FIELD
-from rsb_maniskill.evaluation.reporting.categories import SMALL_MARK, categories_markdown, categories_rows
-from rsb_maniskill.evaluation.reporting.summary import results_from_records
-from rsb_maniskill.evaluation.reporting.writer import write_report
 from rsb_maniskill.evaluation.runner import EpisodeSettings, episode_loop
+from rsb_maniskill.reporting.categories import SMALL_MARK, categories_markdown, categories_rows
+from rsb_maniskill.reporting.summary import results_from_records
+from rsb_maniskill.reporting.writer import write_report
 from rsb_maniskill.semantic import EpisodeSampler, clear_cache
 from rsb_maniskill.semantic import categories as cat
 from rsb_maniskill.semantic.gsm8k import question_from_row, reasoning_steps

@@ -19,9 +19,9 @@ from rsb_maniskill.evaluation.protocol import (
     scene_variants,
 )
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, validate_record
-from rsb_maniskill.evaluation.reference_policies import blind_target
 from rsb_maniskill.evaluation.runner import EpisodeSettings
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
+from rsb_maniskill.policies.reference import blind_target
 
 SUITE = "RSB-Math-4"
 
@@ -180,9 +180,9 @@ def test_blind_draws_follow_and_switch_at_chance_and_leftmost_like_draws_stick()
 
 
 def test_the_report_has_the_section(tmp_path):
-    from rsb_maniskill.evaluation.reporting.page import build_html
-    from rsb_maniskill.evaluation.reporting.summary import results_from_records
-    from rsb_maniskill.evaluation.reporting.writer import write_report
+    from rsb_maniskill.reporting.page import build_html
+    from rsb_maniskill.reporting.summary import results_from_records
+    from rsb_maniskill.reporting.writer import write_report
 
     recs = scenes(lambda rng, t, pick: t, n_scenes=5) + scenes(lambda rng, t, pick: pick, n_scenes=5, n=10,
                                                                suite="RSB-Math-10")
@@ -196,7 +196,7 @@ def test_the_report_has_the_section(tmp_path):
     assert len(csv_lines) == 4 and csv_lines[0].startswith("row,suite_id,n_choices")
     import jsonschema
 
-    from rsb_maniskill.evaluation.reporting.results import SCHEMA_FILE
+    from rsb_maniskill.reporting.results import SCHEMA_FILE
 
     results = json.loads(paths["results"].read_text())  # the shared scores: no counterfactual row
     jsonschema.validate(results, json.loads(SCHEMA_FILE.read_text()))

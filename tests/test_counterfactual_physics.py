@@ -13,8 +13,8 @@ import pytest
 import rsb_maniskill  # noqa: F401  (registers the envs)
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, eval_seeds
-from rsb_maniskill.evaluation.reference_policies import blind_target, leftmost_target
 from rsb_maniskill.evaluation.store import read_records
+from rsb_maniskill.policies.reference import blind_target, leftmost_target
 from rsb_maniskill.semantic import counterfactual as cf
 
 SUITE = "RSB-Math-4"

@@ -305,7 +305,7 @@ def test_workers_get_one_task_each_whatever_the_suites():
     """--num-procs N starts N workers: shards of several suites are dealt to them, not one per suite."""
     from rsb_maniskill.export.build import _run
     from rsb_maniskill.export.shards import SuiteShard
-    from rsb_maniskill.workers import RunOutcome
+    from rsb_maniskill.parallel.pool import RunOutcome
 
     class Recorder:
         def run(self, target, tasks, on_message):
@@ -325,20 +325,21 @@ def test_workers_get_one_task_each_whatever_the_suites():
 def test_workers_share_lavapipe_threads_unless_told(monkeypatch):
     """Each local worker caps lavapipe's raster threads to its share of the CPUs (software rendering
     only; a user's LP_NUM_THREADS wins)."""
-    from rsb_maniskill import _render, workers_plan
+    from rsb_maniskill.parallel import plan as workers_plan
+    from rsb_maniskill.sim import render
 
     monkeypatch.delenv("LP_NUM_THREADS", raising=False)
     monkeypatch.setattr(workers_plan, "usable_cpus", lambda: 6)  # the CPUs --num-procs auto counts
-    assert _render.lavapipe_share(2) == 3 and _render.lavapipe_share(4) == 1 and _render.lavapipe_share(24) == 1
-    monkeypatch.setattr(_render, "software_rendering", lambda: False)
-    assert not _render.limit_lavapipe_threads(1) and "LP_NUM_THREADS" not in os.environ  # a GPU driver: left alone
-    monkeypatch.setattr(_render, "software_rendering", lambda: True)
-    assert not _render.limit_lavapipe_threads(None) and "LP_NUM_THREADS" not in os.environ  # one worker: all threads
-    assert _render.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "1"
+    assert render.lavapipe_share(2) == 3 and render.lavapipe_share(4) == 1 and render.lavapipe_share(24) == 1
+    monkeypatch.setattr(render, "software_rendering", lambda: False)
+    assert not render.limit_lavapipe_threads(1) and "LP_NUM_THREADS" not in os.environ  # a GPU driver: left alone
+    monkeypatch.setattr(render, "software_rendering", lambda: True)
+    assert not render.limit_lavapipe_threads(None) and "LP_NUM_THREADS" not in os.environ  # one worker: all threads
+    assert render.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "1"
     monkeypatch.setenv("LP_NUM_THREADS", "3")
-    assert not _render.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "3"
+    assert not render.limit_lavapipe_threads(1) and os.environ["LP_NUM_THREADS"] == "3"
     monkeypatch.undo()
     monkeypatch.setenv("VK_ICD_FILENAMES", "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
-    assert _render.software_rendering()
+    assert render.software_rendering()
     monkeypatch.setenv("VK_ICD_FILENAMES", "/usr/share/vulkan/icd.d/nvidia_icd.json")
-    assert not _render.software_rendering()
+    assert not render.software_rendering()

@@ -17,9 +17,9 @@ import pytest
 import rsb_maniskill  # noqa: F401  (registers the suites)
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation import EVAL_ENV_KWARGS, eval_seeds, run_episodes
-from rsb_maniskill.evaluation.reference_policies import ExpertPolicy, blind_target
-from rsb_maniskill.evaluation.reporting.summary import results_from_records, summary_dict
 from rsb_maniskill.evaluation.store import read_records
+from rsb_maniskill.policies.reference import ExpertPolicy, blind_target
+from rsb_maniskill.reporting.summary import results_from_records, summary_dict
 
 SUITE = "RSB-Math-4"
 
@@ -144,7 +144,7 @@ def test_errors_leave_results_untouched(tmp_path, capsys):
     cases = [
         (["random", "--suites", "RSB-Nope-4"], "unknown suite 'RSB-Nope-4'"),
         (["no_such_module:make"], "cannot import module 'no_such_module'"),
-        (["rsb_maniskill.evaluation.policy:nothing"], "has no attribute 'nothing'"),
+        (["rsb_maniskill.policies.interface:nothing"], "has no attribute 'nothing'"),
         (["random", "--suites", "RSB-HardMath-4", "--data-dir", str(tmp_path / "none")], "GSM8K not found"),
         (["random", "--suites", SUITE, "-n", "0"], "--num-episodes must be >= 1"),
         (["random", "--suites", SUITE, "-e", "split=train"], "cannot set split"),
@@ -167,8 +167,8 @@ def test_errors_leave_results_untouched(tmp_path, capsys):
 
 def test_oracle_served_over_websocket_loopback(tmp_path):
     """RemotePolicy -> PolicyServer -> oracle: the wire protocol carries a real policy to success."""
-    from rsb_maniskill.evaluation.remote.client import RemotePolicy
-    from rsb_maniskill.evaluation.remote.server import PolicyServer
+    from rsb_maniskill.policies.remote.client import RemotePolicy
+    from rsb_maniskill.policies.remote.server import PolicyServer
 
     env = gym.make(SUITE, obs_mode="state", render_backend="none", **EVAL_ENV_KWARGS)
     seeds = eval_seeds(SUITE, 3)

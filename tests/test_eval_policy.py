@@ -9,19 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rsb_maniskill.evaluation.policy import (
+from rsb_maniskill.policies.interface import Policy, as_chunk, policy_name
+from rsb_maniskill.policies.reference import ExpertPolicy, RandomPolicy
+from rsb_maniskill.policies.registry import (
     POLICIES,
-    Policy,
-    RandomPolicy,
-    as_chunk,
     builtin_policies,
     load_policy,
-    policy_name,
     policy_spec,
     register_policy,
     resolve_factory,
 )
-from rsb_maniskill.evaluation.reference_policies import ExpertPolicy
 
 
 class ConstantPolicy:
@@ -107,8 +104,8 @@ def test_builtin_table():
     with pytest.raises(ValueError, match="one env at a time"):
         load_policy("blind", env=_fake_env(space, num_envs=4))
     # and `rsb eval` says so before building anything
-    from rsb_maniskill.evaluation.cli.args import EvalError
-    from rsb_maniskill.evaluation.cli.eval import check_policy_spec
+    from rsb_maniskill.commands.eval import check_policy_spec
+    from rsb_maniskill.commands.eval_args import EvalError
 
     check_policy_spec("random", num_envs=4)
     with pytest.raises(EvalError, match="use --num-procs, not --num-envs"):
@@ -117,9 +114,9 @@ def test_builtin_table():
 
 def test_naming_a_policy_imports_nothing():
     """The table holds module paths: importing it loads neither the reference policies nor the websocket client."""
-    code = ("import sys, rsb_maniskill.evaluation.policy as p; p.policy_spec('remote'); "
-            "print([m for m in ('rsb_maniskill.evaluation.remote.client', "
-            "'rsb_maniskill.evaluation.reference_policies') if m in sys.modules])")
+    code = ("import sys, rsb_maniskill.policies.interface as p; p.policy_spec('remote'); "
+            "print([m for m in ('rsb_maniskill.policies.remote.client', "
+            "'rsb_maniskill.policies.reference') if m in sys.modules])")
     repo = Path(__file__).resolve().parents[1]
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=repo, timeout=120,
                          env={"PYTHONPATH": str(repo), "PATH": ""})

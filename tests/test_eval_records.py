@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from rsb_maniskill.evaluation.records import RECORD_FIELDS, validate_record
-from rsb_maniskill.evaluation.reporting.summary import results_from_records, summary_dict
 from rsb_maniskill.evaluation.store import RecordWriter, completed_seeds, read_records, repair_tail, safe_name
+from rsb_maniskill.reporting.summary import results_from_records, summary_dict
 
 
 def episode(seed, suite="RSB-Math-4", policy="p", mode="normal"):
@@ -159,7 +159,7 @@ def test_safe_name_keeps_the_names_of_existing_labels():
 
 
 def test_default_results_dir_is_made_and_named_from_the_label(tmp_path, monkeypatch):
-    from rsb_maniskill.evaluation.cli.args import EvalError, results_dir
+    from rsb_maniskill.commands.eval_args import EvalError, results_dir
 
     monkeypatch.chdir(tmp_path)
     assert results_dir(None, "my_policies:make_policy") == Path("results/my_policies_make_policy")

@@ -5,9 +5,9 @@ import msgpack
 import numpy as np
 import pytest
 
-from rsb_maniskill.evaluation.remote.client import RemotePolicy  # noqa: E402
-from rsb_maniskill.evaluation.remote.server import PolicyServer  # noqa: E402
-from rsb_maniskill.evaluation.remote.wire import flatten_obs, packb, unflatten_obs, unpackb  # noqa: E402
+from rsb_maniskill.policies.remote.client import RemotePolicy  # noqa: E402
+from rsb_maniskill.policies.remote.server import PolicyServer  # noqa: E402
+from rsb_maniskill.policies.remote.wire import flatten_obs, packb, unflatten_obs, unpackb  # noqa: E402
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -161,7 +161,7 @@ def test_no_server_fails_in_bounded_time():
 
 
 def test_adapter_resets_on_prompt_change_and_flat_state_obs():
-    from rsb_maniskill.evaluation.remote.server import PolicyAdapter
+    from rsb_maniskill.policies.remote.server import PolicyAdapter
 
     policy = EchoPolicy()
     adapter = PolicyAdapter(policy)
@@ -224,7 +224,7 @@ def test_batched_request_to_a_single_env_policy_says_what_to_do():
 
 
 def test_batched_requests_to_a_server_in_another_process(tmp_path):
-    """`python -m rsb_maniskill.evaluation.remote.server` in a subprocess (127.0.0.1, stops by itself)."""
+    """`python -m rsb_maniskill.policies.remote.server` in a subprocess (127.0.0.1, stops by itself)."""
     import os
     import re
     import subprocess
@@ -237,7 +237,7 @@ def test_batched_requests_to_a_server_in_another_process(tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).parent), *sys.path]))
     log = tmp_path / "server.log"
     with open(log, "w") as err:
-        proc = subprocess.Popen(["timeout", "60", sys.executable, "-m", "rsb_maniskill.evaluation.remote.server",
+        proc = subprocess.Popen(["timeout", "60", sys.executable, "-m", "rsb_maniskill.policies.remote.server",
                                  "policy_fixtures:EnvIdPolicy", "--host", "127.0.0.1", "--port", "0"],
                                 stdout=subprocess.DEVNULL, stderr=err, env=env)
     try:

@@ -8,9 +8,9 @@ import struct
 import pytest
 
 from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate
-from rsb_maniskill.evaluation.reporting.cells import ci, delta, markdown_table, pct, rate_cell
-from rsb_maniskill.evaluation.reporting.summary import markdown_tables, plot_summary, results_from_records
-from rsb_maniskill.evaluation.reporting.writer import write_report
+from rsb_maniskill.reporting.cells import ci, delta, markdown_table, pct, rate_cell
+from rsb_maniskill.reporting.summary import markdown_tables, plot_summary, results_from_records
+from rsb_maniskill.reporting.writer import write_report
 
 
 def records(policy, suite, n_success, n_wrong, n_none, mode="normal"):

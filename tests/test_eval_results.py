@@ -13,9 +13,9 @@ from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.metrics import PAPER_SUITES
 from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_SEED_BASE
 from rsb_maniskill.evaluation.records import VersionMixError, build_record
-from rsb_maniskill.evaluation.reporting import results as R
-from rsb_maniskill.evaluation.reporting.summary import results_from_records
-from rsb_maniskill.evaluation.reporting.writer import write_report
+from rsb_maniskill.reporting import results as R
+from rsb_maniskill.reporting.summary import results_from_records
+from rsb_maniskill.reporting.writer import write_report
 from rsb_maniskill.semantic import EpisodeSampler
 from rsb_maniskill.version import BENCHMARK_VERSION
 

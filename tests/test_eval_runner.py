@@ -9,8 +9,8 @@ import torch
 
 from rsb_maniskill.evaluation.jobs import run_episodes
 from rsb_maniskill.evaluation.protocol import shuffled_instruction
-from rsb_maniskill.evaluation.reporting.summary import results_from_records, summary_dict
 from rsb_maniskill.evaluation.store import read_records
+from rsb_maniskill.reporting.summary import results_from_records, summary_dict
 
 SUITE = "RSB-Math-4"
 HORIZON = 20

@@ -7,9 +7,9 @@ import pytest
 from test_eval_batched import FakeBatchedEnv
 from test_eval_runner import OUTCOMES, SUITE, FakeRSBEnv, ScriptedPolicy
 
-from rsb_maniskill.evaluation.policy import PerEnvPolicies, split_output, split_outputs
 from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop, episode_loop
 from rsb_maniskill.evaluation.statements import MAX_TEXT_CHARS, EpisodeText, reasoning_following, talks
+from rsb_maniskill.policies.interface import PerEnvPolicies, split_output, split_outputs
 from rsb_maniskill.semantic import EpisodeSampler
 
 SEEDS = [10_000_000 + i for i in range(16)]
@@ -153,8 +153,8 @@ class EnvTalker:
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("batch", [True, False])
 def test_text_over_the_websocket(batch):
-    from rsb_maniskill.evaluation.remote.client import RemotePolicy
-    from rsb_maniskill.evaluation.remote.server import PolicyServer
+    from rsb_maniskill.policies.remote.client import RemotePolicy
+    from rsb_maniskill.policies.remote.server import PolicyServer
 
     with PolicyServer(EnvTalker(), host="127.0.0.1", port=0) as server:
         with RemotePolicy("127.0.0.1", server.port, batch=batch, connect_timeout=10, request_timeout=10) as client:
@@ -173,8 +173,8 @@ def test_table5_in_the_summaries_and_the_report(tmp_path):
     import csv
     import json
 
-    from rsb_maniskill.evaluation.reporting.summary import results_from_records
-    from rsb_maniskill.evaluation.reporting.writer import write_html_report, write_report
+    from rsb_maniskill.reporting.summary import results_from_records
+    from rsb_maniskill.reporting.writer import write_html_report, write_report
 
     records = []
     for label, policy in (("talker", Talker), ("quiet", lambda env: ScriptedPolicy())):

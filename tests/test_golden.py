@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import rsb_maniskill  # noqa: F401
-from rsb_maniskill import golden
+from rsb_maniskill.audit import golden
 from rsb_maniskill.cli import main
 from rsb_maniskill.objects import layout
 from rsb_maniskill.objects.family import get_family

@@ -13,8 +13,9 @@ from pathlib import Path
 import pytest
 import requests
 
-from rsb_maniskill import network, physx_gpu
+from rsb_maniskill import network
 from rsb_maniskill.cli import main
+from rsb_maniskill.sim import physx_gpu
 from rsb_maniskill.version import benchmark_label
 
 REPO = Path(__file__).resolve().parents[1]
@@ -188,7 +189,7 @@ def test_gpu_tests_run_where_the_library_is(home, cuda, request):
 
 
 def test_doctor_reports_the_same_rule(home, cuda, monkeypatch):
-    from rsb_maniskill.doctor import check_gpu
+    from rsb_maniskill.commands.doctor import check_gpu
 
     monkeypatch.setenv("RSB_OFFLINE", "1")
     _forbid_network(monkeypatch)
@@ -213,7 +214,7 @@ def test_uses_gpu_physics_like_maniskill(backend, n, gpu):
 
 def test_module_entry_point_reports_the_error(home):
     env = {"HOME": str(home), "RSB_OFFLINE": "1", "PATH": "/usr/bin:/bin", "PYTHONPATH": str(REPO)}
-    out = subprocess.run([sys.executable, "-m", "rsb_maniskill.physx_gpu"], capture_output=True, text=True, env=env)
+    out = subprocess.run([sys.executable, "-m", "rsb_maniskill.sim.physx_gpu"], capture_output=True, text=True, env=env)
     assert out.returncode == 1 and "libPhysXGpu_64.so" in out.stderr
 
 

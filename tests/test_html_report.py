@@ -16,9 +16,9 @@ import pytest
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.metrics import OUTCOMES, suite_order
 from rsb_maniskill.evaluation.records import record_row
-from rsb_maniskill.evaluation.reporting.page import episode_cards, markdown_to_html
-from rsb_maniskill.evaluation.reporting.writer import write_html_report
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
+from rsb_maniskill.reporting.page import episode_cards, markdown_to_html
+from rsb_maniskill.reporting.writer import write_html_report
 
 from cdp_browser import Browser, checked_screenshot, find_chromium
 
@@ -131,7 +131,7 @@ def test_page_escapes_plain_strings_and_keeps_its_fragments(results, tmp_path):
     data = re.search(r'<script id="episode-data" type="application/json">(.*?)</script>', page, re.S)[1]
     assert "&#34;" not in data and "&quot;" not in data and len(json.loads(data)) == 6 + N_SYNTHETIC
     # the page's styles and script are the templates', included whole
-    templates = Path(__file__).resolve().parents[1] / "rsb_maniskill/evaluation/reporting/templates"
+    templates = Path(__file__).resolve().parents[1] / "rsb_maniskill/reporting/templates"
     assert (templates / "report.css").read_text() in page and (templates / "report.js").read_text() in page
 
 

@@ -21,11 +21,11 @@ from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.metrics import PAPER_SUITES, wilson_interval
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
 from rsb_maniskill.evaluation.records import LEROBOT_RUNNER, build_record
-from rsb_maniskill.evaluation.reporting.leaderboard import RANDOM, load_run
-from rsb_maniskill.evaluation.reporting.results import results_document
-from rsb_maniskill.evaluation.reporting.vla_eval_leaderboard import benchmark_entry, benchmark_key, vla_eval_document
 from rsb_maniskill.integrations.lerobot_env import append_record
 from rsb_maniskill.integrations.vla_eval import RSBBenchmark
+from rsb_maniskill.reporting.leaderboard import RANDOM, load_run
+from rsb_maniskill.reporting.results import results_document
+from rsb_maniskill.reporting.vla_eval_leaderboard import benchmark_entry, benchmark_key, vla_eval_document
 from rsb_maniskill.semantic import EpisodeSampler
 from rsb_maniskill.version import BENCHMARK_VERSION
 

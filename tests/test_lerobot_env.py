@@ -17,9 +17,9 @@ import pytest
 
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE, eval_seeds, shuffled_instruction
-from rsb_maniskill.evaluation.reference_policies import ExpertPolicy
 from rsb_maniskill.evaluation.store import read_records
 from rsb_maniskill.integrations.lerobot_env import RSBLeRobotEnv, create_rsb_envs, expected_features
+from rsb_maniskill.policies.reference import ExpertPolicy
 from rsb_maniskill.robot import to_aloha14
 from rsb_maniskill.version import BENCHMARK_VERSION
 

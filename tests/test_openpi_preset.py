@@ -18,8 +18,8 @@ import pytest
 import rsb_maniskill  # noqa: E402,F401  (registers the envs)
 from rsb_maniskill.agents.aloha import to_aloha14  # noqa: E402
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS  # noqa: E402
-from rsb_maniskill.evaluation.remote.client import RemotePolicy  # noqa: E402
-from rsb_maniskill.evaluation.remote.openpi import (  # noqa: E402
+from rsb_maniskill.policies.remote.client import RemotePolicy  # noqa: E402
+from rsb_maniskill.policies.remote.openpi import (  # noqa: E402
     QPOS_JOINT_NAMES,
     OpenpiAloha,
     aloha14_from_qpos,
@@ -114,7 +114,7 @@ def test_bad_preset_arguments(tmp_path, capsys):
 
 
 def test_server_side_maps_openpi_requests():
-    from rsb_maniskill.evaluation.remote.server import PolicyAdapter
+    from rsb_maniskill.policies.remote.server import PolicyAdapter
 
     class Seen:
         def reset(self, instruction, obs):
@@ -318,7 +318,7 @@ def test_openpi_client_against_rsb_serve(tmp_path, moved_env):
     (tmp_path / "client.py").write_text(OPENPI_CLIENT)
     (tmp_path / "rsb_echo.py").write_text(RSB_POLICY)
     port = _free_port()
-    server = _start([sys.executable, "-m", "rsb_maniskill.evaluation.remote.server", "rsb_echo:make", "--preset",
+    server = _start([sys.executable, "-m", "rsb_maniskill.policies.remote.server", "rsb_echo:make", "--preset",
                      "openpi-aloha", "--host", "127.0.0.1", "--port", str(port)], tmp_path, "serve",
                     env={**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(REPO)])})
     try:

@@ -15,8 +15,8 @@ import ray
 from rsb_maniskill.evaluation import eval_seeds  # noqa: E402
 from rsb_maniskill.evaluation.jobs import EvalJob, run_job  # noqa: E402
 from rsb_maniskill.evaluation.store import read_records  # noqa: E402
-from rsb_maniskill.workers import ProcessPool  # noqa: E402
-from rsb_maniskill.workers_ray import RayExecutor  # noqa: E402
+from rsb_maniskill.parallel.pool import ProcessPool  # noqa: E402
+from rsb_maniskill.parallel.ray_pool import RayExecutor  # noqa: E402
 
 pytestmark = pytest.mark.timeout(600)
 TESTS = Path(__file__).parent

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import rsb_maniskill  # noqa: F401  (registers the envs)
-from rsb_maniskill.evaluation.policy import POLICIES, load_policy
-from rsb_maniskill.evaluation.reference_policies import ExpertPolicy, blind_target, leftmost_target
+from rsb_maniskill.policies.reference import ExpertPolicy, blind_target, leftmost_target
+from rsb_maniskill.policies.registry import POLICIES, load_policy
 
 
 def _image_u(env) -> np.ndarray:

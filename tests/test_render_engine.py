@@ -38,7 +38,7 @@ def _scans_after_mark(log: str) -> tuple[int, int]:
 def loader_logs_instances():
     """The loader's log must show instance creation here, or the counting tests prove nothing."""
     log = _run("""
-        import sys, rsb_maniskill._render, sapien
+        import sys, rsb_maniskill.sim.render, sapien
         for _ in range(3):
             sapien.render.RenderMaterial(base_color=[1, 0, 0, 1])  # no engine held: one instance each
         print("@MARK@", file=sys.stderr, flush=True)

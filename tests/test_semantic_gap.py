@@ -8,9 +8,9 @@ import json
 import pytest
 
 from rsb_maniskill.cli import main
-from rsb_maniskill.evaluation.policy import POLICIES, register_policy
-from rsb_maniskill.evaluation.reference_policies import ExpertPolicy
 from rsb_maniskill.evaluation.store import read_records
+from rsb_maniskill.policies.reference import ExpertPolicy
+from rsb_maniskill.policies.registry import POLICIES, register_policy
 
 SUITE = "RSB-Math-4"
 N = "12"

@@ -18,15 +18,15 @@ from vla_eval.results.collector import ResultCollector
 from vla_eval.specs import STATE_EEF_POS_AA_GRIP, DimSpec
 
 from rsb_maniskill.cli import main
-from rsb_maniskill.evaluation.policy import obs_rows
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE, eval_seeds
-from rsb_maniskill.evaluation.remote import remote_policy
-from rsb_maniskill.evaluation.remote.openpi import aloha14_from_qpos
-from rsb_maniskill.evaluation.remote.vla_eval import VlaEvalPolicy
-from rsb_maniskill.evaluation.remote.vla_eval_layout import PRESETS, SpecMismatch, VlaEvalLayout, make_layout
-from rsb_maniskill.evaluation.reporting.vla_eval_results import NotRSBResults, records_from_results
 from rsb_maniskill.evaluation.store import read_records
 from rsb_maniskill.integrations.vla_eval import RSBBenchmark
+from rsb_maniskill.policies.interface import obs_rows
+from rsb_maniskill.policies.remote import remote_policy
+from rsb_maniskill.policies.remote.openpi import aloha14_from_qpos
+from rsb_maniskill.policies.remote.vla_eval import VlaEvalPolicy
+from rsb_maniskill.policies.remote.vla_eval_layout import PRESETS, SpecMismatch, VlaEvalLayout, make_layout
+from rsb_maniskill.reporting.vla_eval_results import NotRSBResults, records_from_results
 from rsb_maniskill.robot import QPOS_JOINT_NAMES, from_aloha14
 
 from vla_eval_servers import CountingServer, OracleServer, RandomServer
@@ -95,7 +95,7 @@ def _info(server) -> dict:
 
 
 def test_server_spec_check_names_both_sides():
-    from rsb_maniskill.evaluation.remote.vla_eval_layout import check_server_spec
+    from rsb_maniskill.policies.remote.vla_eval_layout import check_server_spec
 
     raw = CountingServer()
     check_server_spec(_info(raw), PRESETS["lerobot"])  # the LeRobot bridge's "raw": the checkpoint decides

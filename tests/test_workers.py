@@ -10,9 +10,9 @@ import time
 
 import pytest
 
-from rsb_maniskill import workers_plan
-from rsb_maniskill.workers import InProcess, Interrupted, InterruptGuard, ProcessPool, deal
-from rsb_maniskill.workers_plan import add_worker_args, plan_workers, resolve_workers
+from rsb_maniskill.parallel import plan as workers_plan
+from rsb_maniskill.parallel.plan import add_worker_args, plan_workers, resolve_workers
+from rsb_maniskill.parallel.pool import InProcess, Interrupted, InterruptGuard, ProcessPool, deal
 
 
 # Targets run in spawned processes: module-level, so they pickle by name.

@@ -8,8 +8,8 @@ import numpy as np
 from vla_eval.model_servers.predict import PredictModelServer
 from vla_eval.specs import RAW
 
-from rsb_maniskill.evaluation.reference_policies import ExpertPolicy
-from rsb_maniskill.evaluation.remote.vla_eval_layout import VlaEvalLayout
+from rsb_maniskill.policies.reference import ExpertPolicy
+from rsb_maniskill.policies.remote.vla_eval_layout import VlaEvalLayout
 from rsb_maniskill.robot import ACTION_DIM, ALOHA14_GRIPPER_INDEX
 
 

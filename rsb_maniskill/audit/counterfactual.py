@@ -18,16 +18,15 @@ from __future__ import annotations
 import os
 from typing import Sequence
 
+from rsb_maniskill.audit.guessers import Guesser
+from rsb_maniskill.audit.readers import BoundReader
+from rsb_maniskill.audit.run import MARGIN, SuiteAudit, audit_specs, suite_name
+from rsb_maniskill.audit.splits import SplitOverlap, split_overlap
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
 from rsb_maniskill.objects.family import DEFAULT_TARGETS
 from rsb_maniskill.semantic.counterfactual import variants
 from rsb_maniskill.semantic.sampler import EpisodeSampler
 from rsb_maniskill.semantic.spec import EpisodeSpec
-
-from rsb_maniskill.audit.guessers import Guesser
-from rsb_maniskill.audit.readers import BoundReader
-from rsb_maniskill.audit.run import MARGIN, SuiteAudit, audit_specs, suite_name
-from rsb_maniskill.audit.splits import SplitOverlap, split_overlap
 
 TAG = "counterfactual"  # the audit row of a suite's variants: "RSB-Math-4 [counterfactual]"
 

@@ -12,10 +12,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from rsb_maniskill.audit.text import digit_string, edit_distance, trailing_zeros
 from rsb_maniskill.semantic.normalize import content_words, jaccard, leading_numbers, overlap, trigrams
 from rsb_maniskill.semantic.spec import EpisodeSpec
-
-from rsb_maniskill.audit.text import digit_string, edit_distance, trailing_zeros
 
 Scores = Sequence[float] | None
 

@@ -16,9 +16,8 @@ from typing import Sequence
 
 import numpy as np
 
-from rsb_maniskill.semantic.spec import EpisodeSpec
-
 from rsb_maniskill.audit.guessers import credit
+from rsb_maniskill.semantic.spec import EpisodeSpec
 
 WORD_NGRAMS = (1, 2)
 CHAR_NGRAMS = (2, 5)

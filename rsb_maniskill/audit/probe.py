@@ -14,12 +14,11 @@ from typing import Sequence
 
 import numpy as np
 
+from rsb_maniskill.audit.guessers import credit, made_of_others
+from rsb_maniskill.audit.text import digit_string, edit_distance, trailing_zeros
 from rsb_maniskill.objects.catalog import CATEGORY_KEYS
 from rsb_maniskill.semantic.normalize import jaccard, leading_numbers, option_key, trigrams
 from rsb_maniskill.semantic.spec import EpisodeSpec
-
-from rsb_maniskill.audit.guessers import credit, made_of_others
-from rsb_maniskill.audit.text import digit_string, edit_distance, trailing_zeros
 
 NUMERIC_FEATURES = (
     "value", "log_value", "rank", "z", "abs_z", "median_dev", "abs_median_dev", "edit_mean", "edit_rank",

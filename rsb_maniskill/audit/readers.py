@@ -16,7 +16,6 @@ similarity``), reading the question and options from the instruction a policy is
 """
 from __future__ import annotations
 
-import importlib
 import os
 import re
 from dataclasses import dataclass
@@ -24,6 +23,7 @@ from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from rsb_maniskill.resolve import resolve
 from rsb_maniskill.semantic.normalize import numeric_values
 
 Scores = Sequence[float] | None
@@ -62,12 +62,11 @@ def load_reader(spec: str) -> BoundReader:
     if not sep or not mod_name or not attr:
         raise ValueError(f"--reader: '{spec}' is not module:factory; {SPEC_HINT}")
     try:
-        mod = importlib.import_module(mod_name)
+        factory = resolve(spec, "reader")
     except ImportError as err:
-        raise ValueError(f"--reader: cannot import '{mod_name}' ({err}); {SPEC_HINT}") from None
-    factory = getattr(mod, attr, None)
-    if not callable(factory):
-        raise ValueError(f"--reader: '{mod_name}' has no callable '{attr}'; {SPEC_HINT}")
+        raise ValueError(f"--reader: cannot import '{mod_name}' ({err.__cause__}); {SPEC_HINT}") from None
+    except (AttributeError, TypeError):
+        raise ValueError(f"--reader: '{mod_name}' has no callable '{attr}'; {SPEC_HINT}") from None
     try:
         return bind(factory(), spec)
     except TypeError as err:

@@ -10,11 +10,10 @@ from typing import Sequence
 
 import numpy as np
 
-from rsb_maniskill.evaluation.metrics import wilson_interval
-from rsb_maniskill.semantic.spec import EpisodeSpec
-
 from rsb_maniskill.audit.guessers import credit
 from rsb_maniskill.audit.readers import BoundReader
+from rsb_maniskill.evaluation.metrics import wilson_interval
+from rsb_maniskill.semantic.spec import EpisodeSpec
 
 
 def rate(credits: np.ndarray, clusters: np.ndarray | None = None) -> tuple[float, float, float]:

@@ -8,13 +8,6 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
-from rsb_maniskill.objects.family import DEFAULT_TARGETS
-from rsb_maniskill.semantic.normalize import option_key
-from rsb_maniskill.semantic.sampler import EpisodeSampler
-from rsb_maniskill.semantic.spec import EpisodeSpec
-from rsb_maniskill.semantic.suites import SUITES, suite_source
-
 from rsb_maniskill.audit.guessers import Guesser, candidate_guessers, credit, named_guessers
 from rsb_maniskill.audit.lexical import lexical_probe
 from rsb_maniskill.audit.probe import learned_probe
@@ -23,6 +16,12 @@ from rsb_maniskill.audit.reference import ReaderResult, read
 from rsb_maniskill.audit.reference import rate as _rate
 from rsb_maniskill.audit.splits import SplitOverlap, split_overlap
 from rsb_maniskill.audit.wording import instruction_guessers
+from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+from rsb_maniskill.objects.family import DEFAULT_TARGETS
+from rsb_maniskill.semantic.normalize import option_key
+from rsb_maniskill.semantic.sampler import EpisodeSampler
+from rsb_maniskill.semantic.spec import EpisodeSpec
+from rsb_maniskill.semantic.suites import SUITES, suite_source
 
 MARGIN = 0.03  # a guesser fails the audit when its whole 95 % interval lies above chance + 3 points
 MIN_SUBSET = 100  # smallest number of episodes a guesser must apply to for its own verdict

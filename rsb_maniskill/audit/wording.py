@@ -10,11 +10,10 @@ from __future__ import annotations
 
 from typing import Sequence
 
+from rsb_maniskill.audit.guessers import Guesser, Scores
 from rsb_maniskill.semantic.records import normalize_text
 from rsb_maniskill.semantic.spec import EpisodeSpec
 from rsb_maniskill.semantic.wording import DISTRACTORS
-
-from rsb_maniskill.audit.guessers import Guesser, Scores
 
 
 def _positions(sp: EpisodeSpec) -> list[int] | None:

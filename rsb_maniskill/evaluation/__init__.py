@@ -3,11 +3,10 @@
 Simulator-independent: these modules see the env only through the task contract (see
 ``runner.py``), so they import fast and are tested without physics. See docs/evaluation.md.
 
-Layers, each importing only those below it: the commands (``cli/``: ``rsb eval``, ``rsb backbone``,
-``rsb report``) over the reports (``reporting/``: summaries, results.json, report.html) and the
-remote policies (``remote/``), over this library (the loops, the driver, policies, backbones, the
-protocol, metrics), over what a record is (``records.py``) and where records live (``store.py``).
-The reports are not re-exported here: import them from ``reporting/``.
+The library of the harness: the loops and the driver (``runner.py``, ``jobs.py``), backbones, the
+protocol, metrics, what a record is (``records.py``) and where records live (``store.py``). Policies
+are ``rsb_maniskill.policies``, the reports ``rsb_maniskill.reporting``, the commands
+``rsb_maniskill.commands``.
 """
 from __future__ import annotations
 
@@ -26,17 +25,6 @@ from rsb_maniskill.evaluation.metrics import (
     summarize,
     wilson_interval,
 )
-from rsb_maniskill.evaluation.policy import (
-    BatchedPolicy,
-    PerEnvPolicies,
-    Policy,
-    RandomPolicy,
-    as_chunk,
-    builtin_policies,
-    load_policy,
-    policy_name,
-    register_policy,
-)
 from rsb_maniskill.evaluation.protocol import (
     EPISODES_PER_SUITE,
     EVAL_ENV_KWARGS,
@@ -53,11 +41,10 @@ from rsb_maniskill.evaluation.store import RecordWriter, completed_seeds, read_r
 
 __all__ = [
     "Average", "EPISODES_PER_SUITE", "EVAL_ENV_KWARGS", "EVAL_SEED_BASE", "EpisodeSettings", "ErrorAnalysis",
-    "EvalJob", "INSTRUCTION_MODES", "BatchedPolicy", "PerEnvPolicies", "PAPER_SUITES", "Policy", "RECORD_FIELDS",
-    "RandomPolicy", "Rate",
-    "RecordWriter", "SuiteMetrics", "apply_instruction_mode", "as_chunk", "average", "batched_loop", "build_record",
-    "builtin_policies", "completed_seeds", "derangement", "drive", "episode_loop", "eval_seeds", "load_policy",
-    "nsg", "num_choices", "policy_name", "read_records", "register_policy",
+    "EvalJob", "INSTRUCTION_MODES", "PAPER_SUITES", "RECORD_FIELDS", "Rate",
+    "RecordWriter", "SuiteMetrics", "apply_instruction_mode", "average", "batched_loop", "build_record",
+    "completed_seeds", "derangement", "drive", "episode_loop", "eval_seeds",
+    "nsg", "num_choices", "read_records",
     "run_episodes", "run_job", "shuffled_instruction", "summarize", "suite_metrics",
     "wilson_interval",
     "Backbone", "MAX_TEXT_CHARS", "ask_episodes", "load_backbone", "reasoning_following",

@@ -62,20 +62,20 @@ class ArithmeticBackbone:
 BACKBONES: dict[str, str] = {
     "arithmetic": "rsb_maniskill.evaluation.backbone:ArithmeticBackbone",
     "similarity": "rsb_maniskill.audit.readers:SimilarityBackbone",
-    "remote": "rsb_maniskill.evaluation.remote.client:RemoteBackbone",
+    "remote": "rsb_maniskill.policies.remote.client:RemoteBackbone",
 }
 
 
 def resolve_backbone(spec: str) -> Callable[..., Any]:
     """The factory a built-in name or ``package.module:factory`` names, without calling it."""
-    from rsb_maniskill.evaluation.policy import import_factory
+    from rsb_maniskill.resolve import resolve
 
     if spec in BACKBONES:
-        return import_factory(BACKBONES[spec], "backbone")
+        return resolve(BACKBONES[spec], "backbone")
     if ":" not in spec:
         raise ValueError(f"backbone {spec!r} is neither a built-in ({', '.join(BACKBONES)}) nor of the form "
                          "'package.module:factory'")
-    return import_factory(spec, "backbone")
+    return resolve(spec, "backbone")
 
 
 def load_backbone(spec: str, **kwargs: Any) -> Backbone:
@@ -92,10 +92,9 @@ class _Questions:
     ``images`` the head camera's first frame (from a reset of the evaluation env)."""
 
     def __init__(self, suite_id: str, env_kwargs: Mapping[str, Any], images: bool) -> None:
+        from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
         from rsb_maniskill.objects.family import split_env_id
         from rsb_maniskill.semantic import EpisodeSampler
-
-        from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
 
         base, targets = split_env_id(suite_id)
         sampler_keys = ("data_dir", "color_map")

@@ -24,10 +24,9 @@ from collections import Counter
 from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable, Mapping, Sequence
 
-from rsb_maniskill.objects.family import split_env_id
-
 from rsb_maniskill.evaluation.metrics import group_by_suite, num_choices, suite_order
 from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD, dedupe, record_row
+from rsb_maniskill.objects.family import split_env_id
 
 POSITION, CANDIDATE, LETTER = "position", "candidate", "letter"
 AXES: dict[str, str] = {POSITION: "position", CANDIDATE: "candidate", LETTER: "option letter"}

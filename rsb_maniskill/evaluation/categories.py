@@ -15,10 +15,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any, Iterable, Mapping
 
-from rsb_maniskill.semantic.categories import DIMENSIONS, SUITE_KIND, value_order
-
 from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, nsg, num_choices, outcome, suite_order
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, dedupe, record_row
+from rsb_maniskill.semantic.categories import DIMENSIONS, SUITE_KIND, value_order
 
 SMALL_CELL = 20  # episodes: a cell with fewer is shown, marked as too small to read much into
 PER_SUITE = tuple(d for d in DIMENSIONS if d != SUITE_KIND)  # suite kind is one value per suite: pooled

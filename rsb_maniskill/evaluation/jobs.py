@@ -18,15 +18,15 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 from rsb_maniskill.env_ids import CPU_SIM_BACKEND
-from rsb_maniskill.perturb import label as perturb_label
-from rsb_maniskill.workers import Executor, InProcess, Interrupted, ProcessPool, deal
-
-from rsb_maniskill.evaluation.policy import is_batched, load_policy, policy_name, policy_spec
-from rsb_maniskill.evaluation.policy_error import PolicyError, blame_policy, first_line
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED, record_episode
 from rsb_maniskill.evaluation.records import perturb_label as record_perturb
 from rsb_maniskill.evaluation.runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
+from rsb_maniskill.parallel.pool import Executor, InProcess, Interrupted, ProcessPool, deal
+from rsb_maniskill.perturb import label as perturb_label
+from rsb_maniskill.policies.errors import PolicyError, blame_policy, first_line
+from rsb_maniskill.policies.interface import is_batched, policy_name
+from rsb_maniskill.policies.registry import load_policy, policy_spec
 
 Write = Callable[[dict], None]
 
@@ -159,7 +159,7 @@ def run_episodes(
     Args:
         env_factory: zero-argument callable making a one-env RSB env of ``suite_id`` (evaluation
             split), or an env. It is only built when seeds remain, and closed if built here.
-        policy: a :class:`~rsb_maniskill.evaluation.policy.Policy`.
+        policy: a :class:`~rsb_maniskill.policies.interface.Policy`.
         seeds: the full seed list of this evaluation (``protocol.eval_seeds``); seeds already
             recorded for this policy / suite / mode in ``out_path`` are skipped.
         instruction_mode, max_steps, video_dir, num_videos, ...: see
@@ -191,12 +191,12 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
     """Run the seeds of ``job`` not yet in ``out_path``; returns all of the job's records.
 
     The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``num_procs`` tasks
-    of ``executor``, e.g. a :class:`~rsb_maniskill.workers_ray.RayExecutor`); with one, or with
+    of ``executor``, e.g. a :class:`~rsb_maniskill.parallel.ray_pool.RayExecutor`); with one, or with
     parallel GPU envs (``job.num_envs > 1``) and no executor, they run in this process.
-    A misbehaving policy raises its :class:`~rsb_maniskill.evaluation.policy_error.PolicyError`
+    A misbehaving policy raises its :class:`~rsb_maniskill.policies.errors.PolicyError`
     (from a worker process too), any other failure a :class:`JobError`; the finished episodes are
     kept either way. A signal stops the workers and raises
-    :class:`~rsb_maniskill.workers.Interrupted`, a KeyboardInterrupt.
+    :class:`~rsb_maniskill.parallel.pool.Interrupted`, a KeyboardInterrupt.
     """
     if job.num_envs > 1 and policy_spec(job.policy).single_env:
         raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs")

@@ -17,11 +17,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from rsb_maniskill.objects.family import split_env_id
-from rsb_maniskill.semantic.suites import SUITE_IDS
-
 from rsb_maniskill.evaluation.metrics import PAPER_OBJECT_SUITES, PAPER_SUITES, num_choices
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, EVAL_INSTRUCTION_MODES, INSTRUCTION_MODES
+from rsb_maniskill.objects.family import split_env_id
+from rsb_maniskill.semantic.suites import SUITE_IDS
 
 EVAL_SEED_BASE = 10_000_000
 EPISODES_PER_SUITE = 500

@@ -23,20 +23,6 @@ import numpy as np
 from rsb_maniskill import compat
 from rsb_maniskill.batch import env_row, first_value, single_env_obs
 from rsb_maniskill.env_ids import TASK_MAX_EPISODE_STEPS
-from rsb_maniskill.perturb import label as perturb_label
-from rsb_maniskill.perturb import parse_perturb
-
-from rsb_maniskill.evaluation.policy import (
-    PerEnvPolicies,
-    as_chunk,
-    as_chunks,
-    env_action_space,
-    is_batched,
-    obs_rows,
-    split_output,
-    split_outputs,
-)
-from rsb_maniskill.evaluation.policy_error import blame_policy, episode_where
 from rsb_maniskill.evaluation.positions import left_ranks
 from rsb_maniskill.evaluation.protocol import (
     SHUFFLE_SEED,
@@ -52,6 +38,19 @@ from rsb_maniskill.evaluation.protocol import (
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, EVAL_INSTRUCTION_MODES, build_record, perturb_fields
 from rsb_maniskill.evaluation.statements import EpisodeText
 from rsb_maniskill.evaluation.store import safe_name
+from rsb_maniskill.perturb import label as perturb_label
+from rsb_maniskill.perturb import parse_perturb
+from rsb_maniskill.policies.errors import blame_policy, episode_where
+from rsb_maniskill.policies.interface import (
+    PerEnvPolicies,
+    as_chunk,
+    as_chunks,
+    env_action_space,
+    is_batched,
+    obs_rows,
+    split_output,
+    split_outputs,
+)
 
 DEFAULT_MAX_STEPS = TASK_MAX_EPISODE_STEPS  # the tasks' own limit
 
@@ -300,7 +299,7 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                  write: Callable[[dict], None]) -> None:
     """Episodes in waves of ``num_envs``: env i of a wave runs one seed.
 
-    ``policy`` is a :class:`~rsb_maniskill.evaluation.policy.BatchedPolicy` (one ``act_batch`` call
+    ``policy`` is a :class:`~rsb_maniskill.policies.interface.BatchedPolicy` (one ``act_batch`` call
     per step for every env that needs a chunk), or a list of single-env policies, one per env.
     All envs of a wave are reset together with their seeds (a list); each env's record is taken at
     the step it terminates or truncates, and it then holds its last action until the wave ends. The

@@ -18,9 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
 
-from rsb_maniskill.semantic.answers import read_statement
-
 from rsb_maniskill.evaluation.metrics import Rate, outcome
+from rsb_maniskill.semantic.answers import read_statement
 
 # A chain of thought of the paper's kind is 200-300 characters; 2,000 keep a long one whole while a
 # policy that returns text with every chunk cannot grow a run's files without bound: episodes.jsonl

@@ -2,7 +2,7 @@
 
 A build is cut into shards by arithmetic, never by timing: each suite's question range in chunks of
 ``shard_size`` questions (``rsb export lerobot``: each demo file's episodes in chunks). Workers
-(``rsb_maniskill.workers``: this process, spawned processes, or Ray tasks) take the shards dealt
+(``rsb_maniskill.parallel.pool``: this process, spawned processes, or Ray tasks) take the shards dealt
 to them, and for each one (``export/shards.py``) run the scripted expert on its questions (``rsb
 generate``'s code, into a temporary demo file), render the kept demos' camera frames from their
 recorded states and write the shard as a small LeRobot dataset (``write_dataset``), renamed into
@@ -12,7 +12,7 @@ same command skips the finished ones. When every shard of a suite is there, they
 (``export/merge.py``) into ``OUT/<suite>`` with its dataset card. The shard list, hence every
 episode, does not depend on the number of workers. Local worker processes share the CPUs for
 software rendering: each caps lavapipe's raster threads to its share (``LP_NUM_THREADS``, unless
-the user set it; ``_render.py``).
+the user set it; ``sim/render.py``).
 
 Layout: ``OUT/<suite>/`` (the dataset, ready for ``huggingface-cli upload``) and
 ``OUT/.work/<suite>/`` (``settings.json`` and ``shards/shard-NNNNN``; safe to delete after the build).
@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from rsb_maniskill._render import lavapipe_share
 from rsb_maniskill.export.lerobot import INFO_FILE, ExportError
 from rsb_maniskill.export.naming import DEFAULT_NAMING
 from rsb_maniskill.export.shards import (
@@ -43,6 +42,7 @@ from rsb_maniskill.export.shards import (
 )
 from rsb_maniskill.objects.family import DEFAULT_TARGETS
 from rsb_maniskill.robot import CAMERAS
+from rsb_maniskill.sim.render import lavapipe_share
 
 WORK_DIR = ".work"
 SETTINGS_FILE = "settings.json"
@@ -133,7 +133,7 @@ def _run(shards: list[tuple[Path, dict, int, Any]], num_procs: int, executor: An
          progress: bool) -> tuple[list[str], bool, "_Progress"]:
     """Deals ``(work, settings, k, shard)`` items to workers and runs them; returns the workers'
     errors, whether a signal stopped the run, and the progress counters."""
-    from rsb_maniskill.workers import InProcess, InterruptGuard, ProcessPool, deal
+    from rsb_maniskill.parallel.pool import InProcess, InterruptGuard, ProcessPool, deal
 
     bar = _Progress(sum(s.size for *_, s in shards), progress)
     # one task per worker, its shards dealt round-robin (they may span suites)

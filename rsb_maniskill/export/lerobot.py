@@ -16,7 +16,7 @@ imported either: its pins (torch, numpy 2) clash with the project's.
 :func:`write_dataset` writes one dataset from an iterable of episodes in this process (videos are
 encoded on a thread while the next episode renders). ``rsb export lerobot`` (``export/build.py``:
 ``export_lerobot``) splits the demos into shards, writes each with :func:`write_dataset` in worker
-processes (``rsb_maniskill.workers``) and merges them (``export/merge.py``); ``rsb dataset build``
+processes (``rsb_maniskill.parallel.pool``) and merges them (``export/merge.py``); ``rsb dataset build``
 does the same with the expert's demos made in the same workers.
 """
 from __future__ import annotations

@@ -17,9 +17,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from rsb_maniskill._render import limit_lavapipe_threads
 from rsb_maniskill.export.lerobot import ExportError, check_fps, write_dataset
 from rsb_maniskill.export.render_demos import render_episodes
+from rsb_maniskill.sim.render import limit_lavapipe_threads
 
 SHARD_META = "meta/rsb_shard.json"
 
@@ -96,7 +96,7 @@ def _publish(tmp: Path, final: Path) -> None:
 
 def _write_shard(work: Path, settings: dict, k: int, shard: ExportShard | SuiteShard, emit: Any) -> None:
     """Makes shard ``k`` of ``work`` whole under a temporary name, then renames it into place."""
-    from rsb_maniskill.workers import Interrupted
+    from rsb_maniskill.parallel.pool import Interrupted
 
     final = shard_dir(work, k)
     if (final / SHARD_META).is_file():
@@ -136,7 +136,7 @@ def _write_shard(work: Path, settings: dict, k: int, shard: ExportShard | SuiteS
 def _generate(shard: SuiteShard, settings: dict, out: Path) -> tuple[Path | None, dict]:
     """The expert's demos of the shard's questions (state only: frames are rendered afterwards)."""
     from rsb_maniskill.motionplan.generate import GenerateConfig, generate
-    from rsb_maniskill.workers import InProcess, Interrupted
+    from rsb_maniskill.parallel.pool import InProcess, Interrupted
 
     env_kwargs = dict(settings.get("env_kwargs") or {})
     if settings.get("data_dir"):

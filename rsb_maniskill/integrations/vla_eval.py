@@ -36,7 +36,7 @@ from rsb_maniskill.evaluation.protocol import (
     eval_seeds,
 )
 from rsb_maniskill.evaluation.records import RECORD_FLAGS, VLA_EVAL_RUNNER, build_record
-from rsb_maniskill.evaluation.remote.vla_eval_layout import make_layout
+from rsb_maniskill.policies.remote.vla_eval_layout import make_layout
 from rsb_maniskill.robot import sensor_uid
 
 LAVAPIPE_ICD_ENV = "RSB_LAVAPIPE_ICD"  # `render: cpu`: a lavapipe ICD other than the system's

@@ -10,7 +10,7 @@ The run, in the order it happens, and where each part lives:
 - the request (:mod:`.config`) is checked before any file is written;
 - the shard's seeds or questions are dealt to workers by arithmetic (:mod:`.shards`);
 - the workers (:mod:`.worker`) run in this process, in spawned ones, or as Ray tasks
-  (:mod:`rsb_maniskill.workers`, the executors evaluation uses too), each into a part file under
+  (:mod:`rsb_maniskill.parallel.pool`, the executors evaluation uses too), each into a part file under
   a hidden temp name, reporting every episode to the progress bar here;
 - the parts are merged (sorted by seed, or by question) into the final file, renamed into place,
   with an ``rsb`` block saying how it was made (:mod:`.summary`).
@@ -27,12 +27,11 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from rsb_maniskill.workers import Executor, InProcess, ProcessPool
-
 from rsb_maniskill.motionplan import dataset
 from rsb_maniskill.motionplan.config import GenerateConfig, GenerateError, output_path
 from rsb_maniskill.motionplan.shards import WorkPlan, plan_work
 from rsb_maniskill.motionplan.summary import GenerateSummary, describe, rsb_header
+from rsb_maniskill.parallel.pool import Executor, InProcess, ProcessPool
 
 # generate(GenerateConfig) -> GenerateSummary, and what goes with it
 __all__ = ["GenerateConfig", "GenerateError", "GenerateSummary", "describe", "generate"]
@@ -94,7 +93,7 @@ class _Progress:
 def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateSummary:
     """Runs the whole job: validate, run workers, merge their parts into the final file.
 
-    ``executor`` runs the workers (e.g. a :class:`~rsb_maniskill.workers_ray.RayExecutor`, whose
+    ``executor`` runs the workers (e.g. a :class:`~rsb_maniskill.parallel.ray_pool.RayExecutor`, whose
     machines must see ``cfg.out``); default: this process for one worker, else a process pool."""
     t0 = time.perf_counter()
     pool_size = _validate(cfg)
@@ -179,7 +178,7 @@ def _run_workers(cfg: GenerateConfig, plans: list[WorkPlan], parts: dict[int, Pa
 def _merge_parts(cfg: GenerateConfig, parts: dict[int, Path], summaries: list[dict], final: Path, pool_size: int,
                  header: dict) -> list[str]:
     """Merges the readable parts into ``final``; returns errors about parts that had demos but are unreadable."""
-    from rsb_maniskill.workers import InterruptGuard
+    from rsb_maniskill.parallel.pool import InterruptGuard
 
     errors = []
     with InterruptGuard() as guard:  # finishing up: a late signal must not cut the merge short

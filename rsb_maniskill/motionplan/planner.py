@@ -21,9 +21,8 @@ import mplib  # noqa: E402
 
 from rsb_maniskill.agents.aloha import GRIPPER_CLOSED, GRIPPER_OPEN
 from rsb_maniskill.agents.aloha_urdf import ASSET_DIR, MPLIB_SRDF_NAME, URDF_NAME
-from rsb_maniskill.robot import ARM_ACTION_SLICE, ARM_JOINT_NAMES, GRIPPER_ACTION_INDEX, TCP_LINKS
-
 from rsb_maniskill.motionplan.rng import reseed_planners
+from rsb_maniskill.robot import ARM_ACTION_SLICE, ARM_JOINT_NAMES, GRIPPER_ACTION_INDEX, TCP_LINKS
 
 # Trajectory limits for the move group (rad/s, rad/s^2). mplib's default is 1 and 1; the PD
 # drives (stiffness 2e3, damping 2e2) track 1.6 rad/s without a visible lag at 25 Hz.

@@ -19,9 +19,8 @@ import sys
 from pathlib import Path
 
 from rsb_maniskill.env_ids import CPU_SIM_BACKEND
-from rsb_maniskill.robot import CONTROL_MODE
-
 from rsb_maniskill.motionplan.dataset import DatasetError, check_pair, json_path_of, load_json, write_json_atomic
+from rsb_maniskill.robot import CONTROL_MODE
 
 
 def _register_envs() -> None:

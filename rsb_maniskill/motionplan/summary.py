@@ -7,9 +7,8 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
-from rsb_maniskill.version import BENCHMARK_VERSION, UNVERSIONED, benchmark_label, code_commit, package_version
-
 from rsb_maniskill.motionplan.config import GenerateConfig
+from rsb_maniskill.version import BENCHMARK_VERSION, UNVERSIONED, benchmark_label, code_commit, package_version
 
 
 @dataclass

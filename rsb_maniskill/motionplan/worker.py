@@ -8,7 +8,6 @@ and still leaves a valid part.
 """
 from __future__ import annotations
 
-import importlib
 import os
 import signal
 import traceback
@@ -18,11 +17,11 @@ from typing import Any, Callable
 from mani_skill.utils.wrappers.record import RecordEpisode
 
 from rsb_maniskill.batch import first_value
-from rsb_maniskill.workers import Interrupted, InterruptGuard
-
 from rsb_maniskill.motionplan import dataset
 from rsb_maniskill.motionplan.config import SOURCE_DESC, GenerateConfig, GenerateError, make_env_kwargs
 from rsb_maniskill.motionplan.shards import WorkPlan, seed_schedule
+from rsb_maniskill.parallel.pool import Interrupted, InterruptGuard
+from rsb_maniskill.resolve import resolve
 
 
 class DemoRecorder(RecordEpisode):
@@ -46,10 +45,9 @@ class DemoRecorder(RecordEpisode):
 
 def load_expert(path: str) -> Callable:
     """``"module:attr"`` -> the expert class (``attr(env).run() -> ExpertResult``)."""
-    module, _, attr = path.partition(":")
     try:
-        return getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as err:
+        return resolve(path, "expert")
+    except (ValueError, ImportError, AttributeError, TypeError) as err:
         raise GenerateError(f"cannot load expert {path!r}: {err}") from err
 
 

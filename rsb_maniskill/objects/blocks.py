@@ -20,7 +20,7 @@ LETTER_PLATE_Q = [0.7071068, 0.0, -0.7071068, 0.0]
 @lru_cache(maxsize=None)
 def letter_render_texture(letter: str, stroke: int = STROKE) -> sapien.render.RenderTexture2D:
     """One GPU texture per letter (and stroke width) and process, shared by every env (the process
-    holds its render engine, see _render.py, so the texture stays valid)."""
+    holds its render engine, see sim/render.py, so the texture stays valid)."""
     # The plane's UVs show the texture transposed and turned half a turn when seen from the
     # robot; undo both so the letter reads upright in the head camera.
     tex = letter_texture(letter, LETTER_BLOCK_RGB, stroke=stroke)

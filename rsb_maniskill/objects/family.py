@@ -12,7 +12,6 @@ A new family is one class and one registration.
 """
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -20,6 +19,7 @@ import numpy as np
 
 from rsb_maniskill.objects import catalog
 from rsb_maniskill.objects.geometry import Grasp
+from rsb_maniskill.resolve import resolve
 
 BLOCK_HALF = 0.02  # 4 cm cubes
 BLOCK_COLORS: dict[str, tuple[float, float, float]] = {  # RGB of the 4-choice blocks, in block-index order
@@ -200,8 +200,7 @@ def family_of_keys(keys: Sequence[str]) -> str:
 
 def actor_builder(family: Any) -> Callable[..., Any]:
     """The function building one actor of ``family`` (imports the simulator module on first use)."""
-    module, _, func = family.builder.partition(":")
-    return getattr(importlib.import_module(module), func)
+    return resolve(family.builder, "candidate builder")
 
 
 register_family(BlockFamily())

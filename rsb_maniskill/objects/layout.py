@@ -4,7 +4,7 @@ each turned and shifted inside its cell as far as its footprint allows (no overl
 Cell identity, position jitter and yaw are drawn from the episode's batched RNG, so the layout
 is a function of the episode seed and independent of which candidate is the answer. Numpy only:
 :func:`episode_layouts` gives episodes' layouts without the simulator (the pinned episodes,
-``rsb_maniskill/golden.py``, digest them).
+``rsb_maniskill/audit/golden.py``, digest them).
 """
 from __future__ import annotations
 

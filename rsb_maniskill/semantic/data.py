@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 from rsb_maniskill import network
-
 from rsb_maniskill.semantic.errors import DataNotFoundError, EmptyDataError, SemanticDataError
 
 ENV_VAR = "RSB_DATA_DIR"

@@ -5,12 +5,12 @@ The 4- and 10-choice suites of a source share one pool. Each source's builder (t
 """
 from __future__ import annotations
 
-import importlib
 import os
 import sys
 from collections import Counter
 from dataclasses import dataclass, field
 
+from rsb_maniskill.resolve import resolve
 from rsb_maniskill.semantic.data import REFILL_HINT, data_source_label, resolve_data_dir
 from rsb_maniskill.semantic.distractors import Bins, value_bins
 from rsb_maniskill.semantic.errors import EmptyDataError
@@ -70,8 +70,7 @@ def get_pool(suite: str, split: str, data_dir: str | os.PathLike | None = None) 
         raise ValueError(f"unknown question source {suite!r}; valid: {valid}")
     key = (suite, split, data_key(data_dir) if source.reads_data else "")
     if key not in _POOLS:
-        module, _, func = source.pool.partition(":")
-        pool = getattr(importlib.import_module(module), func)(split, data_dir)
+        pool = resolve(source.pool, "question pool")(split, data_dir)
         if not len(pool):  # GSM8K's and MMLU-Pro's readers name the file at fault; this catches any source
             where = f"data: {data_source_label(data_dir)}" if source.reads_data else f"built by {source.pool}"
             raise EmptyDataError(f"the {suite} {split} question pool ({where}) holds no question: {REFILL_HINT}")

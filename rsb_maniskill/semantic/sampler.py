@@ -15,7 +15,14 @@ from rsb_maniskill.semantic.pools import Pool, get_pool
 from rsb_maniskill.semantic.records import Question, format_number
 from rsb_maniskill.semantic.spec import EpisodeSpec
 from rsb_maniskill.semantic.stable import axis_rng, episode_rng
-from rsb_maniskill.semantic.suites import COLOR_MAPS, INSTRUCTION_SETS, check_split, letters_for, parse_suite_id, suite_source
+from rsb_maniskill.semantic.suites import (
+    COLOR_MAPS,
+    INSTRUCTION_SETS,
+    check_split,
+    letters_for,
+    parse_suite_id,
+    suite_source,
+)
 from rsb_maniskill.semantic.templates import get_template, render_direct, render_instruction, template_ids
 
 

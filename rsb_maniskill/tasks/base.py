@@ -11,9 +11,10 @@ from gymnasium.envs.registration import EnvSpec
 
 from mani_skill.envs.sapien_env import BaseEnv
 
-from rsb_maniskill import _render, compat
+from rsb_maniskill import compat
 from rsb_maniskill.env_ids import qualified_id
-from rsb_maniskill.physx_gpu import check_for_sim_backend
+from rsb_maniskill.sim import render
+from rsb_maniskill.sim.physx_gpu import check_for_sim_backend
 
 _HEAP_FROZEN = False  # once a process
 
@@ -55,5 +56,5 @@ class RSBEnv(BaseEnv):
 
     def _setup_scene(self):
         freeze_import_heap()  # before the first scene's objects exist: they are collected at the next rebuild
-        _render.hold_render_engine(compat.render_device(self))  # before the first render object of the scene
+        render.hold_render_engine(compat.render_device(self))  # before the first render object of the scene
         super()._setup_scene()

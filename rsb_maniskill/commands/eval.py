@@ -1,0 +1,324 @@
+"""`rsb eval`: a policy on RSB suites with the paper's protocol; GSR / TSR / nSG tables.
+
+    rsb eval oracle --suites RSB-Math-4 -n 100
+    rsb eval my_policies:make_policy -a checkpoint=ckpt/last --num-procs 2 --videos 5
+    rsb eval remote -a host=gpu-box -a port=8000 --name pi05 --instruction normal blank shuffled
+    rsb eval oracle --suites RSB-Math-4 -n 50 --sweep camera lang_layout    # robustness axes, levels 0-3
+    rsb eval oracle --suites RSB-Math-4 -n 50 --perturb camera=2 noise=1   # one perturbed run
+
+Output directory (``--out``, default ``results/<name>``): ``episodes.jsonl`` (one record per
+finished episode; rerunning the same command resumes), ``run.json`` (the settings each policy row
+was run with; a resumed run must use the same ones, and the same benchmark version),
+``summary.{json,csv,md}``, ``results.json`` (the shareable numbers, docs/evaluation.md), one
+``summary_<row>.png`` per row, ``report.html`` (``rsb report``) and ``videos/``. See docs/evaluation.md.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from rsb_maniskill.commands.eval_args import (
+    MANIFEST_KEYS,
+    SEEDS_TEXT,
+    EvalError,
+    check_data,
+    check_env_args,
+    check_env_settings,
+    check_policy_args,
+    parse_kv,
+    results_dir,
+)
+from rsb_maniskill.debug import print_error
+from rsb_maniskill.evaluation.store import ManifestError, RecordsError
+from rsb_maniskill.policies.errors import PolicyError
+
+SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0: the unperturbed run)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS, add_suites_argument
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS
+    from rsb_maniskill.evaluation.records import EVAL_INSTRUCTION_MODES
+    from rsb_maniskill.parallel.plan import add_worker_args
+    from rsb_maniskill.perturb import AXES
+    from rsb_maniskill.policies.registry import POLICIES
+    from rsb_maniskill.robot import CONTROL_MODE
+
+    state_only = [name for name, spec in POLICIES.items() if spec.obs_mode == "state"]
+
+    p = subparsers.add_parser(
+        "eval", help="evaluate a policy: GSR / TSR / nSG per suite (paper protocol)",
+        description=f"Runs POLICY on the evaluation split ({EVAL_ENV_KWARGS['instructions']} instructions, fixed "
+                    f"seeds {SEEDS_TEXT}) of each suite and writes per-episode records and GSR / TSR / nSG summaries. "
+                    "Rerunning the same command resumes an interrupted run.")
+    p.add_argument("policy", help=f"built-in ({', '.join(POLICIES)}) or package.module:factory")
+    p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="keyword argument of the policy factory (VALUE parsed as JSON, else a string); repeatable")
+    add_suites_argument(p)
+    p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
+                   help=f"episodes per suite (default {EPISODES_PER_SUITE}); "
+                        "the first n are a prefix of any longer run")
+    p.add_argument("--instruction", nargs="+", default=["normal"], choices=EVAL_INSTRUCTION_MODES,
+                   help="instruction given to the policy: normal, blank or shuffled (another episode's); "
+                        "counterfactual: K variants of each scene, the answer on another candidate each "
+                        "(follow / switch / stuck rates); several run one after the other")
+    p.add_argument("--variants", type=int, default=None, metavar="K",
+                   help="counterfactual variants per scene, 2..N (default: min(N, 4))")
+    p.add_argument("--perturb", nargs="+", default=[], metavar="AXIS=LEVEL",
+                   help="robustness axes applied together, each at a level 0-3 (axes: " + ", ".join(AXES) + "); "
+                        "see docs/robustness.md")
+    p.add_argument("--sweep", nargs="+", default=[], metavar="AXIS",
+                   help="run each axis at levels 0-3, one after the other (level 0, the unperturbed run, once for "
+                        "all); resumable; the summary and report.html get a robustness table per suite")
+    p.add_argument("--name", default=None, help="row label in records and tables (default: the policy spec)")
+    p.add_argument("--checkpoint", default=None, metavar="ID",
+                   help="your id of the weights evaluated (a hub revision, a run name): results.json carries it")
+    p.add_argument("--out", default=None, help="results directory (default: results/<name>)")
+    p.add_argument("-o", "--obs-mode", default=None,
+                   help=f"observations (default: rgb; state for {', '.join(state_only)})")
+    p.add_argument("-c", "--control-mode", default=None, help=f"controller (default: the robot's {CONTROL_MODE})")
+    p.add_argument("-e", "--env-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="extra gym.make keyword, e.g. camera_size=[224,224] (VALUE as JSON, else a string)")
+    p.add_argument("--data-dir", default=None,
+                   help="GSM8K / MMLU-Pro directory (else $RSB_DATA_DIR, else the hub cache)")
+    p.add_argument("--num-envs", type=int, default=1,
+                   help=f"parallel envs on the GPU backend ({GPU_SIM_BACKEND}), driven by one batched policy "
+                        "(reset_batch / act_batch; e.g. remote: one request per step) or one policy "
+                        "instance each (default 1)")
+    p.add_argument("--max-steps", type=int, default=None,
+                   help=f"step cap per episode (default: the task's {TASK_MAX_EPISODE_STEPS})")
+    p.add_argument("--videos", type=int, default=0, metavar="K", help="mp4 of the first K episodes of each suite")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    add_worker_args(p)  # --num-procs auto|N, --executor, --address
+    p.set_defaults(func=run_eval)
+
+
+def perturbations(perturb: list[str], sweep: list[str]) -> list[dict[str, int]]:
+    """The perturbations to run, in order: ``--perturb`` (one, its axes together) or ``--sweep``
+    (no perturbation, then each axis at levels 1-3); ``[{}]`` without either."""
+    from rsb_maniskill.perturb import PerturbError, check_axis, parse_perturb
+
+    if perturb and sweep:
+        raise EvalError("use --perturb or --sweep, not both (a sweep varies one axis at a time)")
+    try:
+        if sweep:
+            for axis in sweep:
+                check_axis(axis)
+            return [{}] + [{axis: level} for axis in dict.fromkeys(sweep) for level in SWEEP_LEVELS if level]
+        return [parse_perturb(",".join(perturb))]
+    except PerturbError as err:
+        raise EvalError(f"{err} (--perturb AXIS=LEVEL, --sweep AXIS)") from None
+
+
+def check_variants(variants: int | None, modes: list[str], suites: list[str]) -> None:
+    """``--variants K``: only with ``--instruction counterfactual``, and 2 <= K <= N for every suite."""
+    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, scene_variants
+
+    if variants is None:
+        return
+    if COUNTERFACTUAL not in modes:
+        raise EvalError("--variants sets the counterfactual variants per scene: add --instruction counterfactual")
+    for suite in suites:
+        try:
+            scene_variants(suite, variants)
+        except ValueError as err:
+            raise EvalError(f"--variants {variants} on {suite}: {err}") from None
+
+
+def episodes_per_scene(suite: str, mode: str, variants: int | None) -> int:
+    """Episodes a scene gives in ``mode``: K in counterfactual mode, else 1."""
+    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, scene_variants
+
+    return scene_variants(suite, variants) if mode == COUNTERFACTUAL else 1
+
+
+def check_policy_spec(spec: str, num_envs: int = 1) -> None:
+    """Fail before any env is built when a spec cannot resolve, or cannot run on parallel envs."""
+    from rsb_maniskill.policies.registry import policy_spec, resolve_factory
+
+    if num_envs > 1 and policy_spec(spec).single_env:
+        raise EvalError(f"policy {spec!r} drives one env at a time: use --num-procs, not --num-envs")
+    try:
+        resolve_factory(spec)
+    except ImportError as err:
+        raise EvalError(f"{err}; is the module installed or on PYTHONPATH?") from err
+    except (ValueError, AttributeError, TypeError) as err:
+        raise EvalError(str(err)) from err
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    # SIGTERM (a scheduler's stop) ends the run like Ctrl-C: workers stopped, summary written.
+    from rsb_maniskill.evaluation.jobs import JobError
+
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        return _run_eval(args)
+    except (EvalError, ManifestError, RecordsError) as err:
+        print(f"rsb eval: error: {err}", file=sys.stderr)
+        return 2
+    except (PolicyError, JobError) as err:  # finished episodes are kept
+        return print_error("eval", err, 1, hint=True,
+                           then="fix it and rerun the same command: finished episodes are kept")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kwargs: dict, obs_mode: str,
+              max_steps: int, env_kwargs: dict, out: Path, records_path: Path, num_procs: int,
+              executor: Any, perturbs: list[dict[str, int]]) -> None:
+    """Every suite x instruction mode x perturbation, one after the other."""
+    from rsb_maniskill.env_ids import CPU_SIM_BACKEND, GPU_SIM_BACKEND
+    from rsb_maniskill.evaluation.jobs import EvalJob, run_job
+    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, eval_seeds
+
+    for suite in suites:
+        for mode, perturb in ((m, p) for m in args.instruction for p in perturbs):
+            job = EvalJob(perturb=perturb or None,
+                suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
+                label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
+                variants=args.variants if mode == COUNTERFACTUAL else None,
+                control_mode=args.control_mode, num_envs=args.num_envs,
+                sim_backend=GPU_SIM_BACKEND if args.num_envs > 1 else CPU_SIM_BACKEND, max_steps=max_steps,
+                env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
+                num_videos=args.videos)
+            run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor)
+
+
+def _print_counterfactual(records: list[dict]) -> None:
+    """The follow / switch / stuck tables of counterfactual runs (nothing without them)."""
+    from rsb_maniskill.evaluation.counterfactual import counterfactual_table
+    from rsb_maniskill.reporting.counterfactual import counterfactual_markdown
+
+    table = counterfactual_table(records)
+    if table:
+        print(counterfactual_markdown(table))
+
+
+def _run_eval(args: argparse.Namespace) -> int:
+    from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS
+    from rsb_maniskill.evaluation.jobs import JobError
+    from rsb_maniskill.evaluation.protocol import eval_seeds
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, RunStart, check_manifest, read_records
+    from rsb_maniskill.parallel.plan import executor_from_args, obs_mode_renders, resolve_workers
+    from rsb_maniskill.policies.registry import policy_spec
+    from rsb_maniskill.version import BENCHMARK_VERSION
+
+    suites = args.suites
+    for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-envs", args.num_envs, 1),
+                             ("--videos", args.videos, 0)):
+        if value < low:
+            raise EvalError(f"{flag} must be >= {low}, got {value}")
+    if args.max_steps is not None and args.max_steps < 1:
+        raise EvalError(f"--max-steps must be >= 1, got {args.max_steps}")
+    if args.num_envs > 1 and (args.num_procs or 1) > 1 and args.executor == "local":
+        raise EvalError("use either --num-envs (GPU) or --num-procs (CPU), not both")
+    try:
+        executor = executor_from_args(args.executor, args.address, gpus_per_task=1 if args.num_envs > 1 else 0)
+    except (ValueError, ImportError) as err:
+        raise EvalError(str(err)) from err
+    if args.num_envs > 1 and executor is None:
+        import torch
+
+        from rsb_maniskill.sim.physx_gpu import PhysXGpuLibraryMissing, check_for_sim_backend
+
+        if not torch.cuda.is_available():
+            raise EvalError(f"--num-envs > 1 runs the GPU backend ({GPU_SIM_BACKEND}), and no CUDA device is visible; "
+                            "use --num-procs on a CPU machine")
+        try:
+            check_for_sim_backend(GPU_SIM_BACKEND, args.num_envs)  # before any episode, not in a worker
+        except PhysXGpuLibraryMissing as err:
+            raise EvalError(str(err)) from err
+    policy_kwargs = parse_kv(args.policy_arg, "--policy-arg")
+    env_kwargs = parse_kv(args.env_arg, "--env-arg")
+    check_env_args(env_kwargs, "use --perturb AXIS=LEVEL or --sweep AXIS (records carry them)")
+    perturbs = perturbations(args.perturb, args.sweep)
+    check_variants(args.variants, args.instruction, suites)
+    if args.data_dir:
+        env_kwargs["data_dir"] = args.data_dir
+    check_policy_spec(args.policy, args.num_envs)
+    check_policy_args(args.policy, policy_kwargs)
+    obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
+    check_env_settings(suites, env_kwargs, obs_mode, args.control_mode)
+    check_data(suites, env_kwargs.get("data_dir"), env_kwargs.get("color_map"))
+    if args.policy == "remote":
+        from rsb_maniskill.policies.remote import check_remote_args
+
+        try:
+            check_remote_args(policy_kwargs, args.obs_mode or "rgb")
+        except (ValueError, ConnectionError) as err:
+            raise EvalError(str(err)) from err
+
+    label = args.name or args.policy
+    out = results_dir(args.out, label)
+    max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
+    settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
+                    control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs,
+                    benchmark_version=BENCHMARK_VERSION, checkpoint=args.checkpoint)
+    start = RunStart(out)  # taken back if the run fails before its first episode
+    note = check_manifest(out, label, settings, keys=MANIFEST_KEYS)
+    if note:
+        print(f"rsb eval: note: {note}", file=sys.stderr)
+
+    records_path = out / RECORDS_FILE
+    interrupted = False
+    with contextlib.ExitStack() as stack:
+        if executor is not None:
+            stack.enter_context(executor)  # a local Ray cluster lives for the whole run
+        executor, num_procs = resolve_workers(args.num_procs, executor, obs_mode_renders(obs_mode) or args.videos > 0,
+                                              num_envs=args.num_envs, episodes=args.num_episodes)
+        try:
+            _run_jobs(args, suites, label, policy_kwargs, obs_mode, max_steps, env_kwargs, out, records_path,
+                      num_procs, executor, perturbs)
+        except KeyboardInterrupt:
+            interrupted = True
+        except (PolicyError, JobError):
+            start.undo(label)
+            raise
+
+    from rsb_maniskill.evaluation.records import perturb_label as record_perturb
+    from rsb_maniskill.perturb import label as perturb_label
+    from rsb_maniskill.reporting.reasoning import reasoning_markdown, reasoning_table
+    from rsb_maniskill.reporting.robustness import robustness_markdown, robustness_table
+    from rsb_maniskill.reporting.summary import markdown_tables, results_from_records
+    from rsb_maniskill.reporting.writer import write_html_report, write_report
+
+    wanted = {(s, m, perturb_label(p)) for s in suites for m in args.instruction for p in perturbs}
+    all_records = read_records(records_path)
+    results = results_from_records(all_records)
+    asked = [r for r in all_records if r["policy"] == label
+             and (r["suite_id"], r["instruction_mode"], record_perturb(r)) in wanted]
+    n_run = sum(1 for r in asked if int(r["seed"]) - eval_seeds(r["suite_id"], 1)[0] < args.num_episodes
+                and int(r.get("variant", 0)) < episodes_per_scene(r["suite_id"], r["instruction_mode"], args.variants))
+    expected = sum(args.num_episodes * episodes_per_scene(s, m, args.variants) for s, m, _ in wanted)
+    partial = f"partial: interrupted, {n_run} of {expected} episodes" if interrupted else None
+    if results:
+        paths = write_report(results, out, records=all_records, partial=partial)
+        page = write_html_report(out, records=all_records, partial=partial)
+        print(markdown_tables(results, BENCHMARK_VERSION))
+        robust = robustness_table(all_records)
+        if robust:
+            print(robustness_markdown(robust))
+        _print_counterfactual(all_records)
+        print(reasoning_markdown(reasoning_table(all_records)), end="")  # nothing unless a policy talked
+        print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\n"
+              f"results: {paths['results']}\nreport: {page}")
+    if interrupted:
+        print(f"rsb eval: interrupted; finished episodes are in {records_path}. "
+              "Rerun the same command to resume.", file=sys.stderr)
+        return 130
+    if len(asked) > n_run:  # the summary is of the whole folder: say what it holds beyond this run
+        print(f"rsb eval: note: the summary covers every record in {out}: {len(asked)} episodes of {label!r} on "
+              f"these suites, {len(asked) - n_run} more than this run's -n {args.num_episodes} (from an earlier, "
+              "longer run)", file=sys.stderr)
+    if n_run != expected:
+        print(f"rsb eval: warning: {n_run} of {expected} episodes recorded", file=sys.stderr)
+        return 1
+    return 0

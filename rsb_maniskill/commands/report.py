@@ -1,0 +1,89 @@
+"""`rsb report`: report.html, results.json and the summaries of a results directory; two runs side by side.
+
+    rsb report results/pi05                  # report.html, results.json
+    rsb report vla_eval_out/                 # a `vla-eval run` of RSBBenchmark: also summary.*
+    rsb report --compare results/a results/b
+
+The page is ``reporting/page.py`` (written by ``reporting/writer.py``), the results document and
+the comparison ``reporting/results.py``, the reading of vla-eval results
+``reporting/vla_eval_results.py``.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.evaluation.store import RECORDS_FILE
+
+    p = subparsers.add_parser(
+        "report", help="write report.html, results.json and summary.*; --compare: two runs side by side",
+        description="Writes RESULTS_DIR/report.html (a self-contained page that opens from disk), "
+                    f"RESULTS_DIR/results.json and the summaries (summary.md, .json, .csv, charts) from "
+                    f"RESULTS_DIR/{RECORDS_FILE} (an `rsb eval` output directory), all from the same records. "
+                    "RESULTS_DIR may also be a `vla-eval run` output directory (or its *_aggregate.json) of "
+                    "RSBBenchmark: then the paper's tables are printed and written to summary.* beside it too. "
+                    "With --compare A B: the two runs' GSR / TSR / nSG per suite side by side, B - A, and whether "
+                    "their 95 % intervals separate (Markdown). Records of two benchmark versions never pool.")
+    p.add_argument("results_dir", metavar="RESULTS_DIR", nargs="?")
+    p.add_argument("-o", "--out", default=None, help="page to write (default: RESULTS_DIR/report.html)")
+    p.add_argument("--title", default=None, help="page title (default: the directory's name)")
+    p.add_argument("--compare", nargs=2, metavar=("DIR_A", "DIR_B"), default=None,
+                   help="compare two results directories (or directories holding a results.json)")
+    p.set_defaults(func=run_report)
+
+
+def report_vla_eval(path: str | os.PathLike, out: str | os.PathLike | None = None,
+                    title: str | None = None) -> Path:
+    """Write ``summary.{md,json,csv}``, the charts and ``report.html`` (or ``out``) beside vla-eval
+    results and print the paper's tables; returns the page."""
+    from rsb_maniskill.reporting.summary import markdown_tables, results_from_records
+    from rsb_maniskill.reporting.vla_eval_results import read_vla_eval_records
+    from rsb_maniskill.reporting.writer import write_html_report, write_report
+
+    records = read_vla_eval_records(path)
+    results_dir = Path(path) if Path(path).is_dir() else Path(path).parent
+    results = results_from_records(records)
+    write_report(results, results_dir, records=records)
+    print(markdown_tables(results))
+    return write_html_report(results_dir, out, records=records, title=title)
+
+
+def run_report(args: argparse.Namespace) -> int:
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
+    from rsb_maniskill.reporting.results import RESULTS_FILE, compare, load_results
+    from rsb_maniskill.reporting.summary import results_from_records
+    from rsb_maniskill.reporting.vla_eval_results import is_vla_eval_results
+    from rsb_maniskill.reporting.writer import ReportError, write_html_report, write_report
+
+    try:
+        if args.compare:
+            a, b = args.compare
+            print(compare(load_results(a), load_results(b), (a, b)), end="")
+            return 0
+        if not args.results_dir:
+            raise ReportError("give RESULTS_DIR, or --compare DIR_A DIR_B")
+        if is_vla_eval_results(args.results_dir):  # a `vla-eval run` of RSBBenchmark: summary.* and results.json
+            path = report_vla_eval(args.results_dir, args.out, title=args.title)
+            src = Path(args.results_dir)
+            results = (src if src.is_dir() else src.parent) / RESULTS_FILE
+        else:
+            source = Path(args.results_dir) / RECORDS_FILE
+            records = read_records(source)
+            read_manifest(args.results_dir)  # a damaged run.json fails now, before anything is written
+            if not source.exists():
+                raise ReportError(f"{args.results_dir} has no {RECORDS_FILE}: give the --out directory of an "
+                                  "`rsb eval` run")
+            if not records:
+                raise ReportError(f"{source} holds no episode records yet")
+            # one pass: the summaries, results.json and the page, all from the same records
+            results = write_report(results_from_records(records), args.results_dir, records=records)["results"]
+            path = write_html_report(args.results_dir, args.out, records=records, title=args.title)
+    except (ReportError, ValueError, OSError) as err:
+        print(f"rsb report: error: {err}", file=sys.stderr)
+        return 2
+    print(f"results: {results}\nreport: {path}")
+    return 0

@@ -1,0 +1,188 @@
+"""The policy interface of the evaluator: what a policy is, and how its outputs are read.
+
+A policy is anything with ``reset(instruction, obs)`` and ``act(obs) -> (T, action_dim)`` chunk.
+The runner calls ``reset`` once per episode with the instruction (after the instruction-mode
+ablation) and the first observation, then ``act``; it executes the T actions of the chunk in
+order and calls ``act`` again with the newest observation. Observations are the single-env
+observation as numpy arrays in the env's nested dict layout (leading env dim removed).
+
+A policy that talks returns ``{"actions": chunk, "text": str}`` instead of the bare chunk (its
+chain of thought, say): the record keeps the episode's text and the option it states
+(``statements.py``). The batched form's mapping holds one text per env (None where it has none).
+
+The optional batched form (:class:`BatchedPolicy`) drives the B parallel envs of ``--num-envs``
+with one object: ``reset_batch(instructions, obs)`` and ``act_batch(obs, envs) -> (len(envs), T,
+action_dim)``, observations keeping their leading env dim. A policy that has it (the remote
+client: one request per step for all envs) is built once; one without it is built once per env
+and batched by :class:`PerEnvPolicies`. The single-env form is what everything else uses.
+
+A policy that misbehaves (raises in ``reset`` / ``act``, or returns what the env cannot take)
+raises :class:`~rsb_maniskill.policies.errors.PolicyError`: one line naming the policy,
+the episode and what came back, its traceback kept for ``rsb --debug``.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+from rsb_maniskill.policies.errors import PolicyError, shown
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """What ``rsb eval`` needs from a policy. An optional ``name`` attribute labels its records."""
+
+    def reset(self, instruction: str, obs: dict) -> None:
+        """Start an episode: ``instruction`` is the text the policy may use ("" in blank mode)."""
+
+    def act(self, obs: dict) -> Any:
+        """Action chunk of shape (T, action_dim), T >= 1, executed in order before the next call;
+        or ``{"actions": chunk, "text": str}``."""
+
+
+@runtime_checkable
+class BatchedPolicy(Protocol):
+    """The optional batched form: one object for B parallel envs (rows of batched observations)."""
+
+    def reset_batch(self, instructions: Sequence[str], obs: dict) -> None:
+        """Start B episodes: env i gets ``instructions[i]``; ``obs`` rows are the envs' first observations."""
+
+    def act_batch(self, obs: dict, envs: Sequence[int]) -> Any:
+        """Chunks for the envs ``envs`` (indices into the reset's B), ``obs`` holding their rows in that
+        order: a (len(envs), T, action_dim) array, or a list of (T_i, action_dim) chunks; or
+        ``{"actions": chunks, "text": [one str or None per env]}``."""
+
+
+def is_batched(policy: Any) -> bool:
+    return callable(getattr(policy, "reset_batch", None)) and callable(getattr(policy, "act_batch", None))
+
+
+def obs_rows(obs: Any, rows: Sequence[int]) -> Any:
+    """Rows ``rows`` of a batched (nested) observation, as numpy with the leading dim kept."""
+    if isinstance(obs, dict):
+        return {k: obs_rows(v, rows) for k, v in obs.items()}
+    if hasattr(obs, "detach"):
+        obs = obs.detach().cpu().numpy()
+    return np.asarray(obs)[list(rows)]
+
+
+class PerEnvPolicies:
+    """The batched form over one single-env policy per env (``--num-envs`` for a policy without it)."""
+
+    def __init__(self, policies: Sequence[Any]) -> None:
+        self.policies = list(policies)
+        self.name = policy_name(self.policies[0]) if self.policies else "policy"
+
+    def reset_batch(self, instructions: Sequence[str], obs: dict) -> None:
+        if len(instructions) > len(self.policies):
+            raise ValueError(f"need one policy per env: {len(instructions)} envs, {len(self.policies)} policies")
+        for i, text in enumerate(instructions):
+            self.policies[i].reset(text, _row(obs, i))
+
+    def act_batch(self, obs: dict, envs: Sequence[int]) -> Any:
+        return join_outputs([self.policies[e].act(_row(obs, k)) for k, e in enumerate(envs)])
+
+
+def _row(obs: Any, i: int) -> Any:
+    if isinstance(obs, dict):
+        return {k: _row(v, i) for k, v in obs.items()}
+    return np.asarray(obs)[i]
+
+
+def as_chunks(actions: Any, n: int, action_dim: int | None = None) -> list[np.ndarray]:
+    """Check a batched policy's output: ``n`` chunks, each as :func:`as_chunk` wants it."""
+    if isinstance(actions, np.ndarray) and actions.ndim != 3:
+        raise PolicyError(f"act_batch must return shape (envs, T, action_dim), got shape {actions.shape}")
+    if isinstance(actions, (str, bytes)) or not isinstance(actions, (np.ndarray, Sequence)):
+        raise PolicyError(f"act_batch returned {shown(actions)}; return an array of shape (envs, T, action_dim) "
+                          "or a list of (T, action_dim) chunks")
+    chunks = list(actions)
+    if len(chunks) != n:
+        raise PolicyError(f"act_batch returned {len(chunks)} chunks for {n} envs")
+    return [as_chunk(c, action_dim, "act_batch") for c in chunks]
+
+
+def _actions(out: Mapping, method: str) -> Any:
+    if "actions" not in out:
+        raise PolicyError(f"{method} returned a mapping without 'actions' (keys: {sorted(map(str, out))}); "
+                          "return the actions, or {'actions': ..., 'text': ...}")
+    return out["actions"]
+
+
+def split_output(out: Any) -> tuple[Any, str | None]:
+    """A policy's ``act`` output as (actions, text): the bare actions give no text (None)."""
+    if not isinstance(out, Mapping):
+        return out, None
+    text = out.get("text")
+    if text is not None and not isinstance(text, str):
+        raise PolicyError(f"act returned 'text' of type {type(text).__name__}; it must be a str")
+    return _actions(out, "act"), text
+
+
+def split_outputs(out: Any, n: int) -> tuple[Any, list[str | None]]:
+    """A batched policy's output as (actions, one text or None per env)."""
+    if not isinstance(out, Mapping):
+        return out, [None] * n
+    texts = out.get("text")
+    if texts is None:
+        return _actions(out, "act_batch"), [None] * n
+    if isinstance(texts, str) or not isinstance(texts, Sequence) or len(texts) != n \
+            or not all(t is None or isinstance(t, str) for t in texts):
+        raise PolicyError(f"act_batch must return 'text' as a list of {n} str (or None), one per env; "
+                          f"got {type(texts).__name__}")
+    return _actions(out, "act_batch"), list(texts)
+
+
+def join_outputs(outs: Sequence[Any]) -> Any:
+    """Single-env outputs of several envs as one batched output (a mapping when any has text)."""
+    pairs = [split_output(o) for o in outs]
+    if all(text is None for _, text in pairs):
+        return [a for a, _ in pairs]
+    return {"actions": [a for a, _ in pairs], "text": [t for _, t in pairs]}
+
+
+def env_action_space(env: Any) -> Any:
+    """The action space of one env of ``env`` (ManiSkill's ``single_action_space`` when batched)."""
+    return getattr(env.unwrapped, "single_action_space", None) or env.action_space
+
+
+def policy_name(policy: Any) -> str:
+    """Label for records and tables: the policy's ``name`` attribute, else its class name."""
+    name = getattr(policy, "name", None)
+    return str(name) if name else type(policy).__name__
+
+
+def as_chunk(actions: Any, action_dim: int | None = None, method: str = "act") -> np.ndarray:
+    """Check and normalise a policy's output to a float (T, action_dim) array.
+
+    A single action of shape (action_dim,) is accepted as a chunk of one. Errors (PolicyError) say
+    what came back, since a wrong output from a user policy is the most common integration bug.
+    """
+    want = f"an array of shape (T, {action_dim or 'action_dim'}) with T >= 1"
+    if actions is None:
+        raise PolicyError(f"{method} returned None; return {want}")
+    if isinstance(actions, np.ndarray):
+        a = actions
+    else:
+        try:
+            a = np.asarray(actions, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise PolicyError(f"{method} returned {shown(actions)}, not numbers; return {want}") from None
+    if a.ndim == 1:
+        a = a[None]
+    if a.ndim == 2 and a.shape[0] == 0:
+        raise PolicyError(f"{method} returned an empty chunk (shape {a.shape}); return {want}")
+    if a.ndim != 2:
+        raise PolicyError(f"{method} must return {want}, got shape {a.shape}")
+    if action_dim is not None and a.shape[1] != action_dim:
+        raise PolicyError(f"{method} returned actions of dim {a.shape[1]} (chunk shape {a.shape}); the env takes "
+                          f"{action_dim} numbers an action (its control mode's action space)")
+    if not np.issubdtype(a.dtype, np.number):
+        raise PolicyError(f"{method} returned an array of dtype {a.dtype}; return {want} of numbers")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise PolicyError(f"{method} returned NaN or inf actions ({int(bad.sum())} of {a.size} numbers, the first "
+                          f"at action {row}, index {col}: {a[row, col]})")
+    return a

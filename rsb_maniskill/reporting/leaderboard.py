@@ -1,0 +1,299 @@
+"""``rsb leaderboard``: several runs side by side, as the paper's main table, with the Random line.
+
+A run is a results document (``results.json``, ``results.py``): read as is from a file, or computed
+from a results directory's records (an ``rsb eval --out``, a ``lerobot-eval`` records_dir, a
+``vla-eval run`` output of RSBBenchmark), never written back into it. A document's rows are policy
+x instruction mode x perturbation; a leaderboard holds the rows of **one protocol** (instruction
+mode, perturbation, split, seeds) and **one benchmark version**, so that a column never pools two
+of either (vla-eval's rule: no aggregation across protocols), and each row becomes a model. Rows
+run on fewer episodes than the protocol's 500, or on other seeds, are marked rather than hidden;
+two runs of the same policy label are told apart by checkpoint, else by run.
+
+``leaderboard_files.py`` writes its Markdown, CSV and page; ``vla_eval_leaderboard.py`` exports
+runs as vla-eval leaderboard records.
+"""
+from __future__ import annotations
+
+import json
+import os
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from rsb_maniskill.evaluation.metrics import (
+    PAPER_OBJECT_SUITES,
+    PAPER_SUITES,
+    Average,
+    Rate,
+    average,
+    num_choices,
+    suite_order,
+)
+from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
+from rsb_maniskill.reporting.results import RESULTS_FILE, SCHEMA_ID, SCHEMA_VERSION, load_results, results_document
+
+RANDOM = "Random (1/N)"  # the random-selection line of the paper's tables
+# Keys of a protocol, besides the benchmark version: rows that differ in one never share a column.
+PROTOCOL_KEYS = ("instruction_mode", "perturb", "split", "instructions", "first_seed", "episodes_per_suite")
+
+
+class LeaderboardError(ValueError):
+    """Runs that cannot be read, or cannot share one leaderboard: one line naming the fix."""
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run: where it was read from (as given) and its results document."""
+
+    source: str
+    doc: Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A leaderboard row: a model (one row of a run), or the Random line (``run`` None)."""
+
+    label: str
+    row: Mapping[str, Any]  # the results.json row; for Random, its suites only
+    run: Run | None
+    avg: Average | None  # over the leaderboard's Avg suites (None: no Avg column)
+    short: bool = False  # a suite ran on fewer episodes than the protocol's
+    off_seeds: bool = False  # a suite's episodes are not the protocol's seeds
+
+    @property
+    def random(self) -> bool:
+        return self.run is None
+
+    @property
+    def episodes(self) -> tuple[int, int] | None:
+        """Fewest and most episodes over its suites (None for Random)."""
+        ns = [s["n"] for s in self.row["suites"].values() if s.get("n")]
+        return (min(ns), max(ns)) if ns else None
+
+
+@dataclass(frozen=True)
+class Leaderboard:
+    """Models of one protocol and one benchmark version, suites as columns, the Random line last."""
+
+    benchmark_version: str
+    protocol: Mapping[str, Any]  # PROTOCOL_KEYS' values, shared by every row
+    suites: list[str]
+    avg_suites: tuple[str, ...]
+    entries: list[Entry] = field(default_factory=list)
+
+
+# ---------------------------------------------------------------- reading runs
+def load_run(path: str | os.PathLike) -> Run:
+    """The run at ``path``: an RSB ``results.json`` or a vla-eval ``*_aggregate.json``; or a results
+    directory (``episodes.jsonl``, else vla-eval results, else ``results.json``)."""
+    from rsb_maniskill.reporting.vla_eval_results import (
+        is_vla_eval_results,
+        read_vla_eval_records,
+        records_from_results,
+    )
+
+    p = Path(path)
+    try:
+        if p.is_file():
+            doc = json.loads(p.read_text(encoding="utf-8"))
+            if not isinstance(doc, dict):
+                raise LeaderboardError(f"{p}: not a results document (a JSON object)")
+            if "tasks" in doc and "rows" not in doc:  # vla-eval's results file
+                doc = results_document(records_from_results(doc, str(p)))
+        elif is_vla_eval_results(p):
+            doc = results_document(read_vla_eval_records(p))
+        elif p.is_dir():
+            doc = load_results(p)  # its records (current), else its results.json
+        else:
+            raise LeaderboardError(f"{p}: no such file or directory: give a results.json or a results directory")
+    except LeaderboardError:
+        raise
+    except FileNotFoundError as err:
+        raise LeaderboardError(str(err)) from None
+    except (ValueError, OSError) as err:  # a bad JSON file, two versions in one run, not RSB's records
+        raise LeaderboardError(f"{p}: {err}") from None
+    if doc.get("schema") != SCHEMA_ID:
+        raise LeaderboardError(f"{p}: not an RSB results.json ({SCHEMA_ID}) nor vla-eval results of RSBBenchmark")
+    if doc.get("schema_version") != SCHEMA_VERSION:
+        raise LeaderboardError(f"{p}: results schema version {doc.get('schema_version')}, this rsb_maniskill reads "
+                               f"{SCHEMA_VERSION}: run the rsb_maniskill that wrote it")
+    if not doc.get("rows"):
+        raise LeaderboardError(f"{p}: holds no episode records yet")
+    return Run(str(path), doc)
+
+
+def _run_key(path: str) -> Path:
+    p = Path(path).resolve()
+    return p.parent if p.name == RESULTS_FILE else p
+
+
+def check_distinct(runs: Sequence[Run]) -> None:
+    """Each run once: a directory and its own results.json are the same run."""
+    seen: dict[Path, str] = {}
+    for run in runs:
+        key = _run_key(run.source)
+        if key in seen:
+            raise LeaderboardError(f"{seen[key]} and {run.source} are the same run: give each run once")
+        seen[key] = run.source
+
+
+# ---------------------------------------------------------------- one protocol, one version
+def select_rows(runs: Sequence[Run], instruction_mode: str | None = None, perturb: str | None = None
+                ) -> list[tuple[Run, Mapping[str, Any]]]:
+    """The (run, row) pairs of the protocol asked for (all when no filter is given)."""
+    check_distinct(runs)
+    pairs = [(run, row) for run in runs for row in run.doc["rows"]
+             if instruction_mode in (None, row["instruction_mode"]) and perturb in (None, row["perturb"])]
+    if not pairs:
+        held = sorted({protocol_text({k: row[k] for k in PROTOCOL_KEYS[:2]})  # its mode and perturbation
+                       for run in runs for row in run.doc["rows"]})
+        raise LeaderboardError(f"no row of {protocol_text({'instruction_mode': instruction_mode, 'perturb': perturb})}"
+                               f" in the runs given: they hold {'; '.join(held)}")
+    return pairs
+
+
+def _protocol(run: Run, row: Mapping[str, Any]) -> dict[str, Any]:
+    proto = run.doc["protocol"]
+    return {"instruction_mode": row["instruction_mode"], "perturb": row["perturb"],
+            **{k: proto.get(k) for k in PROTOCOL_KEYS[2:]}}
+
+
+def protocol_text(protocol: Mapping[str, Any]) -> str:
+    """``"normal instructions, no perturbation, split test, ..."``: the keys of ``protocol`` given."""
+    words = {
+        "instruction_mode": lambda v: f"{v} instructions",
+        "perturb": lambda v: "no perturbation" if v == "none" else f"perturbation {v}",
+        "split": lambda v: f"split {v}",
+        "instructions": lambda v: f"{v} instruction templates",
+        "first_seed": lambda v: f"seeds {v:,} + i" if isinstance(v, int) else f"seeds {v} + i",
+        "episodes_per_suite": lambda v: f"{v} episodes per suite",
+    }
+    return ", ".join(words[k](protocol[k]) for k in PROTOCOL_KEYS if protocol.get(k) is not None) or "any protocol"
+
+
+def _fix_hint(protocols: Sequence[Mapping[str, Any]]) -> str:
+    def choice(flag: str, values: set[str], first: str) -> list[str]:
+        if len(values) < 2:
+            return []
+        head, *rest = sorted(values, key=lambda v: (v != first, v))
+        return [f"{flag} {head} (or {', '.join(rest)})"]
+
+    flags = choice("--protocol", {p["instruction_mode"] for p in protocols}, "normal")
+    flags += choice("--perturb", {p["perturb"] for p in protocols}, "none")
+    pick = f"pick one with {' and '.join(flags)}, or " if flags else ""
+    return f"{pick}build one leaderboard per protocol (a separate --out each)"
+
+
+def check_one_protocol(pairs: Sequence[tuple[Run, Mapping[str, Any]]]) -> tuple[str, dict[str, Any]]:
+    """The one benchmark version and the one protocol of ``pairs``; LeaderboardError, naming two and
+    the fix, otherwise."""
+    from rsb_maniskill.version import benchmark_label
+
+    versions: dict[str, list[str]] = defaultdict(list)
+    for run, _ in pairs:
+        if run.source not in versions[run.doc["benchmark_version"]]:
+            versions[run.doc["benchmark_version"]].append(run.source)
+    if len(versions) > 1:
+        (a, ra), (b, rb) = sorted(versions.items())[:2]
+        raise LeaderboardError(f"cannot put {benchmark_label(a)} ({', '.join(ra)}) and {benchmark_label(b)} "
+                               f"({', '.join(rb)}) in one column: their episodes differ; build one leaderboard "
+                               "per benchmark version (a separate --out each)")
+    protocols: dict[tuple, list[str]] = defaultdict(list)
+    for run, row in pairs:
+        proto = _protocol(run, row)
+        protocols[tuple(proto.values())].append(row["row"])
+    if len(protocols) > 1:
+        found = [dict(zip(PROTOCOL_KEYS, key)) for key in protocols]
+        differ = [k for k in PROTOCOL_KEYS if len({p[k] for p in found}) > 1]
+        shown = "; ".join(f"{protocol_text({k: p[k] for k in differ})} ({', '.join(rows[:3])}"
+                          f"{', ...' if len(rows) > 3 else ''})" for p, rows in zip(found, protocols.values()))
+        raise LeaderboardError(f"rows of {len(protocols)} protocols cannot share a column (no aggregation across "
+                               f"protocols): {shown}; {_fix_hint(found)}")
+    return next(iter(versions)), dict(zip(PROTOCOL_KEYS, next(iter(protocols))))
+
+
+def told_apart(items: Sequence[tuple[str, str, str | None]]) -> list[str]:
+    """Labels for ``(name, run source, checkpoint)`` items: a name that several runs share gets its
+    checkpoint when theirs differ, else its run (``"pi05 @ ckpt-a"``, ``"pi05 (results/a)"``)."""
+    labels = [name for name, _, _ in items]
+    groups: dict[str, list[int]] = defaultdict(list)
+    for i, (name, _, _) in enumerate(items):
+        groups[name].append(i)
+    for name, idx in groups.items():
+        if len(idx) < 2 and name != RANDOM:
+            continue
+        ckpts = [items[i][2] for i in idx]
+        by_ckpt = len(idx) > 1 and all(ckpts) and len(set(ckpts)) == len(ckpts)
+        for i in idx:
+            labels[i] = f"{name} @ {items[i][2]}" if by_ckpt else f"{name} ({items[i][1]})"
+    return labels
+
+
+# ---------------------------------------------------------------- the table
+@dataclass(frozen=True)
+class _SuiteView:
+    """What ``metrics.average`` reads of a suite, from a results.json suite object."""
+
+    n_episodes: int
+    gsr: Rate
+    tsr: Rate
+    nsg: Rate
+
+    @classmethod
+    def of(cls, suite: Mapping[str, Any]) -> _SuiteView:
+        return cls(suite["n"], *(Rate(**suite[k]) for k in ("gsr", "tsr", "nsg")))
+
+
+def avg_suites(suites: Sequence[str]) -> tuple[str, ...]:
+    """The suites of the Avg column: the paper's six (its Beyond Blocks six when only objects suites
+    were run); none when neither was."""
+    for group in (PAPER_SUITES, PAPER_OBJECT_SUITES):
+        if any(s in group for s in suites):
+            return tuple(group)
+    return ()
+
+
+def random_row(suites: Sequence[str]) -> dict[str, Any]:
+    """Random target selection: TSR = 1/N and nSG = 0 by definition, exactly (no interval); GSR is
+    not defined (no arm grasps)."""
+    def rate(v: float | None) -> dict[str, float | None]:
+        return {"value": v, "low": None, "high": None}
+
+    return {"row": RANDOM, "policy": RANDOM, "checkpoint": None, "suites": {
+        s: {"n_choices": num_choices(s), "n": None, "protocol_seeds": True, "gsr": rate(None),
+            "tsr": rate(1.0 / num_choices(s)), "nsg": rate(0.0)} for s in suites}}
+
+
+def random_average(suites: Sequence[str], over: Sequence[str]) -> Average:
+    """The Random line's Avg: the mean of 1/N over the Avg suites shown; GSR undefined."""
+    present = [s for s in over if s in suites]
+    tsr = sum(1.0 / num_choices(s) for s in present) / len(present) if present else None
+    return Average(tuple(over), tuple(present), len(present) == len(over), None, tsr,
+                   0.0 if present else None, len(present))
+
+
+def _sort_key(e: Entry) -> tuple:
+    tsr = e.avg.tsr if e.avg else None
+    return (e.random, tsr is None, -(tsr or 0.0), e.label.lower())
+
+
+def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, perturb: str | None = None
+                      ) -> Leaderboard:
+    """The leaderboard of ``runs``' rows of one protocol (``instruction_mode`` / ``perturb`` pick
+    one), by Avg TSR, the Random line last. LeaderboardError for two versions or protocols."""
+    pairs = select_rows(runs, instruction_mode, perturb)
+    version, protocol = check_one_protocol(pairs)
+    suites = suite_order({s for _, row in pairs for s in row["suites"]})
+    over = avg_suites(suites)
+    labels = told_apart([(row["policy"], run.source, row.get("checkpoint")) for run, row in pairs])
+    entries = []
+    for label, (run, row) in zip(labels, pairs):
+        views = {s: _SuiteView.of(v) for s, v in row["suites"].items()}
+        entries.append(Entry(
+            label, row, run, average(views, over) if over else None,
+            short=any(v["n"] < EPISODES_PER_SUITE for v in row["suites"].values()),
+            off_seeds=any(not v["protocol_seeds"] or v["n"] > EPISODES_PER_SUITE for v in row["suites"].values())))
+    entries.sort(key=_sort_key)
+    entries.append(Entry(RANDOM, random_row(suites), None, random_average(suites, over) if over else None))
+    return Leaderboard(version, protocol, suites, over, entries)

@@ -1,0 +1,159 @@
+"""``results.json``: a run's numbers in a versioned schema a leaderboard can take as is, and
+``rsb report --compare A B``.
+
+One document per results directory (``rsb eval`` writes it with the summary, ``rsb report``
+rewrites it): the benchmark version of the episodes, the protocol, the code that wrote it, and per
+row (policy x instruction mode x perturbation) GSR / TSR / nSG with Wilson 95 % intervals per suite
+and their Avg over the paper's suites. ``results.schema.json`` beside this module is the schema
+(JSON Schema 2020-12); ``SCHEMA_VERSION`` changes with any change to it. docs/evaluation.md
+describes the fields.
+"""
+from __future__ import annotations
+
+import json
+import os
+from collections import defaultdict
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate, SuiteMetrics, average, summarize
+from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, one_version, perturb_label, row_label
+from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
+from rsb_maniskill.reporting.cells import NA, ci, delta, pct
+
+RESULTS_FILE = "results.json"
+METRIC_NAMES = {"gsr": "GSR", "tsr": "TSR", "nsg": "nSG"}  # as the paper and every table write them
+SCHEMA_FILE = Path(__file__).with_name("results.schema.json")
+SCHEMA_ID = "rsb-ms-results"
+SCHEMA_VERSION = 1
+
+
+def _rate(rate: Rate) -> dict[str, float | None]:
+    return {"value": rate.value, "low": rate.low, "high": rate.high}
+
+
+def _suite(m: SuiteMetrics, seeds: set[int]) -> dict[str, Any]:
+    from rsb_maniskill.evaluation.protocol import eval_seeds
+
+    protocol = seeds == set(eval_seeds(m.suite_id, max(1, m.n_episodes)))  # the protocol's first n episodes
+    return {"n_choices": m.n_choices, "n": m.n_episodes, "protocol_seeds": protocol,
+            "gsr": _rate(m.gsr), "tsr": _rate(m.tsr), "nsg": _rate(m.nsg)}
+
+
+def results_document(records: Iterable[Mapping[str, Any]], runs: Mapping[str, Mapping[str, Any]] | None = None
+                     ) -> dict[str, Any]:
+    """The results document of ``records`` (one benchmark version: VersionMixError otherwise);
+    ``runs`` is ``run.json``'s per-policy settings (checkpoint id, package version and commit of
+    the run), when the directory has one."""
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS, EVAL_SEED_BASE
+    from rsb_maniskill.version import BENCHMARK, version_fields
+
+    records = dedupe(records)
+    version = one_version(records)
+    groups: dict[tuple[str, str, str], list[Mapping[str, Any]]] = defaultdict(list)
+    for r in records:
+        if r.get("instruction_mode") == COUNTERFACTUAL:  # a diagnosis, not a score: summary.json's counterfactual
+            continue
+        groups[(str(r.get("policy", "?")), r.get("instruction_mode", "normal"), perturb_label(r))].append(r)
+    rows = []
+    for (policy, mode, perturb), recs in groups.items():
+        metrics = summarize(recs)
+        seeds: dict[str, set[int]] = defaultdict(set)
+        for r in recs:
+            seeds[r["suite_id"]].add(int(r["seed"]))
+        suites = {s: _suite(m, seeds[s]) for s, m in metrics.items()}
+        avg = average(metrics)
+        run = (runs or {}).get(policy, {})
+        rows.append({
+            "row": row_label(policy, mode, perturb), "policy": policy, "instruction_mode": mode, "perturb": perturb,
+            "checkpoint": run.get("checkpoint"), "rsb_maniskill_version": run.get("rsb_version"),
+            "code_commit": run.get("code_commit"), "suites": suites,
+            "average": {"suites": list(avg.present), "complete": avg.complete, "gsr": avg.gsr, "tsr": avg.tsr,
+                        "nsg": avg.nsg},
+            "full_protocol": all(s in suites and suites[s]["n"] == EPISODES_PER_SUITE and suites[s]["protocol_seeds"]
+                                 for s in PAPER_SUITES),
+        })
+    fields = version_fields()
+    return {
+        "schema": SCHEMA_ID, "schema_version": SCHEMA_VERSION, "benchmark": BENCHMARK,
+        "benchmark_version": version or fields["benchmark_version"],
+        "protocol": {**EVAL_ENV_KWARGS, "first_seed": EVAL_SEED_BASE, "episodes_per_suite": EPISODES_PER_SUITE,
+                     "avg_suites": list(PAPER_SUITES)},
+        "rsb_maniskill_version": fields["rsb_maniskill_version"], "code_commit": fields["code_commit"],
+        "created": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "rows": rows,
+    }
+
+
+def write_results(results_dir: str | os.PathLike, records: Iterable[Mapping[str, Any]]) -> Path:
+    """Write ``results_dir/results.json`` for ``records`` (whole: a reader never sees half of it)."""
+    path = Path(results_dir) / RESULTS_FILE
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(json.dumps(results_document(records, read_manifest(results_dir)), indent=1) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def load_results(results_dir: str | os.PathLike) -> dict[str, Any]:
+    """The results document of a directory, computed from its ``episodes.jsonl`` (so that it is
+    current), else read from its ``results.json`` (a file shared alone)."""
+    d = Path(results_dir)
+    if (d / RECORDS_FILE).exists():
+        return results_document(read_records(d / RECORDS_FILE), read_manifest(d))
+    if (d / RESULTS_FILE).exists():
+        return json.loads((d / RESULTS_FILE).read_text())
+    raise FileNotFoundError(f"{d} holds neither {RECORDS_FILE} nor {RESULTS_FILE}: give an `rsb eval` --out directory")
+
+
+# ---------------------------------------------------------------------------------- --compare
+def _ci(r: Mapping[str, float | None]) -> str:
+    return ci(r["value"], r["low"], r["high"])
+
+
+def separate(a: Mapping[str, float | None], b: Mapping[str, float | None]) -> bool | None:
+    """Whether two rates' 95 % intervals do not overlap (None when either is undefined)."""
+    if a["value"] is None or b["value"] is None:
+        return None
+    return a["high"] < b["low"] or b["high"] < a["low"]
+
+
+def _pairs(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], Mapping[str, Any]]]:
+    """Rows to put side by side: the one row of each run, else the rows of the same label."""
+    if len(a["rows"]) == 1 and len(b["rows"]) == 1:
+        return [(a["rows"][0], b["rows"][0])]
+    rb = {r["row"]: r for r in b["rows"]}
+    return [(r, rb[r["row"]]) for r in a["rows"] if r["row"] in rb]
+
+
+def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] = ("A", "B")) -> str:
+    """Markdown: two runs' rows side by side, per suite and metric, with B - A and whether the
+    Wilson intervals separate. ValueError (one line) when their benchmark versions differ."""
+    from rsb_maniskill.version import benchmark_label
+
+    if a["benchmark_version"] != b["benchmark_version"]:
+        raise ValueError(f"cannot compare {benchmark_label(a['benchmark_version'])} ({names[0]}) with "
+                         f"{benchmark_label(b['benchmark_version'])} ({names[1]}): their episodes differ")
+    pairs = _pairs(a, b)
+    if not pairs:
+        raise ValueError(f"no row to compare: {names[0]} has {[r['row'] for r in a['rows']]}, "
+                         f"{names[1]} has {[r['row'] for r in b['rows']]} (rows pair by label, or one row each)")
+    out = [f"Benchmark: {benchmark_label(a['benchmark_version'])}. A = {names[0]}, B = {names[1]}; intervals: "
+           "Wilson 95 %; \"separate\": the two intervals do not overlap."]
+    for ra, rb in pairs:
+        lines = ["| Suite | Metric | A (n) | B (n) | B - A | Intervals |", "|---|---|:---:|:---:|:---:|:---:|"]
+        for suite in [s for s in ra["suites"] if s in rb["suites"]]:
+            sa, sb = ra["suites"][suite], rb["suites"][suite]
+            for key in METRIC_NAMES:
+                x, y = sa[key], sb[key]
+                diff = delta(y["value"], x["value"])
+                sep = {None: NA, True: "separate", False: "overlap"}[separate(x, y)]
+                lines.append(f"| {suite} | {METRIC_NAMES[key]} | {_ci(x)} ({sa['n']}) | {_ci(y)} ({sb['n']}) | "
+                             f"{diff} | {sep} |")
+        for key in METRIC_NAMES:
+            x, y = ra["average"][key], rb["average"][key]
+            lines.append(f"| Avg | {METRIC_NAMES[key]} | {pct(x)} | {pct(y)} | {delta(y, x)} | |")
+        only = sorted(set(ra["suites"]) ^ set(rb["suites"]))
+        note = f"\n\nIn one run only: {', '.join(only)}." if only else ""
+        out.append(f"### {ra['row']} (A) vs {rb['row']} (B), %\n\n" + "\n".join(lines) + note)
+    return "\n\n".join(out) + "\n"

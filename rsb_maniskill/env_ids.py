@@ -18,7 +18,7 @@ MODULE = "rsb_maniskill"
 SIM_FREQ, CONTROL_FREQ = 125, 25  # Hz: 5 physics steps per action, as ManiSkill's tabletop tasks
 # ManiSkill's sim_backend names of the two ways RSB runs: one env a process on the CPU (the expert's
 # demos, the golden digests, rendering demos) or parallel envs on the GPU. Here, beside the
-# frequencies, because every layer may import this leaf; physx_gpu.py only reads a backend's name.
+# frequencies, because every layer may import this leaf; sim/physx_gpu.py only reads a backend's name.
 CPU_SIM_BACKEND, GPU_SIM_BACKEND = "physx_cpu", "physx_cuda"
 TASK_MAX_EPISODE_STEPS = 300  # 12 s at 25 Hz; the expert needs about 7 s (see docs/tasks.md)
 TABLETOP_ID = "RSB-TableTop-v1"

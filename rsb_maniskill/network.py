@@ -1,7 +1,7 @@
 """When the package may use the network, and a probe that answers within seconds.
 
 Two things need the network, and only when a file is missing: the pinned GSM8K / MMLU-Pro hub
-files (``semantic/data.py``) and SAPIEN's PhysX GPU library (``physx_gpu.py``). On a machine
+files (``semantic/data.py``) and SAPIEN's PhysX GPU library (``sim/physx_gpu.py``). On a machine
 without network neither may wait: ``RSB_OFFLINE=1`` (or ``HF_HUB_OFFLINE=1``) rules the network
 out, and otherwise :func:`unreachable` asks the host once per process, with one deadline for the
 name lookup, the connection and the answer, before a client with its own retries is let loose

@@ -114,7 +114,7 @@ def test_builtin_table():
 
 def test_naming_a_policy_imports_nothing():
     """The table holds module paths: importing it loads neither the reference policies nor the websocket client."""
-    code = ("import sys, rsb_maniskill.policies.interface as p; p.policy_spec('remote'); "
+    code = ("import sys, rsb_maniskill.policies.registry as p; p.policy_spec('remote'); "
             "print([m for m in ('rsb_maniskill.policies.remote.client', "
             "'rsb_maniskill.policies.reference') if m in sys.modules])")
     repo = Path(__file__).resolve().parents[1]

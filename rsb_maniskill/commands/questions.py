@@ -1,6 +1,6 @@
 """`rsb questions`, `rsb stats` and `rsb data download`: the semantic engine's commands (no simulator imports).
 
-A top-level command module, as ``demo.py`` and ``golden.py``: it takes suites the way every command
+A command module, as ``demo.py`` and ``verify.py``: it takes suites the way every command
 does (``env_ids.add_suites_argument``), which the engine itself (``semantic/``) never imports.
 """
 from __future__ import annotations

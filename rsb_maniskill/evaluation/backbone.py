@@ -1,6 +1,6 @@
 """Backbones: ask a policy's backbone the protocol's questions, exactly as the policy gets them.
 
-The library of ``rsb backbone`` (the command is ``evaluation/cli/backbone.py``):
+The library of ``rsb backbone`` (the command is ``commands/backbone.py``):
 
     rsb backbone arithmetic --suites RSB-Math-4 RSB-Math-10 --out results/blind
     rsb backbone my_models:make_backbone -a path=ckpt --suites paper --images --out results/pi05

@@ -4,13 +4,13 @@ For users of allenai's vla-evaluation-harness (``vla-eval run --no-docker -c rsb
 ``vla_eval.evaluate(server, config)``): each suite is a task, and episode i of a task is protocol
 episode i of that suite (seed 10,000,000 + i, test split, unseen templates), the episode ``rsb eval``
 runs as episode i, so ``episodes_per_task`` is ``rsb eval -n``. Observations and actions follow an
-explicit layout (``evaluation/remote/vla_eval_layout.py``, presets ``lerobot`` and ``robotwin``), the
+explicit layout (``policies/remote/vla_eval_layout.py``, presets ``lerobot`` and ``robotwin``), the
 same one ``rsb eval remote -a protocol=vla-eval`` uses.
 
 Each episode's ``metrics`` are its ``rsb eval`` record (suite, seed, question, instruction, grasp and
 placement flags, ...) plus ``gsr`` and ``tsr``; vla-eval aggregates the flags as ``mean_<key>``, with
 no nSG and no intervals: ``rsb report <output_dir>`` reads the results file into the paper's tables
-with Wilson intervals (``evaluation/reporting/vla_eval_results.py``).
+with Wilson intervals (``reporting/vla_eval_results.py``).
 
 Rendering: vla-eval asks for an observation after every step. With ``render_every`` k (a chunking
 server's ``chunk_size``) the cameras are rendered only every k steps; the other steps' observations

@@ -38,7 +38,7 @@ from rsb_maniskill.reporting.categories import SMALL_MARK
 from rsb_maniskill.reporting.cells import pct
 from rsb_maniskill.reporting.summary import ERRORS_HEADING, markdown_tables, results_from_records, suite_columns
 
-TEMPLATES = "evaluation/reporting/templates"  # package data of rsb_maniskill
+TEMPLATES = "reporting/templates"  # package data of rsb_maniskill
 PAGE_TEMPLATE = "report.html.j2"
 # Video frames are kept at the video's own resolution (ManiSkill's 512 x 512 render camera): the
 # cards show them small, a click opens one at full size, where the 10-choice blocks' letters can

@@ -4,7 +4,7 @@ vla-eval writes ``<output_dir>/<benchmark>_aggregate.json`` (``vla_eval/results/
 benchmark's tasks, each with its episodes, each with the ``metrics`` RSBBenchmark returned, which
 are the episode's ``rsb eval`` record plus ``gsr`` / ``tsr``. From those records come the paper's
 tables with Wilson intervals and nSG (vla-eval reports ``mean_<key>`` only), ``summary.*`` and
-``report.html``, as for an ``rsb eval`` run (``rsb report``, ``evaluation/cli/report.py``, writes them).
+``report.html``, as for an ``rsb eval`` run (``rsb report``, ``commands/report.py``, writes them).
 
 An episode vla-eval ended with an error (``failure_reason``: server unreachable, timeout, ...) has
 no RSB record; vla-eval counts it as a failure, and so does the reader (no grasp, no success),

@@ -206,7 +206,9 @@ class Observations:
     def step(self, action: Any) -> tuple[Any, Any, Any, Any]:
         """``env.step(action)`` without its observation: (reward, terminated, truncated, info)."""
         if self.lazy:
-            with compat.obs_mode(self.base, self.SKIP_MODE):
+            # a vector of CPU envs (rsb_maniskill.vector) has its own switch; a ManiSkill env, its obs mode
+            own = getattr(self.base, "skip_observations", None)
+            with own() if callable(own) else compat.obs_mode(self.base, self.SKIP_MODE):
                 out = self.env.step(action)
         else:
             out = self.env.step(action)

@@ -126,11 +126,12 @@ def env_options(options: Mapping[str, Any], position: int, n: int) -> dict[str, 
 
 
 def _cat(parts: Sequence[Any]) -> Any:
-    """Per-env values (leading dim 1) joined along the env dim: nested dicts, tensors, arrays;
-    anything else as a list of the envs' values."""
+    """Per-env values (leading dim 1) joined along the env dim: nested dicts (the keys all envs have:
+    after a partial reset only the envs reset carry ``reconfigure``), tensors, arrays; anything else
+    as a list of the envs' values."""
     first = parts[0]
     if isinstance(first, Mapping):
-        return {k: _cat([p[k] for p in parts]) for k in first}
+        return {k: _cat([p[k] for p in parts]) for k in first if all(k in p for p in parts)}
     if hasattr(first, "detach"):
         import torch
 

@@ -247,8 +247,10 @@ class RSBVectorEnv:
         return out, _cat(rewards), _cat(terms), _cat(truncs), info
 
     def get_obs(self, info: Mapping[str, Any] | None = None) -> Any:
-        """The observation of every env now (cameras rendered now: in one call with the group)."""
-        infos = self._infos if info is None else [_row(info, i) for i in range(self.num_envs)]
+        """The observation of every env now (cameras rendered now: in one call with the group); without
+        ``info``, each env's is computed now, as ManiSkill's ``get_obs()`` does."""
+        infos = ([base.get_info() for base in self.bases] if info is None
+                 else [_row(info, i) for i in range(self.num_envs)])
         pictures = self.renderer.render(self.bases) if self.cameras else None
         obs = []
         for i, base in enumerate(self.bases):

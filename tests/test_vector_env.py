@@ -197,6 +197,10 @@ def test_batched_api_and_task_contract_per_env():
         assert [s.seed for s in vec.episode_specs] == [21, 12, 22]
         assert vec.episode_variants[0] is None and vec.episode_variants[2].index == 1
         assert vec.step(action)[4]["elapsed_steps"].tolist() == [1, 2, 1]
+        vec.hold(1)  # an ended episode: no more physics until its reset
+        assert vec.step(action)[4]["elapsed_steps"].tolist() == [2, 2, 2]
+        vec.reset(seed=[31], options={"env_idx": [1]})
+        assert vec.step(action)[4]["elapsed_steps"].tolist() == [3, 1, 3]
         with pytest.raises(ValueError, match="for 3 envs"):
             vec.step(torch.zeros(2, 14))
     finally:

@@ -198,6 +198,8 @@ class RSBVectorEnv:
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.cameras = self.obs_mode not in NO_CAMERA_MODES
         self._infos: list[dict] = [{} for _ in self.envs]
+        self._last: list[tuple | None] = [None] * self.num_envs  # a held env's last (obs, reward, term, trunc)
+        self.held: set[int] = set()  # envs whose episode ended: not stepped until their next reset
         self._skipping = False
         self.spec = self.envs[0].spec
 
@@ -216,6 +218,8 @@ class RSBVectorEnv:
             idx.cpu() if hasattr(idx, "cpu") else idx).reshape(-1)]
         seeds = episode_seeds(seed, len(idx))
         for position, (i, s) in enumerate(zip(idx, seeds)):
+            self.held.discard(i)
+            self._last[i] = None
             with self._state_only(self.bases[i]):
                 _, self._infos[i] = self.envs[i].reset(seed=s, options=env_options(options, position, len(idx)))
         self.renderer.scenes_changed()  # a CPU reset builds a fresh scene
@@ -224,7 +228,7 @@ class RSBVectorEnv:
 
     def step(self, action: Any) -> tuple[Any, Any, Any, Any, dict]:
         """One control step of every env: ``action`` (K, action_dim). Like a ManiSkill env of K, no
-        env resets by itself: an ended env keeps stepping until it is reset."""
+        env resets by itself: an ended env keeps stepping until it is reset, unless :meth:`hold` stopped it."""
         a = action.detach().cpu().numpy() if hasattr(action, "detach") else np.asarray(action, np.float32)
         if a.ndim == 1 and self.num_envs == 1:
             a = a[None]
@@ -233,8 +237,12 @@ class RSBVectorEnv:
                              f"{self.single_action_space.shape[-1]})")
         rewards, terms, truncs, obs = [], [], [], []
         for i, env in enumerate(self.envs):
-            with self._state_only(self.bases[i]):
-                o, r, term, trunc, self._infos[i] = env.step(a[i:i + 1])
+            if i in self.held and self._last[i] is not None:
+                o, r, term, trunc = self._last[i]
+            else:
+                with self._state_only(self.bases[i]):
+                    o, r, term, trunc, self._infos[i] = env.step(a[i:i + 1])
+                self._last[i] = (o, r, term, trunc)
             obs.append(o)
             rewards.append(r)
             terms.append(term)
@@ -259,6 +267,11 @@ class RSBVectorEnv:
             with nullcontext() if own is None else compat.pictures_from(base, own):
                 obs.append(base.get_obs(infos[i]))
         return _cat(obs)
+
+    def hold(self, i: int) -> None:
+        """Stop stepping env ``i`` until its next reset (its episode ended and its record is taken):
+        later steps give its last step's values again, and cost no physics."""
+        self.held.add(int(i))
 
     @contextmanager
     def skip_observations(self) -> Iterator[None]:

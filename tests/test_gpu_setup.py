@@ -198,6 +198,11 @@ def test_doctor_reports_the_same_rule(home, cuda, monkeypatch):
     assert checks["GPU physics"].detail == physx_gpu.gpu_physics_unavailable()
     assert checks["PhysX GPU library"].detail == f"missing ({physx_gpu.library_path()})"
     assert checks["--num-procs auto"].detail.startswith("cameras: workers: ")
+    from rsb_maniskill.sim.camera_group import group_rendering_unavailable
+
+    why_not = group_rendering_unavailable()  # the rule the vector env's renderer="auto" picks by
+    assert "envs a process" in checks["--num-envs auto"].detail
+    assert ("available" if why_not is None else why_not) in checks["--num-envs auto"].detail
     lib = physx_gpu.library_path()
     lib.parent.mkdir(parents=True)
     lib.write_bytes(b"")

@@ -300,3 +300,14 @@ def test_real_group_images_equal_each_scenes_own_render():
     finally:
         for e in envs.values():
             e.close()
+
+
+def test_rsb_eval_k_envs_in_each_of_p_workers_gives_the_one_env_records(tmp_path):
+    """`--num-envs 2 --num-procs 2`: 4 envs on 2 spawned workers; the records of one env in one process."""
+    from rsb_maniskill.cli import main
+
+    for name, k, p in (("one", "1", "1"), ("grid", "2", "2")):
+        assert main(["eval", "oracle", "--suites", SUITE, "-n", "4", "--num-envs", k, "--num-procs", p,
+                     "--out", str(tmp_path / name), "-q"]) == 0
+    one, grid = _records(tmp_path / "one" / "episodes.jsonl"), _records(tmp_path / "grid" / "episodes.jsonl")
+    assert len(one) == 4 and one == grid

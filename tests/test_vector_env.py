@@ -174,6 +174,21 @@ def test_group_path_gives_each_scenes_own_images_and_follows_resets():
             e.close()
 
 
+def test_auto_group_that_sapien_refuses_falls_back_to_per_scene():
+    def refused(bases):
+        raise RuntimeError("Unable to create GPU parallelized camera group")
+
+    vec = RSBVectorEnv(SUITE, 2, obs_mode="rgb", renderer=GroupRenderer(refused, fallback=True), **SMALL)
+    try:
+        with pytest.warns(RuntimeWarning, match="each scene renders its own"):
+            obs, _ = vec.reset(seed=[1, 2])
+        assert obs["sensor_data"]["head_camera"]["rgb"].shape == (2, 24, 32, 3) and vec.renderer.failed
+    finally:
+        vec.close()
+    with pytest.raises(RuntimeError, match="camera group"):  # forced: the error itself
+        GroupRenderer(refused).render([])
+
+
 def test_batched_api_and_task_contract_per_env():
     """State obs: leading env dim everywhere, each env the episode of its seed (as a one-env env
     gives it), per-env reset with its own seed and variant, ManiSkill's seed rules."""

@@ -17,6 +17,7 @@ built again after any env's reset (its scene is new); :class:`GroupRenderer` cou
 from __future__ import annotations
 
 import time
+import warnings
 from contextlib import contextmanager, nullcontext
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
@@ -53,12 +54,14 @@ class GroupRenderer:
 
     name = "group"
 
-    def __init__(self, factory: Callable[[Sequence[Any]], Any] | None = None) -> None:
+    def __init__(self, factory: Callable[[Sequence[Any]], Any] | None = None, *, fallback: bool = False) -> None:
         if factory is None:
             from rsb_maniskill.sim.camera_group import CameraGroup
 
             factory = CameraGroup
         self.factory = factory
+        self.fallback = fallback  # renderer="auto": a group SAPIEN refuses to build means per scene, with a warning
+        self.failed: str | None = None
         self.group: Any = None
         self.rebuilds = 0
         self.rebuild_s = 0.0
@@ -66,10 +69,20 @@ class GroupRenderer:
     def scenes_changed(self) -> None:
         self.group = None
 
-    def render(self, bases: Sequence[Any]) -> dict[str, dict[str, Any]]:
+    def render(self, bases: Sequence[Any]) -> dict[str, dict[str, Any]] | None:
+        if self.failed is not None:
+            return None
         if self.group is None:
             t0 = time.perf_counter()
-            self.group = self.factory(bases)
+            try:
+                self.group = self.factory(bases)
+            except Exception as err:
+                if not self.fallback:
+                    raise
+                self.failed = f"{type(err).__name__}: {err}"
+                warnings.warn(f"rendering K envs in one call failed ({self.failed}); each scene renders its own",
+                              RuntimeWarning, stacklevel=2)
+                return None
             self.rebuilds += 1
             self.rebuild_s += time.perf_counter() - t0
         return self.group.render()
@@ -92,7 +105,7 @@ def make_renderer(choice: Any = "auto", obs_mode: str = "rgb") -> PerSceneRender
 
     why = group_rendering_unavailable()
     if why is None:
-        return GroupRenderer()
+        return GroupRenderer(fallback=choice == "auto")
     if choice == "group":
         raise RuntimeError(f"renderer='group': {why}; use renderer='per_scene' (or 'auto')")
     return PerSceneRenderer()

@@ -143,7 +143,7 @@ lerobot-train --dataset.repo_id={repo} --policy.type=act --output_dir=outputs/ac
 openpi: a LeRobot data config (`LeRobotAlohaDataConfig`) with `repo_id="{repo}"`; the camera keys are
 openpi's Aloha names when built with `--naming rsb` ({', '.join(f"`{camera_key(c, 'rsb')}`" for c in CAMERAS)}).
 
-Evaluate with the benchmark's protocol (500 held-out episodes per suite): `rsb eval` or, from
+Evaluate with the benchmark's protocol (its held-out evaluation episodes of each suite): `rsb eval` or, from
 LeRobot, `lerobot-eval --env.type=rsb --env.task={env_id}`.
 
 ## Features

@@ -122,7 +122,7 @@ def _mesa_version() -> str | None:
 def start_render_probe() -> subprocess.Popen:
     """The render probe runs in a subprocess (a broken Vulkan stack can crash, not raise),
     started first so that it overlaps the other checks."""
-    return subprocess.Popen([sys.executable, "-c", _RENDER_PROBE, str(Path(__file__).with_name("render.py"))],
+    return subprocess.Popen([sys.executable, "-c", _RENDER_PROBE, str(Path(__file__).parents[1] / "sim" / "render.py")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

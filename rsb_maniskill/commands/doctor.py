@@ -38,8 +38,8 @@ _RENDER_PROBE = r"""
 import importlib.util, json, sys, time, numpy as np
 t0 = time.time()
 spec = importlib.util.spec_from_file_location("_rsb_render", sys.argv[1])  # not the package: no torch
-_render = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(_render)
+render = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(render)
 import sapien
 out = {"icd": render.select_vulkan_driver(), "summary": sapien.render.get_device_summary()}
 try:

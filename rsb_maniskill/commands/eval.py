@@ -147,7 +147,7 @@ def check_policy_spec(spec: str, num_envs: int = 1) -> None:
     from rsb_maniskill.policies.registry import policy_spec, resolve_factory
 
     if num_envs > 1 and policy_spec(spec).single_env:
-        raise EvalError(f"policy {spec!r} drives one env at a time: use --num-procs, not --num-envs")
+        raise EvalError(f"policy {spec!r} drives one env at a time: with -b physx_cuda use --num-procs, not --num-envs")
     try:
         resolve_factory(spec)
     except ImportError as err:

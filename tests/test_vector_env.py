@@ -213,7 +213,9 @@ def test_batched_api_and_task_contract_per_env():
         assert vec.episode_variants[0] is None and vec.episode_variants[2].index == 1
         assert vec.step(action)[4]["elapsed_steps"].tolist() == [1, 2, 1]
         vec.hold(1)  # an ended episode: no more physics until its reset
+        held = vec.get_obs()[1]
         assert vec.step(action)[4]["elapsed_steps"].tolist() == [2, 2, 2]
+        assert torch.equal(vec.get_obs()[1], held)
         vec.reset(seed=[31], options={"env_idx": [1]})
         assert vec.step(action)[4]["elapsed_steps"].tolist() == [3, 1, 3]
         with pytest.raises(ValueError, match="for 3 envs"):

@@ -213,6 +213,7 @@ class RSBVectorEnv:
         self._infos: list[dict] = [{} for _ in self.envs]
         self._last: list[tuple | None] = [None] * self.num_envs  # a held env's last (obs, reward, term, trunc)
         self.held: set[int] = set()  # envs whose episode ended: not stepped until their next reset
+        self._held_obs: list[Any] = [None] * self.num_envs  # a held env's observation, rendered once
         self._skipping = False
         self.spec = self.envs[0].spec
 
@@ -232,7 +233,7 @@ class RSBVectorEnv:
         seeds = episode_seeds(seed, len(idx))
         for position, (i, s) in enumerate(zip(idx, seeds)):
             self.held.discard(i)
-            self._last[i] = None
+            self._last[i] = self._held_obs[i] = None
             with self._state_only(self.bases[i]):
                 _, self._infos[i] = self.envs[i].reset(seed=s, options=env_options(options, position, len(idx)))
         self.renderer.scenes_changed()  # a CPU reset builds a fresh scene
@@ -275,15 +276,19 @@ class RSBVectorEnv:
         pictures = self.renderer.render(self.bases) if self.cameras else None
         obs = []
         for i, base in enumerate(self.bases):
+            if i in self.held and self._held_obs[i] is not None:  # not stepped since: the same observation
+                obs.append(self._held_obs[i])
+                continue
             own = None if pictures is None else {n: {t: x[i:i + 1] for t, x in texs.items()}
                                                   for n, texs in pictures.items()}
             with nullcontext() if own is None else compat.pictures_from(base, own):
                 obs.append(base.get_obs(infos[i]))
+            self._held_obs[i] = obs[-1] if i in self.held else None
         return _cat(obs)
 
     def hold(self, i: int) -> None:
         """Stop stepping env ``i`` until its next reset (its episode ended and its record is taken):
-        later steps give its last step's values again, and cost no physics."""
+        later steps give its last step's values again and cost no physics, nor (per scene) a render."""
         self.held.add(int(i))
 
     @contextmanager

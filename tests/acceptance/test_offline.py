@@ -2,11 +2,10 @@
 question data gives the one-line message that says how to provide it, not minutes of hub retries.
 
 No network here even on a machine that has one: a proxy on 127.0.0.1 accepts connections and never
-answers (``silent_proxy``), as for the PhysX GPU library's download (tests/test_gpu_setup.py).
+answers (``silent_proxy``), as for the PhysX GPU library's download (tests/sim/test_gpu_setup.py).
 ``benchmarks/offline_latency.py`` measures the seconds per command."""
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import time
@@ -15,24 +14,7 @@ import pytest
 
 from rsb_maniskill import network
 
-# every command that reads GSM8K / MMLU-Pro, on a suite that needs them
-COMMANDS = {
-    "stats": ["stats"],
-    "questions": ["questions", "RSB-HardMath-4"],
-    "verify": ["verify", "RSB-General-4"],
-    "eval": ["eval", "oracle", "--suites", "rsb_hardmath", "-n", "1", "--out", "{tmp}/eval"],
-    "generate": ["generate", "RSB-HardMath-10", "-n", "1", "--out", "{tmp}/demos"],
-    "dataset build": ["dataset", "build", "--suites", "RSB-General-10", "--out", "{tmp}/datasets"],
-    "audit": ["audit", "RSB-General-4", "-n", "10"],
-}
-
-
-def no_data_env(tmp_path) -> dict[str, str]:
-    """This process's environment without question data: an empty hub cache, no $RSB_DATA_DIR,
-    no offline switch (the network is what fails)."""
-    env = {k: v for k, v in os.environ.items() if k not in ("RSB_DATA_DIR", *network.OFFLINE_VARS)}
-    env.update(HOME=str(tmp_path), HF_HOME=str(tmp_path / "hf"), XDG_CACHE_HOME=str(tmp_path / "cache"))
-    return env
+from net_helpers import COMMANDS, no_data_env
 
 
 @pytest.mark.parametrize("name", COMMANDS)

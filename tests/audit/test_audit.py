@@ -45,7 +45,7 @@ def test_every_suite_passes_the_audit(suite_id):
 def test_commonsense_questions_alone_pass_the_audit(suite_id):
     """The commonsense table (where "the trash can" once answered "Where is trash kept?") on its
     own; built into the project, so the MMLU part comes from the test fixtures."""
-    fixtures = Path(__file__).parent / "fixtures" / "semantic_data"
+    fixtures = Path(__file__).parents[1] / "fixtures" / "semantic_data"
     tr, te = (EpisodeSampler(suite_id, split, data_dir=fixtures) for split in ("train", "test"))
     idx = {s: [i for i, q in enumerate(x.pool.questions) if q.source == "commonsense"]
            for s, x in (("tr", tr), ("te", te))}

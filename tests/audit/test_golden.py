@@ -20,7 +20,7 @@ from rsb_maniskill.version import BENCHMARK, BENCHMARK_VERSION
 
 from conftest import FIXTURE_DATA
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 FIXTURE_GOLDEN = REPO / "tests" / "fixtures" / "golden_fixture.json"
 FIX = "python scripts/pin_episodes.py --bump X.Y --note '...' (docs/versions.md: How to change episodes)"
 

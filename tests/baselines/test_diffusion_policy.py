@@ -23,7 +23,7 @@ from rsb_maniskill.baselines.diffusion_policy.train import main as train_main  #
 from rsb_maniskill.motionplan.config import GenerateConfig  # noqa: E402
 from rsb_maniskill.motionplan.generate import generate  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SUITE = "RSB-Direct-4"  # the instruction names the block: no question data needed
 TINY = ["--unet-dims", "16", "32", "--batch-size", "16", "--threads", "1", "-q"]
 

@@ -19,9 +19,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from bad_policies import OUTPUTS
 
 from rsb_maniskill.cli import build_parser, main
+
+from bad_policies import OUTPUTS
 
 SUITE = "RSB-Math-4"
 RUN = ["--suites", SUITE, "-q"]  # every rsb eval below: one suite, no progress bars
@@ -364,10 +365,10 @@ def test_the_errors_pickle_whole():
 
 def test_a_batched_policy_is_blamed_for_its_wave():
     """The parallel-env loop names the policy and the envs' seeds of the call that went wrong."""
-    from test_eval_batched import SEEDS, FakeBatchedEnv, ScriptedPolicy
-
     from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop
     from rsb_maniskill.policies.errors import PolicyError
+
+    from fake_envs import SEEDS, FakeBatchedEnv, ScriptedPolicy
 
     class Nan(ScriptedPolicy):
         def act(self, obs):

@@ -12,7 +12,7 @@ from rsb_maniskill import network
 from rsb_maniskill.cli import main
 from rsb_maniskill.semantic import EpisodeSampler
 
-FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
+FIXTURES = Path(__file__).parents[1] / "fixtures" / "semantic_data"
 REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")  # read before the autouse fixture clears it
 
 

@@ -5,56 +5,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from test_eval_runner import HORIZON, SUITE, FakeRSBEnv, ScriptedPolicy
 
 from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop, episode_loop
 
-SEEDS = [10_000_000 + i for i in range(8)]
-
-
-class FakeBatchedEnv(gym.Env):
-    """num_envs copies of the one-env fake, stepped together like a GPU ManiSkill env."""
-
-    def __init__(self, num_envs):
-        self.envs = [FakeRSBEnv() for _ in range(num_envs)]
-        self.num_envs, self.device = num_envs, torch.device("cpu")
-        self.single_action_space = self.envs[0].action_space
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (num_envs, 14), np.float32)
-        self.actions = []
-
-    @property
-    def episode_specs(self):
-        return [e.episode_specs[0] for e in self.envs]
-
-    def episode_spec(self, seed):  # what shuffled mode reads for donors, without a reset
-        env = FakeRSBEnv()
-        env.reset(seed=seed)
-        return type("Spec", (), {"instruction": env.get_language_instruction()[0]})
-
-    def get_language_instruction(self):
-        return [e.get_language_instruction()[0] for e in self.envs]
-
-    @staticmethod
-    def _cat(items):
-        if isinstance(items[0], dict):
-            return {k: FakeBatchedEnv._cat([d[k] for d in items]) for k in items[0]}
-        return torch.cat(items)
-
-    def reset(self, seed=None, options=None):
-        assert isinstance(seed, list) and len(seed) == self.num_envs
-        out = [e.reset(seed=s) for e, s in zip(self.envs, seed)]
-        return self._cat([o for o, _ in out]), self._cat([i for _, i in out])
-
-    def step(self, action):
-        assert tuple(action.shape) == (self.num_envs, 14)
-        self.actions.append(action.clone())
-        out = [e.step(a.numpy()) for e, a in zip(self.envs, action)]
-        obs, rew, term, trunc, info = (self._cat([o[k] for o in out]) for k in range(5))
-        return obs, rew, term, trunc, info
-
-
-def _strip(records):
-    return [{k: v for k, v in r.items() if k != "wall_s"} for r in records]
+from fake_envs import HORIZON, SEEDS, SUITE, FakeBatchedEnv, FakeRSBEnv, ScriptedPolicy, _strip
 
 
 @pytest.mark.parametrize("mode", ["normal", "blank", "shuffled"])

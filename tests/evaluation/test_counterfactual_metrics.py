@@ -225,10 +225,9 @@ def test_parallel_envs_run_the_variants_as_one_env_does():
     one-env loop does, episode for episode."""
     import types
 
-    from test_eval_batched import FakeBatchedEnv, _strip
-    from test_eval_runner import FakeRSBEnv, ScriptedPolicy
-
     from rsb_maniskill.evaluation.runner import batched_loop, episode_loop
+
+    from fake_envs import FakeBatchedEnv, FakeRSBEnv, ScriptedPolicy, _strip
 
     class VariantEnv(FakeRSBEnv):
         def reset(self, seed=None, options=None):

@@ -4,9 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from test_eval_runner import SUITE, FakeRSBEnv
 
 from rsb_maniskill.evaluation.runner import EpisodeSettings, Observations, episode_loop
+
+from fake_envs import SUITE, FakeRSBEnv
 
 SEEDS = [10_000_000 + i for i in range(8)]
 

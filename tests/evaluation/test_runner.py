@@ -2,99 +2,17 @@
 contract (no simulator)."""
 from __future__ import annotations
 
-import gymnasium as gym
 import numpy as np
 import pytest
-import torch
 
 from rsb_maniskill.evaluation.jobs import run_episodes
 from rsb_maniskill.evaluation.protocol import shuffled_instruction
 from rsb_maniskill.evaluation.store import read_records
 from rsb_maniskill.reporting.summary import results_from_records, summary_dict
 
-SUITE = "RSB-Math-4"
-HORIZON = 20
+from fake_envs import HORIZON, OUTCOMES, SUITE, FakeRSBEnv, ScriptedPolicy
+
 SEEDS = [10_000_000 + i for i in range(12)]
-# seed % 4 -> outcome: success at step 8 / wrong block placed (fail) at step 6 /
-# correct block grasped, never placed (time limit) / nothing grasped (time limit)
-OUTCOMES = ("success", "wrong_target", "not_placed", "no_grasp")
-
-
-class FakeSpec:
-    def __init__(self, seed):
-        self.seed, self.question_id, self.target_block = seed, seed % 7, seed % 4
-        self.correct_letter = "ABCD"[(seed // 4) % 4]
-
-    def to_dict(self):
-        return {"seed": self.seed, "question_id": self.question_id, "correct_letter": self.correct_letter}
-
-
-class FakeRSBEnv(gym.Env):
-    """One-env batch like ManiSkill: torch obs / info with a leading env dim, latched flags."""
-
-    def __init__(self):
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (14,), np.float32)
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (14,), np.float32)
-        self.episode_specs = []
-        self.reset_seeds, self.n_steps, self.closed = [], 0, False
-
-    def get_language_instruction(self):
-        return [f"which block answers question {self.seed}?"]
-
-    def _obs(self):
-        return {"agent": {"qpos": torch.full((1, 14), float(self.t))},
-                "sensor_data": {"head": {"rgb": torch.zeros((1, 6, 8, 3), dtype=torch.uint8)}}}
-
-    def _info(self):
-        kind = OUTCOMES[self.seed % 4]
-        target, wrong = self.seed % 4, (self.seed + 1) % 4
-        grasp_t = {"success": 3, "wrong_target": 3, "not_placed": 4, "no_grasp": None}[kind]
-        grasped = grasp_t is not None and self.t >= grasp_t
-        placed_c = kind == "success" and self.t >= 8
-        placed_w = kind == "wrong_target" and self.t >= 6
-        b = lambda v: torch.tensor([bool(v)])  # noqa: E731
-        return {
-            "grasped_any": b(grasped), "grasped_correct": b(grasped and kind in ("success", "not_placed")),
-            "grasped_wrong": b(grasped and kind == "wrong_target"), "placed_correct": b(placed_c),
-            "placed_wrong": b(placed_w), "success": b(placed_c and not placed_w), "fail": b(placed_w),
-            "first_grasped": torch.tensor([(wrong if kind == "wrong_target" else target) if grasped else -1]),
-        }
-
-    def reset(self, seed=None, options=None):
-        self.seed, self.t = seed, 0
-        self.reset_seeds.append(seed)
-        self.episode_specs = [FakeSpec(seed)]
-        return self._obs(), self._info()
-
-    def step(self, action):
-        assert np.asarray(action).shape == (14,)
-        self.t += 1
-        self.n_steps += 1
-        info = self._info()
-        terminated = info["success"] | info["fail"]
-        truncated = torch.tensor([self.t >= HORIZON])
-        return self._obs(), torch.zeros(1), terminated, truncated, info
-
-    def close(self):
-        self.closed = True
-
-
-class ScriptedPolicy:
-    """Returns chunks of ``horizon`` actions; records what it was given."""
-
-    name = "scripted"
-
-    def __init__(self, horizon=3):
-        self.horizon, self.instructions, self.obs, self.acts = horizon, [], [], 0
-
-    def reset(self, instruction, obs):
-        self.instructions.append(instruction)
-        self.obs.append(obs)
-
-    def act(self, obs):
-        self.acts += 1
-        assert isinstance(obs["agent"]["qpos"], np.ndarray) and obs["agent"]["qpos"].shape == (14,)
-        return np.zeros((self.horizon, 14), dtype=np.float32)
 
 
 def run(tmp_path, seeds=SEEDS, mode="normal", policy=None, env=None, name="e.jsonl", **kw):

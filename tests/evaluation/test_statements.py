@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_eval_batched import FakeBatchedEnv
-from test_eval_runner import OUTCOMES, SUITE, FakeRSBEnv, ScriptedPolicy
 
 from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop, episode_loop
 from rsb_maniskill.evaluation.statements import MAX_TEXT_CHARS, EpisodeText, reasoning_following, talks
 from rsb_maniskill.policies.interface import PerEnvPolicies, split_output, split_outputs
 from rsb_maniskill.semantic import EpisodeSampler
+
+from fake_envs import OUTCOMES, SUITE, FakeBatchedEnv, FakeRSBEnv, ScriptedPolicy
 
 SEEDS = [10_000_000 + i for i in range(16)]
 SAMPLER = EpisodeSampler(SUITE, "test", instructions="unseen")

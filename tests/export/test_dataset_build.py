@@ -20,7 +20,7 @@ from rsb_maniskill.cli import main
 from rsb_maniskill.export.build import WORK_DIR, BuildConfig, build_datasets
 from rsb_maniskill.version import BENCHMARK_VERSION
 
-from test_export_lerobot import _lerobot_python, fingerprint, read_data
+from lerobot_venv import _lerobot_python, fingerprint, read_data
 
 SUITE = "RSB-Math-4"
 SMALL = {"camera_size": (64, 48)}  # the pipeline is the same at 320x240, only slower

@@ -1,5 +1,5 @@
 """Policies that misbehave in each way a user policy can, for the error tests (``rsb eval
-bad_policies:returns -a what=nan`` with tests/ on PYTHONPATH; worker processes import them too)."""
+bad_policies:returns -a what=nan`` with tests/helpers/ on PYTHONPATH; worker processes import them too)."""
 from __future__ import annotations
 
 import numpy as np

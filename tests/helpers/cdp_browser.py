@@ -12,6 +12,7 @@ import inspect
 import itertools
 import json
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -19,6 +20,8 @@ import time
 import urllib.request
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -32,6 +35,19 @@ def find_chromium() -> str | None:
     if env:
         return env
     return next(filter(None, (shutil.which(n) for n in NAMES)), None)
+
+
+def _chromium() -> str:
+    """The Chromium a page test runs: missing on Debian fails (setup installs it), elsewhere skips."""
+    binary = find_chromium()
+    if binary:
+        return binary
+    release = Path("/etc/os-release").read_text() if Path("/etc/os-release").exists() else ""
+    if shutil.which("apt-get") and re.search(r"^ID=debian$", release, re.M):
+        pytest.fail("Chromium is not installed: `make setup` (scripts/setup.sh) installs Debian's chromium; "
+                    "or set RSB_CHROMIUM to a Chromium / Chrome binary")
+    pytest.skip("no Chromium or Chrome here, and this is not Debian, where scripts/setup.sh installs it: "
+                "set RSB_CHROMIUM to run the report's browser test")
 
 
 class Browser:

@@ -1,6 +1,8 @@
-"""A network that drops packets, on 127.0.0.1: for the tests and benchmarks of what happens offline."""
+"""A network that drops packets, on 127.0.0.1, and the commands that read question data with the environment
+that has none: for the tests and benchmarks of what happens offline."""
 from __future__ import annotations
 
+import os
 import socket
 import threading
 from contextlib import contextmanager
@@ -33,3 +35,25 @@ def silent_proxy_server() -> Iterator[str]:
         for conn in held:
             conn.close()
         srv.close()
+
+
+# every command that reads GSM8K / MMLU-Pro, on a suite that needs them
+COMMANDS = {
+    "stats": ["stats"],
+    "questions": ["questions", "RSB-HardMath-4"],
+    "verify": ["verify", "RSB-General-4"],
+    "eval": ["eval", "oracle", "--suites", "rsb_hardmath", "-n", "1", "--out", "{tmp}/eval"],
+    "generate": ["generate", "RSB-HardMath-10", "-n", "1", "--out", "{tmp}/demos"],
+    "dataset build": ["dataset", "build", "--suites", "RSB-General-10", "--out", "{tmp}/datasets"],
+    "audit": ["audit", "RSB-General-4", "-n", "10"],
+}
+
+
+def no_data_env(tmp_path) -> dict[str, str]:
+    """This process's environment without question data: an empty hub cache, no $RSB_DATA_DIR,
+    no offline switch (the network is what fails)."""
+    from rsb_maniskill import network  # here: conftest imports this module before any test
+
+    env = {k: v for k, v in os.environ.items() if k not in ("RSB_DATA_DIR", *network.OFFLINE_VARS)}
+    env.update(HOME=str(tmp_path), HF_HOME=str(tmp_path / "hf"), XDG_CACHE_HOME=str(tmp_path / "cache"))
+    return env

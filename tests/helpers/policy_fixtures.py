@@ -1,5 +1,5 @@
 """Policies the tests serve from another process (``python -m rsb_maniskill.policies.remote.server
-policy_fixtures:EnvIdPolicy`` with tests/ on PYTHONPATH)."""
+policy_fixtures:EnvIdPolicy`` with tests/helpers/ on PYTHONPATH)."""
 from __future__ import annotations
 
 import numpy as np

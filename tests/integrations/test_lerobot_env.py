@@ -23,9 +23,9 @@ from rsb_maniskill.policies.reference import ExpertPolicy
 from rsb_maniskill.robot import to_aloha14
 from rsb_maniskill.version import BENCHMARK_VERSION
 
-from test_export_lerobot import _lerobot_python
+from lerobot_venv import _lerobot_python
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SUITE = "RSB-Direct-4"
 SMALL = (64, 48)
 

@@ -32,7 +32,7 @@ from rsb_maniskill.robot import QPOS_JOINT_NAMES, from_aloha14
 from vla_eval_servers import CountingServer, OracleServer, RandomServer
 
 pytestmark = pytest.mark.timeout(120)
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples" / "vla_eval"
 SUITE = "RSB-Math-4"
 CAMS = ("head", "left_wrist", "right_wrist")

@@ -26,7 +26,7 @@ from rsb_maniskill.motionplan.replay import carry_metadata
 from rsb_maniskill.motionplan.shards import WorkPlan, plan_work
 
 ENV_ID = "RSB-Math-4"
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TESTS = Path(__file__).resolve().parent
 
 

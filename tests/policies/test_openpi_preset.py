@@ -28,7 +28,7 @@ from rsb_maniskill.policies.remote.openpi import (  # noqa: E402
     resize_with_pad,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 # The releases checked (pure Python, numpy < 2). openpi-client 0.1.2's action_chunk_broker imports
 # typing_extensions without declaring it.
 OPENPI = ("openpi-server==0.1.0", "openpi-client==0.1.2", "typing_extensions")

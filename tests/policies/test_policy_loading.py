@@ -117,7 +117,7 @@ def test_naming_a_policy_imports_nothing():
     code = ("import sys, rsb_maniskill.policies.registry as p; p.policy_spec('remote'); "
             "print([m for m in ('rsb_maniskill.policies.remote.client', "
             "'rsb_maniskill.policies.reference') if m in sys.modules])")
-    repo = Path(__file__).resolve().parents[1]
+    repo = Path(__file__).resolve().parents[2]
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=repo, timeout=120,
                          env={"PYTHONPATH": str(repo), "PATH": ""})
     assert out.returncode == 0, out.stderr

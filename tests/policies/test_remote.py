@@ -175,10 +175,9 @@ def test_adapter_resets_on_prompt_change_and_flat_state_obs():
 
 # ---------------------------------------------------------------- batched requests (--num-envs)
 def _batched_run(client, num_envs=3):
-    from test_eval_batched import SEEDS, FakeBatchedEnv
-    from test_eval_runner import SUITE, FakeRSBEnv, ScriptedPolicy
-
     from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop, episode_loop
+
+    from fake_envs import SEEDS, SUITE, FakeBatchedEnv, FakeRSBEnv, ScriptedPolicy
 
     settings = EpisodeSettings(suite_id=SUITE, seeds=SEEDS, label="p")
     single, batched = [], []
@@ -234,7 +233,7 @@ def test_batched_requests_to_a_server_in_another_process(tmp_path):
 
     from policy_fixtures import EnvIdPolicy  # noqa: F401  (importable here, so in the server too)
 
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).parent), *sys.path]))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[1] / "helpers"), *sys.path]))
     log = tmp_path / "server.log"
     with open(log, "w") as err:
         proc = subprocess.Popen(["timeout", "60", sys.executable, "-m", "rsb_maniskill.policies.remote.server",

@@ -9,7 +9,6 @@ import os
 import re
 
 import pytest
-from test_eval_runner import FakeRSBEnv, ScriptedPolicy
 
 from rsb_maniskill.evaluation.categories import SMALL_CELL, category_cell, category_tables
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, LEFT_RANK_FIELD
@@ -20,6 +19,8 @@ from rsb_maniskill.reporting.writer import write_report
 from rsb_maniskill.semantic import EpisodeSampler, clear_cache
 from rsb_maniskill.semantic import categories as cat
 from rsb_maniskill.semantic.gsm8k import question_from_row, reasoning_steps
+
+from fake_envs import FakeRSBEnv, ScriptedPolicy
 
 SEEDS = range(10_000_000, 10_000_200)
 REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")  # read before a fixture points it at the test fixtures

@@ -8,7 +8,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 from pathlib import Path
 
 import pytest
@@ -20,7 +19,7 @@ from rsb_maniskill.evaluation.store import RecordWriter, read_records
 from rsb_maniskill.reporting.page import episode_cards, markdown_to_html
 from rsb_maniskill.reporting.writer import write_html_report
 
-from cdp_browser import Browser, checked_screenshot, find_chromium
+from cdp_browser import Browser, _chromium, checked_screenshot
 
 SUITE = "RSB-Math-4"
 N_SYNTHETIC = 130  # more than one page of cards (120)
@@ -131,31 +130,19 @@ def test_page_escapes_plain_strings_and_keeps_its_fragments(results, tmp_path):
     data = re.search(r'<script id="episode-data" type="application/json">(.*?)</script>', page, re.S)[1]
     assert "&#34;" not in data and "&quot;" not in data and len(json.loads(data)) == 6 + N_SYNTHETIC
     # the page's styles and script are the templates', included whole
-    templates = Path(__file__).resolve().parents[1] / "rsb_maniskill/reporting/templates"
+    templates = Path(__file__).resolve().parents[2] / "rsb_maniskill/reporting/templates"
     assert (templates / "report.css").read_text() in page and (templates / "report.js").read_text() in page
 
 
 def test_no_markup_in_python():
     """The page's HTML, CSS and JavaScript live in templates/, not in Python strings."""
-    package = Path(__file__).resolve().parents[1] / "rsb_maniskill"
+    package = Path(__file__).resolve().parents[2] / "rsb_maniskill"
     found = [str(f.relative_to(package)) for f in package.rglob("*.py")
              if re.search(r"<(style|script|html)\b", f.read_text(encoding="utf-8"))]
     assert found == []
 
 
 # ------------------------------------------------------------ in a real browser
-def _chromium() -> str:
-    binary = find_chromium()
-    if binary:
-        return binary
-    release = Path("/etc/os-release").read_text() if Path("/etc/os-release").exists() else ""
-    if shutil.which("apt-get") and re.search(r"^ID=debian$", release, re.M):
-        pytest.fail("Chromium is not installed: `make setup` (scripts/setup.sh) installs Debian's chromium; "
-                    "or set RSB_CHROMIUM to a Chromium / Chrome binary")
-    pytest.skip("no Chromium or Chrome here, and this is not Debian, where scripts/setup.sh installs it: "
-                "set RSB_CHROMIUM to run the report's browser test")
-
-
 def _select(browser: Browser, name: str, value: str) -> int:
     """Pick ``value`` in the filter ``name`` as a user would; the number of cards shown then."""
     return browser.evaluate(f"""(() => {{

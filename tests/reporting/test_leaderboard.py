@@ -14,7 +14,6 @@ from pathlib import Path
 
 import jsonschema
 import pytest
-from test_html_report import _chromium
 from vla_eval.results.collector import ResultCollector
 
 from rsb_maniskill.cli import main
@@ -29,10 +28,10 @@ from rsb_maniskill.reporting.vla_eval_leaderboard import benchmark_entry, benchm
 from rsb_maniskill.semantic import EpisodeSampler
 from rsb_maniskill.version import BENCHMARK_VERSION
 
-from cdp_browser import Browser, checked_screenshot
+from cdp_browser import Browser, _chromium, checked_screenshot
 
-REPO = Path(__file__).resolve().parents[1]
-VLA_EVAL_SCHEMAS = Path(__file__).resolve().parent / "fixtures" / "vla_eval_leaderboard"
+REPO = Path(__file__).resolve().parents[2]
+VLA_EVAL_SCHEMAS = Path(__file__).resolve().parents[1] / "fixtures" / "vla_eval_leaderboard"
 
 
 def outcomes(n_success: int, n_wrong: int, n_none: int) -> list[tuple[bool, bool]]:

@@ -21,8 +21,8 @@ from rsb_maniskill.semantic import (
     parse_suite_id,
 )
 
-FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
-REPO = Path(__file__).resolve().parents[1]
+FIXTURES = Path(__file__).parents[1] / "fixtures" / "semantic_data"
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_constants():

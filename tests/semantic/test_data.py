@@ -15,7 +15,7 @@ from rsb_maniskill.semantic import DataNotFoundError, EpisodeSampler, SemanticDa
 from rsb_maniskill.semantic import data as data_mod
 from rsb_maniskill.semantic.gsm8k import clean_solution, gsm8k_pool, parse_final_answer
 
-FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
+FIXTURES = Path(__file__).parents[1] / "fixtures" / "semantic_data"
 REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")  # read before the autouse fixture clears it
 
 

@@ -15,7 +15,7 @@ from rsb_maniskill.semantic.errors import EmptyDataError
 from rsb_maniskill.semantic.pools import Pool
 from rsb_maniskill.semantic.suites import SuiteSource
 
-FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
+FIXTURES = Path(__file__).parents[1] / "fixtures" / "semantic_data"
 GSM8K_TEST = "gsm8k/test.jsonl"
 MMLU_PRO = "mmlu_pro/data/test-00000-of-00001.parquet"
 

@@ -10,7 +10,7 @@ import pytest
 from rsb_maniskill.semantic import EpisodeSampler, render_instruction
 from rsb_maniskill.semantic import templates as T
 
-FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
+FIXTURES = Path(__file__).parents[1] / "fixtures" / "semantic_data"
 LEAK = re.compile(r"answer is|is (?:the )?(?:correct|right|true)\b|correct (?:answer|option|choice|block) is|"
                   r"\bsolution is|\bhint\b", re.IGNORECASE)
 

@@ -23,7 +23,7 @@ from rsb_maniskill.semantic.distractors import (
 from rsb_maniskill.semantic.mmlu_pro import exclusion_reason
 from rsb_maniskill.semantic.normalize import option_key, question_key, related_words
 
-FIXTURES = Path(__file__).parent / "fixtures" / "semantic_data"
+FIXTURES = Path(__file__).parents[1] / "fixtures" / "semantic_data"
 REAL_DATA_DIR = os.environ.get("RSB_DATA_DIR")
 
 

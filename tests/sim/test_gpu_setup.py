@@ -18,7 +18,7 @@ from rsb_maniskill.cli import main
 from rsb_maniskill.sim import physx_gpu
 from rsb_maniskill.version import benchmark_label
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SCAN = "Searching for driver manifest files"  # one loader line per vkCreateInstance
 MARK = "RSB-FIRST-ENV-DONE"
 

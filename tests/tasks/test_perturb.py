@@ -299,7 +299,7 @@ def test_perturbed_expert_demo_replays_with_maniskills_tool(tmp_path):
     src.write_bytes(summary.path.read_bytes())
     src.with_suffix(".json").write_bytes(summary.path.with_suffix(".json").read_bytes())
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    env["PYTHONPATH"] = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env["PYTHONPATH"] = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     res = subprocess.run([sys.executable, "-m", "mani_skill.trajectory.replay_trajectory", "--traj-path",
                           str(src), "-o", "state", "--save-traj"],
                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)

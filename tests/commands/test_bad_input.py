@@ -187,7 +187,7 @@ def test_more_records_than_asked_is_said(results, tmp_path, capsys):
     assert json.loads((out / "summary.json").read_text())["rows"]["random"]["suites"][SUITE]["n_episodes"] == 2
 
 
-# A user policy that misbehaves (tests/bad_policies.py): one env is built, the first act fails.
+# A user policy that misbehaves (tests/helpers/bad_policies.py): one env is built, the first act fails.
 POLICIES = [(["bad_policies:returns", "-a", f"what={what}"], phrase) for what, (_, phrase) in OUTPUTS.items()] + [
     (["bad_policies:RaisesInAct"], "act raised RuntimeError: the model is not loaded"),
     (["bad_policies:RaisesInReset"], "reset raised KeyError: 'wrist_camera'"),

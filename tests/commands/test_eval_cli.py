@@ -1,7 +1,7 @@
 """`rsb eval` end to end, in physics: oracle and blind baselines, resume after a kill, videos,
 errors that leave results untouched, and the remote client serving the oracle. The kill / resume,
 video and paper-objects runs are slow (20-70 s each); the resume logic itself is tested without
-physics in test_eval_records.py and test_eval_runner.py."""
+physics in evaluation/test_records.py and evaluation/test_runner.py."""
 from __future__ import annotations
 
 import json

@@ -163,7 +163,7 @@ def test_episodes_and_resume_go_variant_by_variant(tmp_path):
 def test_blind_draws_follow_and_switch_at_chance_and_leftmost_like_draws_stick():
     """The blind baseline draws afresh in every variant (variant 0 keeps the protocol's draw): its
     choices over many scenes follow at 1/N and switch at 1 - 1/N (physics: it grasps what it draws,
-    tests/test_counterfactual_physics.py)."""
+    tests/evaluation/test_counterfactual_physics.py)."""
     from rsb_maniskill.semantic import EpisodeSampler
     from rsb_maniskill.semantic import counterfactual as cf
 

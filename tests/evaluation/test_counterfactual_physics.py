@@ -72,7 +72,7 @@ def test_the_oracle_follows_every_variant(tmp_path, question_data):
 @pytest.mark.slow
 def test_blind_grasps_a_fresh_draw_in_every_variant(tmp_path, question_data):
     """Blind is not stuck: it grasps blind_target(seed, N, k), drawn anew per variant (its chance-level
-    follow and switch rates over many scenes: tests/test_counterfactual_metrics.py)."""
+    follow and switch rates over many scenes: tests/evaluation/test_counterfactual_metrics.py)."""
     _eval("blind", tmp_path, [SUITE], 1)
     records = read_records(tmp_path / "episodes.jsonl")
     assert len(records) == 4

@@ -1,7 +1,7 @@
 """Counterfactual variants in the semantic engine: same scene, the answer on another candidate.
 
 No simulator: the variants are built from the sampler alone (the layout is the seed's, checked in
-physics in tests/test_counterfactual_physics.py)."""
+physics in tests/evaluation/test_counterfactual_physics.py)."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,7 +1,6 @@
 """Robustness axes (issue 26): names and levels, language axes, visual axes in the scene, the eval sweep."""
 from __future__ import annotations
 
-import hashlib
 import inspect
 import json
 import os
@@ -24,8 +23,8 @@ from rsb_maniskill.semantic.stable import axis_rng
 from rsb_maniskill.semantic.templates import get_template
 from rsb_maniskill.tasks.perturb_scene import CLUTTER_ITEMS, clutter_layout
 
-SMALL = (64, 48)  # camera size of the image checks: enough pixels to tell levels apart, fast to render
-SEED = EVAL_SEED_BASE + 3
+from task_envs import HELPERS, SEED, _digest, _head, _visual_digests
+
 LANG_SUITES = [("RSB-Math-4", "blocks"), ("RSB-Math-10", "blocks"), ("RSB-Math-4", "objects"),
                ("RSB-Direct-10", "blocks")]
 
@@ -184,24 +183,6 @@ def test_clutter_in_free_cells_inside_them_and_out_of_the_zone(targets):
 
 
 # ---------------------------------------------------------------- visual axes in the scene
-def _head(perturb, obs_mode="rgbd", seed=SEED, steps=1):
-    env = gym.make("RSB-Math-10", obs_mode=obs_mode, split="test", camera_size=SMALL, perturb=perturb)
-    obs, _ = env.reset(seed=seed)
-    for _ in range(steps):
-        obs, *_ = env.step(env.unwrapped.agent.rest_action()[None])
-    out = {}
-    if obs_mode != "state":
-        out = {k: v[0].cpu().numpy().copy() for k, v in obs["sensor_data"]["head_camera"].items()}
-    out["instruction"] = env.unwrapped.get_language_instruction()[0]
-    out["state"] = env.unwrapped.get_state_dict()
-    env.close()
-    return out
-
-
-def _digest(img: np.ndarray) -> str:
-    return hashlib.sha1(np.ascontiguousarray(img).tobytes()).hexdigest()
-
-
 def test_level_zero_is_byte_identical_to_no_perturbation():
     plain = _head(None, steps=3)
     zero = _head({a: 0 for a in P.AXES}, steps=3)
@@ -214,13 +195,9 @@ def test_level_zero_is_byte_identical_to_no_perturbation():
 VISUAL_DIGEST_SCRIPT = """
 import json, sys
 sys.path.insert(0, {tests!r})
-from test_perturb import _visual_digests
+from task_envs import _visual_digests
 print(json.dumps(_visual_digests()))
 """
-
-
-def _visual_digests() -> dict[str, str]:
-    return {axis: _digest(_head({axis: 2}, obs_mode="rgb")["rgb"]) for axis in P.VISUAL_AXES}
 
 
 @pytest.mark.slow
@@ -228,7 +205,7 @@ def test_every_visual_axis_shows_and_is_deterministic_across_processes():
     here = _visual_digests()
     base = _digest(_head(None, obs_mode="rgb")["rgb"])
     assert all(d != base for d in here.values()), [a for a, d in here.items() if d == base]
-    code = VISUAL_DIGEST_SCRIPT.format(tests=os.path.dirname(__file__))
+    code = VISUAL_DIGEST_SCRIPT.format(tests=HELPERS)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=600)
     assert json.loads(out.stdout.strip().splitlines()[-1]) == here
 

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 
@@ -16,15 +15,9 @@ from rsb_maniskill.semantic import SUITE_IDS
 from rsb_maniskill.tasks.answer_selection import HOLD_STEPS, ZONE_XY
 
 from robot_helpers import ArmDriver
+from task_envs import HELPERS, _episode_fingerprint, make
 
 OBS_MODES = ("state", "state_dict", "rgb", "rgbd", "none")
-
-
-def make(suite_id="RSB-Math-4", **kw):
-    kw.setdefault("obs_mode", "state")
-    if kw["obs_mode"] in ("state", "state_dict", "none"):
-        kw.setdefault("render_backend", "none")
-    return gym.make(suite_id, **kw)
 
 
 @pytest.mark.parametrize("suite_id", SUITE_IDS)
@@ -81,25 +74,10 @@ def test_camera_size_and_render():
     env.close()
 
 
-def _episode_fingerprint(suite_id: str, seed: int) -> dict:
-    env = make(suite_id)
-    env.reset(seed=seed)
-    u = env.unwrapped
-    out = dict(
-        instruction=u.get_language_instruction()[0],
-        target=int(u.target_block[0]),
-        question_id=int(u.question_id[0]),
-        xy=[round(float(v), 6) for v in u.pool.raw_poses()[0, :, :2].flatten()],
-        candidates=list(u.episode_specs[0].candidates),
-    )
-    env.close()
-    return out
-
-
 FINGERPRINT_SCRIPT = """
 import json, sys
 sys.path.insert(0, {tests!r})
-from test_tasks import _episode_fingerprint
+from task_envs import _episode_fingerprint
 print(json.dumps(_episode_fingerprint({suite!r}, {seed})))
 """
 
@@ -109,7 +87,7 @@ print(json.dumps(_episode_fingerprint({suite!r}, {seed})))
                                       pytest.param("RSB-Math-10-Objects", marks=pytest.mark.slow)])
 def test_same_seed_same_episode_in_fresh_process(suite_id):
     here = _episode_fingerprint(suite_id, seed=7)
-    code = FINGERPRINT_SCRIPT.format(tests=os.path.dirname(__file__), suite=suite_id, seed=7)
+    code = FINGERPRINT_SCRIPT.format(tests=HELPERS, suite=suite_id, seed=7)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     there = json.loads(out.stdout.strip().splitlines()[-1])
     assert here == there

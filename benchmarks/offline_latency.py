@@ -1,6 +1,6 @@
 """Seconds from a command to its message on a machine without the question data and without network.
 
-Each command of tests/test_offline.py runs in a fresh process with an empty hub cache and no
+Each command of tests/acceptance/test_offline.py runs in a fresh process with an empty hub cache and no
 $RSB_DATA_DIR, once with a proxy on 127.0.0.1 that never answers (packets dropped: the worst case)
 and once with RSB_OFFLINE=1; `rsb --help` is the start-up reference of the same run.
 
@@ -16,10 +16,9 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "helpers"))
 
-from net_helpers import silent_proxy_server  # noqa: E402
-from test_offline import COMMANDS, no_data_env  # noqa: E402
+from net_helpers import COMMANDS, no_data_env, silent_proxy_server  # noqa: E402
 
 
 def seconds(args: list[str], env: dict[str, str]) -> tuple[float, int]:

@@ -12,7 +12,7 @@ level over all suites; exits 1 when a level falls below the target (97 %): a fai
 perturbation must be the policy's.
 
 The image-only axes (camera, lighting, table, noise, candidate) leave the physics alone (the state
-after the same actions equals level 0, tests/test_perturb.py), so the expert's trajectory there is
+after the same actions equals level 0, tests/tasks/test_perturb.py), so the expert's trajectory there is
 level 0's: ``--image-seeds`` runs fewer seeds on them as a check; ``--seeds`` is for the axes that
 change the physics (clutter, robot_init) and for level 0.
 """

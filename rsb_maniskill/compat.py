@@ -1,7 +1,7 @@
 """The ManiSkill and SAPIEN internals this pack reads or sets, in one place.
 
 ManiSkill and SAPIEN at the versions pyproject.toml pins have no public API for these; each
-accessor names what it touches, so a version bump is checked here and in ``tests/test_compat.py``
+accessor names what it touches, so a version bump is checked here and in ``tests/sim/test_compat.py``
 rather than across the package. Modules outside this one never touch a private ManiSkill or
 SAPIEN attribute (the test lists the attributes this module reads and looks for them elsewhere).
 """

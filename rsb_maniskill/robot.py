@@ -31,7 +31,7 @@ GRIPPER_JOINT_NAMES = tuple(n for a in ARMS for n in FINGER_JOINT_NAMES[a])
 TCP_LINKS = {a: f"{PREFIX[a]}_tcp_link" for a in ARMS}
 FINGER_TRAVEL = 0.0476  # m, each finger's prismatic range: gripper fully open
 # obs["agent"]["qpos"]: SAPIEN's active joints, breadth-first over the URDF tree (both arms
-# interleaved; fingers 7 and 8 of each gripper). tests/test_openpi_preset.py checks it on the agent.
+# interleaved; fingers 7 and 8 of each gripper). tests/policies/test_openpi_preset.py checks it on the agent.
 QPOS_JOINT_NAMES = (*(f"{PREFIX[a]}_joint{i}" for i in range(1, 7) for a in ARMS), *GRIPPER_JOINT_NAMES)
 
 ACTION_DIM = 14

@@ -1,4 +1,4 @@
-"""Pin the episodes of the benchmark version: the digests ``rsb verify`` and tests/test_golden.py check.
+"""Pin the episodes of the benchmark version: the digests ``rsb verify`` and tests/audit/test_golden.py check.
 
 Writes ``rsb_maniskill/audit/golden_episodes.json`` (on the real GSM8K / MMLU-Pro: ``--data-dir`` or
 ``$RSB_DATA_DIR``) and ``tests/fixtures/golden_fixture.json`` (on the tests' small fixture data,

@@ -39,7 +39,7 @@ install_software_vulkan() {
 }
 
 install_chromium() {
-  # The report page's test (tests/test_html_report.py) drives a headless Chromium. Debian ships
+  # The report page's test (tests/reporting/test_html_report.py) drives a headless Chromium. Debian ships
   # one; Ubuntu's `chromium` is a snap wrapper that containers cannot run.
   command -v chromium >/dev/null 2>&1 && return 0
   command -v apt-get >/dev/null 2>&1 || { echo "setup: no apt-get; install Chromium (or set RSB_CHROMIUM) for the report's browser test" >&2; return 0; }

@@ -16,7 +16,7 @@ candidate map, the answer, question and template ids, the instruction, the candi
 seed-derived layout (cells, positions to 0.01 mm, yaws to 1e-5 rad, by ``objects.layout`` without
 the simulator, as the task places them). A variant's line holds its index and kind and the same
 semantics, not the layout: a variant's layout is its scene's, pinned by ``eval`` (tested in
-physics, tests/test_counterfactual_physics.py). ``golden_episodes.json`` beside this module holds the
+physics, tests/evaluation/test_counterfactual_physics.py). ``golden_episodes.json`` beside this module holds the
 digests of ``version.BENCHMARK_VERSION`` on the pinned GSM8K / MMLU-Pro; ``scripts/pin_episodes.py``
 writes it (docs/versions.md says when and how).
 """

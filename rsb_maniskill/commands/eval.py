@@ -36,6 +36,7 @@ from rsb_maniskill.debug import print_error
 from rsb_maniskill.evaluation.store import ManifestError, RecordsError
 from rsb_maniskill.policies.errors import PolicyError
 
+POLICY_TIMEOUT_S = 300.0  # --policy-timeout's default: a policy call longer than this is taken for a hang
 SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0: the unperturbed run)
 
 
@@ -92,6 +93,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-steps", type=int, default=None,
                    help=f"step cap per episode (default: the task's {TASK_MAX_EPISODE_STEPS})")
     p.add_argument("--videos", type=int, default=0, metavar="K", help="mp4 of the first K episodes of each suite")
+    p.add_argument("--policy-timeout", type=float, default=POLICY_TIMEOUT_S, metavar="SECONDS",
+                   help=f"longest one policy call (factory, reset, act) may take before the run stops with a "
+                        f"policy error (default {POLICY_TIMEOUT_S:g}; 0: no limit). The episodes run in a worker "
+                        "process, which is killed when a call outlasts it")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     add_worker_args(p)  # --num-procs auto|N, --executor, --address
     p.set_defaults(func=run_eval)
@@ -188,8 +193,8 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
                 control_mode=args.control_mode, num_envs=args.num_envs,
                 sim_backend=GPU_SIM_BACKEND if args.num_envs > 1 else CPU_SIM_BACKEND, max_steps=max_steps,
                 env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
-                num_videos=args.videos)
-            run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor)
+                num_videos=args.videos, policy_timeout=args.policy_timeout or None)
+            run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor, isolate=True)
 
 
 def _print_counterfactual(records: list[dict]) -> None:
@@ -218,6 +223,8 @@ def _run_eval(args: argparse.Namespace) -> int:
             raise EvalError(f"{flag} must be >= {low}, got {value}")
     if args.max_steps is not None and args.max_steps < 1:
         raise EvalError(f"--max-steps must be >= 1, got {args.max_steps}")
+    if not args.policy_timeout >= 0:  # NaN too
+        raise EvalError(f"--policy-timeout must be >= 0 seconds (0: no limit), got {args.policy_timeout}")
     if args.num_envs > 1 and (args.num_procs or 1) > 1 and args.executor == "local":
         raise EvalError("use either --num-envs (GPU) or --num-procs (CPU), not both")
     try:

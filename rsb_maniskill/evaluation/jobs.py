@@ -22,9 +22,9 @@ from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED, rec
 from rsb_maniskill.evaluation.records import perturb_label as record_perturb
 from rsb_maniskill.evaluation.runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
-from rsb_maniskill.parallel.pool import Executor, InProcess, Interrupted, ProcessPool, deal
+from rsb_maniskill.parallel.pool import Executor, InProcess, Interrupted, ProcessPool, deal, watched
 from rsb_maniskill.perturb import label as perturb_label
-from rsb_maniskill.policies.errors import PolicyError, blame_policy, first_line
+from rsb_maniskill.policies.errors import PolicyError, blame_policy, first_line, policy_call_label, stuck_call_error
 from rsb_maniskill.policies.interface import is_batched, policy_name
 from rsb_maniskill.policies.registry import load_policy, policy_spec
 
@@ -187,7 +187,7 @@ def run_episodes(
 
 
 def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progress: bool = True,
-            executor: Executor | None = None) -> list[dict]:
+            executor: Executor | None = None, isolate: bool = False) -> list[dict]:
     """Run the seeds of ``job`` not yet in ``out_path``; returns all of the job's records.
 
     The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``num_procs`` tasks
@@ -197,6 +197,11 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
     (from a worker process too), any other failure a :class:`JobError`; the finished episodes are
     kept either way. A signal stops the workers and raises
     :class:`~rsb_maniskill.parallel.pool.Interrupted`, a KeyboardInterrupt.
+
+    ``isolate``: run even a single worker in a spawned process (what ``rsb eval`` does), so that a
+    policy that exits the process, crashes in native code or outlasts ``job.policy_timeout`` in a
+    blocking call ends in a PolicyError, not in a silent exit or a hang. In this process a policy
+    call cannot be interrupted (a signal cannot stop a blocking C call; ``os._exit`` cannot be caught).
     """
     if job.num_envs > 1 and policy_spec(job.policy).single_env:
         raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs")
@@ -204,10 +209,14 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
     def run(todo: list[int], write: Write) -> None:
         # parallel GPU envs run in this process, or one shard per GPU task of an executor
         shards = deal(todo, 1 if job.num_envs > 1 and executor is None else num_procs)
-        chosen = executor or (ProcessPool() if len(shards) > 1 else InProcess())
+        chosen = executor or (ProcessPool() if len(shards) > 1 or isolate else InProcess())
         outcome = chosen.run(run_shard, [(job, shard) for shard in shards], write)
         if outcome.interrupted:
             raise Interrupted(outcome.interrupted)
+        stuck = [t for t in outcome.tasks if getattr(t, "stuck", None)]
+        if stuck:  # a policy call that hung (killed at its limit) or ended its worker
+            t = stuck[0]
+            raise stuck_call_error(t.stuck, job.label, timeout_s=t.timed_out, exit_code=t.exit_code)
         failed = [t.result for t in outcome.tasks if isinstance(t.result, BaseException)]
         if failed:  # the first worker's error, whole (the others' are most likely the same)
             raise failed[0]
@@ -234,7 +243,8 @@ def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> BaseException | 
         return JobError(f"cannot build the env {job.suite_id} ({settings}): {type(err).__name__}: "
                         f"{first_line(str(err))}", detail=traceback.format_exc())
     try:
-        with blame_policy("building it", policy=job.label, where=job.suite_id):
+        with watched(policy_call_label("building it", job.suite_id), job.policy_timeout), \
+                blame_policy("building it", policy=job.label, where=job.suite_id):
             policy = load_policy(job.policy, env=env, **job.policy_kwargs)
             if job.num_envs > 1 and not is_batched(policy):  # one instance per env
                 policy = [policy] + [load_policy(job.policy, env=env, **job.policy_kwargs)

@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import os
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -38,9 +39,10 @@ from rsb_maniskill.evaluation.protocol import (
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, EVAL_INSTRUCTION_MODES, build_record, perturb_fields
 from rsb_maniskill.evaluation.statements import EpisodeText
 from rsb_maniskill.evaluation.store import safe_name
+from rsb_maniskill.parallel.pool import watched
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.perturb import parse_perturb
-from rsb_maniskill.policies.errors import blame_policy, episode_where
+from rsb_maniskill.policies.errors import blame_policy, episode_where, policy_call_label
 from rsb_maniskill.policies.interface import (
     PerEnvPolicies,
     as_chunk,
@@ -83,6 +85,10 @@ class EpisodeSettings:
     render_every_step: bool = False
     # Robustness axes of the env, {axis: level} (rsb_maniskill.perturb); records carry them.
     perturb: Mapping[str, int] | None = None
+    # Seconds one policy call (factory, reset, act) may take before its worker process is killed and
+    # the run ends with a PolicyError (None or 0: no limit). Enforced where the loop runs in a
+    # ProcessPool worker (rsb eval always runs it there), not in this process.
+    policy_timeout: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
@@ -285,10 +291,14 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                               said=said))
 
 
-def _blamed(settings: EpisodeSettings, call: str, seeds: Sequence[int]) -> Any:
-    """The policy's ``call`` on ``seeds``: what goes wrong in it is a PolicyError naming the episode."""
-    return blame_policy(call, policy=settings.label, where=episode_where(settings.suite_id, seeds,
-                                                                          settings.instruction_mode))
+@contextmanager
+def _blamed(settings: EpisodeSettings, call: str, seeds: Sequence[int]) -> Iterator[None]:
+    """The policy's ``call`` on ``seeds``: what goes wrong in it is a PolicyError naming the episode;
+    in a worker process, a call that outlasts ``settings.policy_timeout`` or ends the process is too."""
+    where = episode_where(settings.suite_id, seeds, settings.instruction_mode)
+    with watched(policy_call_label(call, where), settings.policy_timeout), \
+            blame_policy(call, policy=settings.label, where=where):
+        yield
 
 
 def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:

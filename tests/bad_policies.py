@@ -65,7 +65,21 @@ class InterruptsOnce(Returns):
         self.resets += 1
         if self.resets == 2 and not InterruptsOnce.interrupted:
             InterruptsOnce.interrupted = True
-            raise KeyboardInterrupt
+            import multiprocessing
+            import os
+            import signal
+            import time
+
+            if multiprocessing.parent_process() is None:
+                raise KeyboardInterrupt
+            # in rsb eval's worker process: Ctrl-C reaches the main process, which stops this worker
+            marker = os.environ.get("RSB_TEST_INTERRUPT_MARKER")
+            if marker and os.path.exists(marker):
+                return
+            if marker:
+                open(marker, "w").close()
+            os.kill(os.getppid(), signal.SIGINT)
+            time.sleep(60)  # the main process's SIGTERM ends this wait
 
 
 class Exits(Returns):

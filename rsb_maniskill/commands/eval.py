@@ -178,23 +178,25 @@ def run_eval(args: argparse.Namespace) -> int:
 
 def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kwargs: dict, obs_mode: str,
               max_steps: int, env_kwargs: dict, out: Path, records_path: Path, num_procs: int,
-              executor: Any, perturbs: list[dict[str, int]]) -> None:
-    """Every suite x instruction mode x perturbation, one after the other."""
+              executor: Any, perturbs: list[dict[str, int]], stamp: dict[str, str]) -> None:
+    """Every suite x instruction mode x perturbation, one after the other; ``stamp``: the settings id
+    each record carries."""
     from rsb_maniskill.env_ids import CPU_SIM_BACKEND, GPU_SIM_BACKEND
     from rsb_maniskill.evaluation.jobs import EvalJob, run_job
-    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, eval_seeds
+    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, eval_seed_range
 
     for suite in suites:
         for mode, perturb in ((m, p) for m in args.instruction for p in perturbs):
             job = EvalJob(perturb=perturb or None,
-                suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
+                suite_id=suite, seeds=eval_seed_range(suite, args.num_episodes), policy=args.policy,
                 label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
                 variants=args.variants if mode == COUNTERFACTUAL else None,
                 control_mode=args.control_mode, num_envs=args.num_envs,
                 sim_backend=GPU_SIM_BACKEND if args.num_envs > 1 else CPU_SIM_BACKEND, max_steps=max_steps,
                 env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
                 num_videos=args.videos, policy_timeout=args.policy_timeout or None)
-            run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor, isolate=True)
+            run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor, isolate=True,
+                    stamp=stamp)
 
 
 def _print_counterfactual(records: list[dict]) -> None:
@@ -211,7 +213,14 @@ def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.evaluation.jobs import JobError
     from rsb_maniskill.evaluation.protocol import eval_seeds
-    from rsb_maniskill.evaluation.store import RECORDS_FILE, RunStart, check_manifest, read_records
+    from rsb_maniskill.evaluation.store import (
+        RECORDS_FILE,
+        SETTINGS_FIELD,
+        RunStart,
+        check_manifest,
+        read_records,
+        settings_id,
+    )
     from rsb_maniskill.parallel.plan import executor_from_args, obs_mode_renders, resolve_workers
     from rsb_maniskill.policies.registry import policy_spec
     from rsb_maniskill.version import BENCHMARK_VERSION
@@ -283,7 +292,7 @@ def _run_eval(args: argparse.Namespace) -> int:
                                               num_envs=args.num_envs, episodes=args.num_episodes)
         try:
             _run_jobs(args, suites, label, policy_kwargs, obs_mode, max_steps, env_kwargs, out, records_path,
-                      num_procs, executor, perturbs)
+                      num_procs, executor, perturbs, {SETTINGS_FIELD: settings_id(settings, MANIFEST_KEYS)})
         except KeyboardInterrupt:
             interrupted = True
         except (PolicyError, JobError):

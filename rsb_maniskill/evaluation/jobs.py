@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 import traceback
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from rsb_maniskill.env_ids import CPU_SIM_BACKEND
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED, record_episode
@@ -29,6 +29,7 @@ from rsb_maniskill.policies.interface import is_batched, policy_name
 from rsb_maniskill.policies.registry import load_policy, policy_spec
 
 Write = Callable[[dict], None]
+RUN_BATCH = 100_000  # episodes left are run this many at a time when they are not one plain range
 
 
 class JobError(RuntimeError):
@@ -109,31 +110,52 @@ def job_records(out_path: str | os.PathLike, settings: EpisodeSettings) -> list[
 
 
 def drive(settings: EpisodeSettings, out_path: str | os.PathLike, run: Callable[[list[int], Write], None],
-          progress: bool = True) -> list[dict]:
+          progress: bool = True, stamp: Mapping[str, Any] | None = None) -> list[dict]:
     """Resume, write and show one evaluation: ``run(todo, write)`` runs the episodes not yet recorded
     (seeds; in counterfactual mode (seed, variant) pairs: resumed variant by variant).
 
-    Reads ``out_path`` once; ``write`` appends a record (durably) and advances the bar. Returns every
+    Reads ``out_path`` once; ``write`` appends a record (durably, with the ``stamp`` fields: the
+    settings id ``rsb eval`` checks on resume) and advances the bar. Returns every
     record of this label / suite / mode in file order, old and new.
     """
     records = job_records(out_path, settings)
     done = {record_episode(r) for r in records}
     episodes = settings.episodes()
-    todo = [e for e in episodes if e not in done]
-    if not todo:
+    members = episodes if isinstance(episodes, range) else set(episodes)
+    n_done = sum(1 for e in done if e in members)
+    if n_done >= len(episodes):
         return records
     mode = settings.instruction_mode + (f", {perturb_label(settings.perturb)}" if settings.perturb else "")
-    bar = ProgressBar(settings.label, settings.suite_id, mode, len(episodes), len(episodes) - len(todo), progress)
+    bar = ProgressBar(settings.label, settings.suite_id, mode, len(episodes), n_done, progress)
     try:
         with RecordWriter(out_path) as writer:
             def write(record: dict) -> None:
-                records.append(writer.write(record))
+                records.append(writer.write({**record, **stamp} if stamp else record))
                 bar.add(record)
 
-            run(todo, write)
+            for todo in _batches(episodes, done, RUN_BATCH):
+                run(todo, write)
     finally:
         bar.close()
     return records
+
+
+def _batches(episodes: Sequence[Any], done: set, size: int) -> Iterator[Sequence[Any]]:
+    """The episodes not in ``done``, in order, ``size`` at a time: a range without done ones stays a
+    range (one batch, nothing listed), else lists of at most ``size``: memory follows the work in
+    flight, not ``-n``."""
+    if isinstance(episodes, range) and not any(e in episodes for e in done):
+        yield episodes
+        return
+    batch: list[Any] = []
+    for e in episodes:
+        if e not in done:
+            batch.append(e)
+            if len(batch) >= size:
+                yield batch
+                batch = []
+    if batch:
+        yield batch
 
 
 def run_episodes(
@@ -187,7 +209,8 @@ def run_episodes(
 
 
 def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progress: bool = True,
-            executor: Executor | None = None, isolate: bool = False) -> list[dict]:
+            executor: Executor | None = None, isolate: bool = False,
+            stamp: Mapping[str, Any] | None = None) -> list[dict]:
     """Run the seeds of ``job`` not yet in ``out_path``; returns all of the job's records.
 
     The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``num_procs`` tasks
@@ -226,7 +249,7 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
             raise JobError(f"{len(errors)} of {len(shards)} evaluation workers failed on {job.suite_id}; worker "
                            f"{first}: {first_line(errors[first])}", detail=errors[first])
 
-    return drive(job, out_path, run, progress)
+    return drive(job, out_path, run, progress, stamp)
 
 
 def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> BaseException | None:

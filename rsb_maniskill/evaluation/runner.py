@@ -66,7 +66,7 @@ class EpisodeSettings:
     """
 
     suite_id: str
-    seeds: tuple[int, ...]
+    seeds: tuple[int, ...] | range  # a range (rsb eval's) is kept as it is: lazy
     label: str  # the records' ``policy`` field and the table row
     instruction_mode: str = "normal"  # normal, blank ("" for the policy), shuffled (another episode's), counterfactual
     # counterfactual mode: K variants of each scene (default min(N, 4)); episodes() are (seed, variant)
@@ -91,7 +91,8 @@ class EpisodeSettings:
     policy_timeout: float | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+        if not isinstance(self.seeds, range):  # a range stays one: -n costs no memory
+            object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
         object.__setattr__(self, "perturb", parse_perturb(self.perturb) or None)
         if self.instruction_mode not in EVAL_INSTRUCTION_MODES:
             raise ValueError(f"instruction_mode must be one of {EVAL_INSTRUCTION_MODES}, "
@@ -100,12 +101,12 @@ class EpisodeSettings:
             object.__setattr__(self, "variants", scene_variants(self.suite_id, self.variants))
         elif self.variants is not None:
             raise ValueError("variants are counterfactual mode's (instruction_mode='counterfactual')")
-        if len(set(self.seeds)) != len(self.seeds):
+        if not isinstance(self.seeds, range) and len(set(self.seeds)) != len(self.seeds):
             raise ValueError("seeds contain duplicates")
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
 
-    def episodes(self) -> list[Episode]:
+    def episodes(self) -> Sequence[Episode]:
         """What the loops run: the seeds, or in counterfactual mode each seed's variants, (seed, k)."""
         return mode_episodes(self.seeds, self.instruction_mode, self.variants)
 

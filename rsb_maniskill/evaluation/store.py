@@ -261,6 +261,18 @@ def _has_records(out: Path, section: str, label: str, records: list[dict]) -> bo
     return any(r.get("backbone") == label for r in read_backbone_records(out / BACKBONE_FILE))
 
 
+SETTINGS_FIELD = "settings_id"  # in each record of rsb eval: the digest of the settings it ran with
+
+
+def settings_id(settings: Mapping[str, Any], keys: tuple[str, ...]) -> str:
+    """A short digest of a row's ``keys`` settings: each record carries it (``SETTINGS_FIELD``), so
+    a resume checks the records it extends even when ``MANIFEST_FILE`` is gone."""
+    import hashlib
+
+    text = json.dumps({k: settings.get(k) for k in keys}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def check_manifest(out: Path, label: str, settings: Mapping[str, Any], *, keys: tuple[str, ...],
                    section: str = "runs") -> str | None:
     """Record this row's settings in ``MANIFEST_FILE`` (under ``section``: ``runs`` for policies,
@@ -277,6 +289,14 @@ def check_manifest(out: Path, label: str, settings: Mapping[str, Any], *, keys: 
         one_version([*records, {VERSION_FIELD: BENCHMARK_VERSION}])
     except VersionMixError as err:
         raise ManifestError(f"{out / RECORDS_FILE}: {err}. Use another --out for this version's run.") from None
+    if section == "runs":
+        wanted = settings_id(settings, keys)
+        other = [r for r in records if r.get("policy") == label and r.get(SETTINGS_FIELD) not in (None, wanted)]
+        if other:
+            raise ManifestError(f"{out / RECORDS_FILE} holds {len(other)} episodes of {label!r} run with other "
+                                f"settings than these ({', '.join(keys)}: settings id {other[0][SETTINGS_FIELD]} "
+                                f"there, {wanted} now). Use the same settings to resume, or another --out / --name "
+                                "for a new run.")
     path = out / MANIFEST_FILE
     manifest = _load_manifest(path)
     old = manifest.setdefault(section, {}).get(label)

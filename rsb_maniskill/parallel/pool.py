@@ -334,6 +334,7 @@ def _worker_main(target: Target, task: Any, index: int, conn: Any, watch: Any, l
 
 
 def deal(items: Sequence[Any], parts: int) -> list[list[Any]]:
-    """Round-robin split of ``items`` into at most ``parts`` non-empty lists (item k to list k % n)."""
+    """Round-robin split of ``items`` into at most ``parts`` non-empty lists (item k to list k % n);
+    a ``range`` splits into ranges (nothing listed)."""
     n = max(1, min(parts, len(items)))
-    return [list(items[k::n]) for k in range(n)]
+    return [items[k::n] if isinstance(items, range) else list(items[k::n]) for k in range(n)]

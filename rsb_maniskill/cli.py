@@ -53,7 +53,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Runs one command; returns its exit status (2 for a usage error, which argparse has printed)."""
+    """Runs one command; returns its exit status (2 for a usage error, which argparse has printed).
+
+    Ctrl-C at any point (start-up included) ends with "rsb: interrupted" and 130, no traceback; a
+    reader that stops reading (``rsb questions ... | head``) ends it quietly with 0, as unix tools do."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print("rsb: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        _quiet_stdout()
+        return 0
+
+
+def _quiet_stdout() -> None:
+    """stdout's reader is gone: point it at /dev/null, so the exit's flush raises nothing more."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -65,9 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     with debug_mode(args.debug):  # in the environment, for worker processes too
         try:
             return int(args.func(args) or 0)
-        except KeyboardInterrupt:
-            print("rsb: interrupted", file=sys.stderr)
-            return 130
+        except (KeyboardInterrupt, BrokenPipeError):
+            raise
         except Exception as err:  # noqa: BLE001  (a command let it through: one line, the traceback with --debug)
             return print_error(args.command, err, 1, hint=True, unexpected=True)
 

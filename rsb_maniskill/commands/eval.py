@@ -18,6 +18,7 @@ import argparse
 import contextlib
 import signal
 import sys
+import unicodedata
 from pathlib import Path
 from typing import Any
 
@@ -272,7 +273,8 @@ def _run_eval(args: argparse.Namespace) -> int:
         except (ValueError, ConnectionError) as err:
             raise EvalError(str(err)) from err
 
-    label = args.name or args.policy
+    # one spelling of a name: "é" typed as one code point or as e + accent names the same row and folder
+    label = unicodedata.normalize("NFC", args.name or args.policy)
     out = results_dir(args.out, label)
     max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
     settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,

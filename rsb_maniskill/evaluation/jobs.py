@@ -263,8 +263,11 @@ def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> BaseException | 
     except Exception as err:  # noqa: BLE001  (reported by the driver, in one line)
         settings = ", ".join(f"{k}={v!r}" for k, v in (("obs_mode", job.obs_mode), ("control_mode", job.control_mode),
                                                          *job.env_kwargs.items()) if v is not None)
+        from rsb_maniskill.sim.render import renderer_hint
+
+        hint = renderer_hint(str(err))
         return JobError(f"cannot build the env {job.suite_id} ({settings}): {type(err).__name__}: "
-                        f"{first_line(str(err))}", detail=traceback.format_exc())
+                        f"{first_line(str(err))}{f'; {hint}' if hint else ''}", detail=traceback.format_exc())
     try:
         with watched(policy_call_label("building it", job.suite_id), job.policy_timeout), \
                 blame_policy("building it", policy=job.label, where=job.suite_id):

@@ -246,10 +246,13 @@ def test_existing_output_needs_overwrite(tmp_path, dataset):
     cfg = _cfg(tmp_path, num=1)
     first = generate(cfg)
     before = first.path.read_bytes()
+    again = generate(cfg)  # the same request again: done already, nothing run, nothing written
+    assert again.already and again.completed == 1 and again.exit_code == 0 and first.path.read_bytes() == before
+    cfg.seed_start = 5  # another request onto the same file
     with pytest.raises(GenerateError, match="--overwrite"):
         generate(cfg)
     assert first.path.read_bytes() == before
-    cfg.overwrite, cfg.seed_start = True, 5
+    cfg.overwrite = True
     second = generate(cfg)
     data = _check_dataset(second.path)
     assert [ep["episode_seed"] for ep in data["episodes"]] == [5]

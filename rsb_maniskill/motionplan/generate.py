@@ -97,6 +97,21 @@ class _Progress:
         self.bar.close()
 
 
+def _finished(cfg: GenerateConfig, final: Path, pool_size: int, workers: int, requested: int) -> dict | None:
+    """The ``rsb`` block of ``final`` when it is the complete output of this very request (the same
+    command run again: nothing to do), else None."""
+    try:
+        have = dataset.check_pair(final).get("rsb") or {}
+    except (dataset.DatasetError, OSError):
+        return None
+    want = rsb_header(cfg, pool_size, workers, requested, [])["rsb"]
+    same = ("env_id", "split", "pool_size", "obs_mode", "mode", "questions", "seed_start", "shard", "num_procs",
+            "max_attempts", "requested", "expert", "env_kwargs_extra", "benchmark_version")
+    if have.get("complete") and all(json.dumps(have.get(k)) == json.dumps(want.get(k)) for k in same):
+        return have
+    return None
+
+
 def _resume_settings(cfg: GenerateConfig) -> dict:
     """What a resumed run must share with the run it continues (the demos it would keep)."""
     keep = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("progress", "verbose", "overwrite")}
@@ -140,10 +155,15 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
     t0 = time.perf_counter()
     pool_size = _validate(cfg)
     final = output_path(cfg)
-    if dataset.existing_outputs(final) and not cfg.overwrite:
-        raise GenerateError(f"{final} exists; pass --overwrite to replace it (or choose another --out / --traj-name)")
     plans = plan_work(cfg, pool_size)
     requested = sum(p.wanted for p in plans)
+    if dataset.existing_outputs(final) and not cfg.overwrite:
+        done = _finished(cfg, final, pool_size, len(plans), requested)
+        if done is None:
+            raise GenerateError(f"{final} exists; pass --overwrite to replace it (or choose another --out / "
+                                "--traj-name)")
+        return GenerateSummary(final, requested, done["completed"], done["failures"], done["skipped_questions"],
+                               None, [], time.perf_counter() - t0, 0.0, 0.0, 0, already=True)
     if requested == 0:
         raise GenerateError("nothing to do: this shard owns no seeds / questions")
     try:

@@ -25,6 +25,7 @@ class GenerateSummary:
     sim_time: float
     kept_steps: int
     resume_dir: Path | None = None  # an interrupted run's finished demos, which the same command continues from
+    already: bool = False  # the output was there, complete, from the same request: nothing was run
 
     @property
     def exit_code(self) -> int:
@@ -75,6 +76,9 @@ def describe(summary: GenerateSummary) -> str:
     """Human summary printed at the end of ``rsb generate``."""
     lines = []
     tried = summary.completed + len(summary.failures)
+    if summary.already:
+        return (f"{summary.path} holds the {summary.completed} demos of this request already (complete); nothing to "
+                "do (--overwrite makes them again)")
     if summary.path:
         lines.append(f"wrote {summary.completed} demos to {summary.path} (+ {summary.path.with_suffix('.json').name})")
     elif summary.interrupted:

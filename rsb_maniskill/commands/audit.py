@@ -10,7 +10,7 @@ from pathlib import Path
 from rsb_maniskill.outdirs import writable_dir
 from rsb_maniskill.semantic.counterfactual import MODE as COUNTERFACTUAL
 
-MAX_AUDIT_EPISODES = 2_000_000  # -n beyond this would not fit in memory (every audited episode is held)
+MAX_AUDIT_EPISODES = 200_000  # every audited episode is held (~8 kB each, measured): more would not fit in memory
 AUDIT_MODES = ("normal", COUNTERFACTUAL)  # the protocol episodes, their counterfactual variants
 
 

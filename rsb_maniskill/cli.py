@@ -9,9 +9,11 @@ A command prints its own errors in one line; one it lets through is printed the 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import signal
 import sys
-from typing import NoReturn
+from typing import Any, Iterator, NoReturn
 
 from rsb_maniskill.debug import DEBUG_ENV, debug_mode, print_error
 
@@ -67,6 +69,27 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
 
+@contextlib.contextmanager
+def _noting_sigint() -> Iterator[list[int]]:
+    """Ctrl-C raises KeyboardInterrupt as usual, and is noted in the list yielded: a library that
+    turns it into another error (matplotlib's "Invalid bounding box") cannot make it look like one."""
+    received: list[int] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        received.append(signum)
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread: leave Ctrl-C as it is
+        yield received
+        return
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _quiet_stdout() -> None:
     """stdout's reader is gone: point it at /dev/null, so the exit's flush raises nothing more."""
     import os
@@ -87,13 +110,19 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    with debug_mode(args.debug):  # in the environment, for worker processes too
+    with debug_mode(args.debug), _noting_sigint() as received:  # debug: in the environment, for workers too
         try:
-            return int(args.func(args) or 0)
+            status = int(args.func(args) or 0)
         except (KeyboardInterrupt, BrokenPipeError):
             raise
         except Exception as err:  # noqa: BLE001  (a command let it through: one line, the traceback with --debug)
+            if received:  # Ctrl-C cut a library call short, which raised something else: say what happened
+                raise KeyboardInterrupt from None
             return print_error(args.command, err, 1, hint=True, unexpected=True)
+        if status not in (0, 130) and received:  # the command reported the cut-short call as an error
+            print(f"rsb {args.command}: the error above came from the interruption (Ctrl-C)", file=sys.stderr)
+            raise KeyboardInterrupt
+        return status
 
 
 if __name__ == "__main__":

@@ -291,7 +291,7 @@ def _check_kept(path: Path, log: str) -> list[Path]:
     for demo in demos:
         assert len(_check_dataset(demo)["episodes"]) == 1
     assert sorted(p.name for p in resume.iterdir()) == sorted(
-        ["settings.json", *(d.name for d in demos), *(d.with_suffix(".json").name for d in demos)])
+        ["lock", "settings.json", *(d.name for d in demos), *(d.with_suffix(".json").name for d in demos)])
     assert f"kept the {len(demos)} finished demos of 200 requested in {resume}" in log
     assert "rerun the same command to continue" in log
     return demos

@@ -40,6 +40,7 @@ def temp_h5_path(final_h5: str | os.PathLike, tag: str = "") -> Path:
 
 
 RESUME_SETTINGS = "settings.json"  # in a resume folder: what the interrupted run was asked for
+RESUME_LOCK = "lock"  # in a resume folder: held (flock) by the run writing into it
 DEMO_PREFIX = "demo"  # a kept demo in a resume folder: demo<seed>.h5 + .json, one episode each
 
 
@@ -62,7 +63,7 @@ def resume_demos(resume_dir: str | os.PathLike) -> dict[int, Path]:
     demos: dict[int, Path] = {}
     for p in sorted(d.iterdir()) if d.is_dir() else []:
         name = p.name
-        if name == RESUME_SETTINGS:
+        if name in (RESUME_SETTINGS, RESUME_LOCK):
             continue
         if name.startswith(DEMO_PREFIX) and name.endswith(".h5") and json_path_of(p).exists():
             try:

@@ -118,6 +118,27 @@ def _resume_settings(cfg: GenerateConfig) -> dict:
     return json.loads(json.dumps(keep))
 
 
+def _lock_resume(resume: Path, final: Path, overwrite: bool) -> Any:
+    """Holds the resume folder for this run (an flock, released even by kill -9): a second
+    ``rsb generate`` onto the same output is refused, instead of removing the first one's files.
+    ``overwrite``: the folder is emptied first. Returns the open lock file (close it to release)."""
+    import fcntl
+
+    resume.mkdir(exist_ok=True)
+    handle = open(resume / dataset.RESUME_LOCK, "a")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        raise GenerateError(f"another rsb generate is writing {final} (its demos are in {resume}); wait for it to "
+                            "end, or choose another --out / --traj-name") from None
+    if overwrite:
+        for old in resume.iterdir():
+            if old.name != dataset.RESUME_LOCK:
+                shutil.rmtree(old) if old.is_dir() else old.unlink()
+    return handle
+
+
 def _open_resume(cfg: GenerateConfig, resume: Path) -> dict[int, Path]:
     """The demos an interrupted run of the same request kept in ``resume`` (the folder is made, or
     cleaned of half-written files); GenerateError when that run was asked for something else."""
@@ -134,9 +155,9 @@ def _open_resume(cfg: GenerateConfig, resume: Path) -> dict[int, Path]:
             raise GenerateError(f"{resume} holds the demos of an interrupted run with other settings ({shown}); "
                                 "rerun that command to continue it, or pass --overwrite to start over")
         return dataset.resume_demos(resume)
-    resume.mkdir(exist_ok=True)
     for stale in resume.iterdir():  # no settings: a run killed before it wrote them; nothing to keep
-        stale.unlink()
+        if stale.name != dataset.RESUME_LOCK:
+            stale.unlink()
     tmp = resume / f".{dataset.RESUME_SETTINGS}.tmp{os.getpid()}"
     tmp.write_text(json.dumps(wanted, indent=1))
     os.replace(tmp, settings_path)
@@ -171,11 +192,11 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
     except dataset.DatasetError as err:
         raise GenerateError(str(err)) from err
     resume = dataset.resume_dir_of(final)
-    if cfg.overwrite:
-        shutil.rmtree(resume, ignore_errors=True)
+    lock = _lock_resume(resume, final, cfg.overwrite)
     try:
         kept_before = _open_resume(cfg, resume)
     except GenerateError:
+        lock.close()
         dataset.remove_empty_dirs(created)
         raise
     video_dir = None
@@ -199,6 +220,7 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
             dataset.remove_pair(part)
         if not interrupted:  # done (or failed): the demos are in the final file, or there were none
             shutil.rmtree(resume, ignore_errors=True)
+        lock.close()
         if path is None and not interrupted:
             if video_dir is not None:
                 dataset.remove_empty_dirs([video_dir, video_dir.parent])

@@ -71,7 +71,7 @@ def _read_specs(paths: list[str]) -> dict[str, dict[str, list]]:
     for path in paths:
         p = Path(path)
         if not p.is_file():
-            raise ValueError(f"--specs: no such file {path}")
+            raise ValueError(f"--specs: {'not a regular file' if p.exists() else 'no such file'} {path}")
         with open(p, encoding="utf-8") as fh:
             for lineno, line in enumerate(fh, 1):
                 if not line.strip():

@@ -38,8 +38,8 @@ _RENDER_PROBE = r"""
 import importlib.util, json, sys, time, numpy as np
 t0 = time.time()
 spec = importlib.util.spec_from_file_location("_rsb_render", sys.argv[1])  # not the package: no torch
-_render = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(_render)
+render = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(render)
 import sapien
 out = {"icd": render.select_vulkan_driver(), "summary": sapien.render.get_device_summary()}
 try:
@@ -122,7 +122,7 @@ def _mesa_version() -> str | None:
 def start_render_probe() -> subprocess.Popen:
     """The render probe runs in a subprocess (a broken Vulkan stack can crash, not raise),
     started first so that it overlaps the other checks."""
-    return subprocess.Popen([sys.executable, "-c", _RENDER_PROBE, str(Path(__file__).with_name("render.py"))],
+    return subprocess.Popen([sys.executable, "-c", _RENDER_PROBE, str(Path(__file__).parents[1] / "sim" / "render.py")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

@@ -489,3 +489,21 @@ def test_two_generate_runs_onto_one_output_are_refused(tmp_path):
     rc, log = stop(first, signal.SIGKILL)
     assert rsb(*GENERATE, "--out", str(out)).returncode == 0  # the lock went with the killed run
     assert stray_files(out) == []
+
+
+def test_a_run_killed_at_its_merge_leaves_nothing_after_a_rerun(demos_reference, tmp_path):
+    """What kill -9 during the final merge leaves (a merge temp file; or the finished file with its
+    resume folder not yet removed; or an older version's hidden part files): the same command
+    cleans it, keeps the file as it is and does nothing else."""
+    out = tmp_path / "demos"
+    shutil.copytree(demos_reference.parents[2], out)
+    final = out / DEMO_FILE
+    before = final.read_bytes()
+    resume = _resume_dir(out)
+    resume.mkdir()
+    (resume / "settings.json").write_text("{}")
+    for tag in ("tmp999.merge", "tmp9.part0"):
+        (final.parent / f".train.state.pd_joint_pos.physx_cpu.{tag}.h5").write_bytes(b"half")
+    res = rsb(*GENERATE, "--out", str(out))
+    assert res.returncode == 0 and "nothing to do" in res.stdout, res.stderr[-2000:]
+    assert final.read_bytes() == before and stray_files(out) == []

@@ -139,6 +139,14 @@ def _lock_resume(resume: Path, final: Path, overwrite: bool) -> Any:
     return handle
 
 
+def _remove_stale_temps(final: Path) -> None:
+    """Temp files of ``final`` a killed run left next to it (a merge cut short, the part files of
+    older versions): only this run, holding the resume folder's lock, writes there."""
+    for stale in final.parent.glob(f".{final.stem}{dataset.TMP_TAG}*"):
+        if stale.is_file():
+            stale.unlink()
+
+
 def _open_resume(cfg: GenerateConfig, resume: Path) -> dict[int, Path]:
     """The demos an interrupted run of the same request kept in ``resume`` (the folder is made, or
     cleaned of half-written files); GenerateError when that run was asked for something else."""
@@ -183,6 +191,11 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
         if done is None:
             raise GenerateError(f"{final} exists; pass --overwrite to replace it (or choose another --out / "
                                 "--traj-name)")
+        resume = dataset.resume_dir_of(final)
+        if resume.exists():  # killed between the final rename and the clean-up: its demos are in the file
+            _lock_resume(resume, final, overwrite=False).close()
+            shutil.rmtree(resume, ignore_errors=True)
+        _remove_stale_temps(final)
         return GenerateSummary(final, requested, done["completed"], done["failures"], done["skipped_questions"],
                                None, [], time.perf_counter() - t0, 0.0, 0.0, 0, already=True)
     if requested == 0:
@@ -193,6 +206,7 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
         raise GenerateError(str(err)) from err
     resume = dataset.resume_dir_of(final)
     lock = _lock_resume(resume, final, cfg.overwrite)
+    _remove_stale_temps(final)
     try:
         kept_before = _open_resume(cfg, resume)
     except GenerateError:

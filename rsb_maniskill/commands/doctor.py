@@ -183,13 +183,19 @@ def check_gpu() -> list[Check]:
     # the rule the GPU-physics tests skip by; no network here: a missing library is reported as such
     reason = physx_gpu.gpu_physics_unavailable(probe_network=False)
     status = "ok" if reason is None else "warn" if torch.cuda.is_available() else "info"
-    out.append(Check("gpu", "GPU physics", status, reason or "physx_cuda, num_envs > 1 and `rsb eval --num-envs` "
-                                                            "can run here"))
-    from rsb_maniskill.parallel.plan import nvidia_gpus, plan_workers, usable_cpus
+    out.append(Check("gpu", "GPU physics", status, reason or "physx_cuda, num_envs > 1 and `rsb eval -b physx_cuda "
+                                                            "--num-envs` can run here"))
+    from rsb_maniskill.parallel.plan import nvidia_gpus, plan_num_envs, plan_workers, usable_cpus
+    from rsb_maniskill.sim.camera_group import group_rendering_unavailable
 
     cpus, n_gpus = usable_cpus(), len(nvidia_gpus())
     rgb, state = (plan_workers(cpus, n_gpus, renders) for renders in (True, False))
     out.append(Check("gpu", "--num-procs auto", "info", f"cameras: {rgb.line()}; state: {state.line()}"))
+    why_not = group_rendering_unavailable()
+    k, why = plan_num_envs(n_gpus, True)
+    out.append(Check("gpu", "--num-envs auto", "info",
+                     f"cameras: {k} envs a process ({why}); one render call for K envs: "
+                     + ("available" if why_not is None else f"not here ({why_not}): each scene renders its own")))
     return out
 
 

@@ -9,9 +9,11 @@ A command prints its own errors in one line; one it lets through is printed the 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import signal
 import sys
-from typing import NoReturn
+from typing import Any, Iterator, NoReturn
 
 from rsb_maniskill.debug import DEBUG_ENV, debug_mode, print_error
 
@@ -53,7 +55,53 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Runs one command; returns its exit status (2 for a usage error, which argparse has printed)."""
+    """Runs one command; returns its exit status (2 for a usage error, which argparse has printed).
+
+    Ctrl-C at any point (start-up included) ends with "rsb: interrupted" and 130, no traceback; a
+    reader that stops reading (``rsb questions ... | head``) ends it quietly with 0, as unix tools do."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print("rsb: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        _quiet_stdout()
+        return 0
+
+
+@contextlib.contextmanager
+def _noting_sigint() -> Iterator[list[int]]:
+    """Ctrl-C raises KeyboardInterrupt as usual, and is noted in the list yielded: a library that
+    turns it into another error (matplotlib's "Invalid bounding box") cannot make it look like one."""
+    received: list[int] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        received.append(signum)
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread: leave Ctrl-C as it is
+        yield received
+        return
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _quiet_stdout() -> None:
+    """stdout's reader is gone: point it at /dev/null, so the exit's flush raises nothing more."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -62,14 +110,19 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    with debug_mode(args.debug):  # in the environment, for worker processes too
+    with debug_mode(args.debug), _noting_sigint() as received:  # debug: in the environment, for workers too
         try:
-            return int(args.func(args) or 0)
-        except KeyboardInterrupt:
-            print("rsb: interrupted", file=sys.stderr)
-            return 130
+            status = int(args.func(args) or 0)
+        except (KeyboardInterrupt, BrokenPipeError):
+            raise
         except Exception as err:  # noqa: BLE001  (a command let it through: one line, the traceback with --debug)
+            if received:  # Ctrl-C cut a library call short, which raised something else: say what happened
+                raise KeyboardInterrupt from None
             return print_error(args.command, err, 1, hint=True, unexpected=True)
+        if status not in (0, 130) and received:  # the command reported the cut-short call as an error
+            print(f"rsb {args.command}: the error above came from the interruption (Ctrl-C)", file=sys.stderr)
+            raise KeyboardInterrupt
+        return status
 
 
 if __name__ == "__main__":

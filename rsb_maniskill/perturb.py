@@ -81,6 +81,9 @@ def parse_perturb(value: Mapping[str, Any] | str | None) -> dict[str, int]:
             axis, sep, level = part.partition("=")
             if not sep:
                 raise PerturbError(f"perturbation {part!r} must look like AXIS=LEVEL (e.g. camera=2)")
+            if axis.strip() in items:
+                raise PerturbError(f"axis {axis.strip()!r} is given twice ({axis.strip()}={items[axis.strip()]} and "
+                                   f"{part}): give each axis one level")
             items[axis.strip()] = level.strip()
         value = items
     if not isinstance(value, Mapping):

@@ -10,6 +10,7 @@ from pathlib import Path
 from rsb_maniskill.outdirs import writable_dir
 from rsb_maniskill.semantic.counterfactual import MODE as COUNTERFACTUAL
 
+MAX_AUDIT_EPISODES = 200_000  # every audited episode is held (~8 kB each, measured): more would not fit in memory
 AUDIT_MODES = ("normal", COUNTERFACTUAL)  # the protocol episodes, their counterfactual variants
 
 
@@ -70,7 +71,7 @@ def _read_specs(paths: list[str]) -> dict[str, dict[str, list]]:
     for path in paths:
         p = Path(path)
         if not p.is_file():
-            raise ValueError(f"--specs: no such file {path}")
+            raise ValueError(f"--specs: {'not a regular file' if p.exists() else 'no such file'} {path}")
         with open(p, encoding="utf-8") as fh:
             for lineno, line in enumerate(fh, 1):
                 if not line.strip():
@@ -134,13 +135,22 @@ def cmd_audit(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         print("rsb audit: error: -n must be >= 1", file=sys.stderr)
         return 2
+    for flag, n in (("-n", args.episodes), ("--train-episodes", args.train_episodes or 0)):
+        if n > MAX_AUDIT_EPISODES:  # an audit holds every episode it reads: refuse before memory runs out
+            print(f"rsb audit: error: {flag} {n} is more than an audit can hold in memory (it keeps every episode "
+                  f"it audits); use at most {MAX_AUDIT_EPISODES:,}", file=sys.stderr)
+            return 2
     audits = []
     try:
         if args.out:
             _check_out(args.out)
         readers = _readers(args)
         if args.specs:
-            for suite_id, splits in sorted(_read_specs(args.specs).items()):
+            specs = _read_specs(args.specs)
+            if not specs:
+                raise ValueError(f"--specs {args.specs} holds no episodes: give a file of EpisodeSpec JSON lines "
+                                 "(e.g. `rsb questions RSB-Math-4 --json -n 100 > specs.jsonl`)")
+            for suite_id, splits in sorted(specs.items()):
                 if not splits.get(args.split):
                     raise ValueError(f"--specs: no {args.split}-split episodes of {suite_id}")
                 audits.append(audit_specs(suite_id, splits.get("train", []), splits[args.split], split=args.split,

@@ -55,18 +55,31 @@ def run(args: argparse.Namespace) -> int:
     from rsb_maniskill.evaluation.protocol import eval_seeds
     from rsb_maniskill.evaluation.store import RECORDS_FILE, read_records
     from rsb_maniskill.motionplan.generate import GenerateConfig, describe, generate
+    from rsb_maniskill.outdirs import writable_dir
     from rsb_maniskill.reporting.summary import markdown_tables, results_from_records
     from rsb_maniskill.reporting.writer import write_html_report, write_report
     from rsb_maniskill.sim.render import ensure_renderer
     from rsb_maniskill.version import BENCHMARK_VERSION
 
+    for flag, value in (("--demos", args.demos), ("--episodes", args.episodes)):
+        if value < 1:
+            print(f"rsb demo: error: {flag} must be >= 1 (a whole number of {flag[2:]} to make), got {value}",
+                  file=sys.stderr)
+            return 2
     try:
         (args.suite,) = resolve_env_ids([args.suite])
     except ValueError as err:
         print(f"rsb demo: error: --suite takes one suite: {err}", file=sys.stderr)
         return 2
-    ensure_renderer()
     out = Path(args.out)
+    try:  # every folder it writes, checked now, not after a minute of work
+        for sub in ("cameras", "demos", "eval"):
+            writable_dir(out / sub)
+    except OSError as err:
+        print(f"rsb demo: error: cannot write to {err.filename or out}: {err.strerror or err}; choose a writable "
+              "--out or fix its permissions", file=sys.stderr)
+        return 2
+    ensure_renderer()
 
     print(f"[1/3] cameras: {args.suite}, seed {args.seed}")
     env = gym.make(args.suite, obs_mode="rgb", render_mode="rgb_array")

@@ -18,6 +18,7 @@ import argparse
 import contextlib
 import signal
 import sys
+import unicodedata
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,7 @@ from rsb_maniskill.debug import print_error
 from rsb_maniskill.evaluation.store import ManifestError, RecordsError
 from rsb_maniskill.policies.errors import PolicyError
 
+POLICY_TIMEOUT_S = 300.0  # --policy-timeout's default: a policy call longer than this is taken for a hang
 SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0: the unperturbed run)
 
 
@@ -98,6 +100,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-steps", type=int, default=None,
                    help=f"step cap per episode (default: the task's {TASK_MAX_EPISODE_STEPS})")
     p.add_argument("--videos", type=int, default=0, metavar="K", help="mp4 of the first K episodes of each suite")
+    p.add_argument("--policy-timeout", type=float, default=POLICY_TIMEOUT_S, metavar="SECONDS",
+                   help=f"longest one policy call (factory, reset, act) may take before the run stops with a "
+                        f"policy error (default {POLICY_TIMEOUT_S:g}; 0: no limit). The episodes run in a worker "
+                        "process, which is killed when a call outlasts it")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     add_worker_args(p)  # --num-procs auto|N, --executor, --address
     p.set_defaults(func=run_eval)
@@ -189,22 +195,24 @@ def run_eval(args: argparse.Namespace) -> int:
 
 def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kwargs: dict, obs_mode: str,
               max_steps: int, env_kwargs: dict, out: Path, records_path: Path, num_procs: int,
-              executor: Any, perturbs: list[dict[str, int]]) -> None:
-    """Every suite x instruction mode x perturbation, one after the other."""
+              executor: Any, perturbs: list[dict[str, int]], stamp: dict[str, str]) -> None:
+    """Every suite x instruction mode x perturbation, one after the other; ``stamp``: the settings id
+    each record carries."""
     from rsb_maniskill.evaluation.jobs import EvalJob, run_job
-    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, eval_seeds
+    from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, eval_seed_range
 
     for suite in suites:
         for mode, perturb in ((m, p) for m in args.instruction for p in perturbs):
             job = EvalJob(perturb=perturb or None,
-                suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
+                suite_id=suite, seeds=eval_seed_range(suite, args.num_episodes), policy=args.policy,
                 label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
                 variants=args.variants if mode == COUNTERFACTUAL else None,
                 control_mode=args.control_mode, num_envs=args.num_envs, sim_backend=args.sim_backend,
                 max_steps=max_steps,
                 env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
-                num_videos=args.videos)
-            run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor)
+                num_videos=args.videos, policy_timeout=args.policy_timeout or None)
+            run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor, isolate=True,
+                    stamp=stamp)
 
 
 def _print_counterfactual(records: list[dict]) -> None:
@@ -221,7 +229,14 @@ def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.evaluation.jobs import JobError
     from rsb_maniskill.evaluation.protocol import eval_seeds
-    from rsb_maniskill.evaluation.store import RECORDS_FILE, RunStart, check_manifest, read_records
+    from rsb_maniskill.evaluation.store import (
+        RECORDS_FILE,
+        SETTINGS_FIELD,
+        RunStart,
+        check_manifest,
+        read_records,
+        settings_id,
+    )
     from rsb_maniskill.parallel.plan import executor_from_args, obs_mode_renders, resolve_num_envs, resolve_workers
     from rsb_maniskill.policies.registry import policy_spec
     from rsb_maniskill.version import BENCHMARK_VERSION
@@ -234,6 +249,8 @@ def _run_eval(args: argparse.Namespace) -> int:
             raise EvalError(f"{flag} must be >= {low}, got {value}")
     if args.max_steps is not None and args.max_steps < 1:
         raise EvalError(f"--max-steps must be >= 1, got {args.max_steps}")
+    if not args.policy_timeout >= 0:  # NaN too
+        raise EvalError(f"--policy-timeout must be >= 0 seconds (0: no limit), got {args.policy_timeout}")
     if gpu_physics and args.num_envs is None:
         raise EvalError(f"--num-envs auto picks CPU envs a process; with -b {GPU_SIM_BACKEND} give --num-envs K")
     if gpu_physics and (args.num_envs or 1) > 1 and (args.num_procs or 1) > 1 and args.executor == "local":
@@ -277,7 +294,8 @@ def _run_eval(args: argparse.Namespace) -> int:
         except (ValueError, ConnectionError) as err:
             raise EvalError(str(err)) from err
 
-    label = args.name or args.policy
+    # one spelling of a name: "é" typed as one code point or as e + accent names the same row and folder
+    label = unicodedata.normalize("NFC", args.name or args.policy)
     out = results_dir(args.out, label)
     max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
     settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
@@ -298,7 +316,7 @@ def _run_eval(args: argparse.Namespace) -> int:
                                               gpu_physics=gpu_physics)
         try:
             _run_jobs(args, suites, label, policy_kwargs, obs_mode, max_steps, env_kwargs, out, records_path,
-                      num_procs, executor, perturbs)
+                      num_procs, executor, perturbs, {SETTINGS_FIELD: settings_id(settings, MANIFEST_KEYS)})
         except KeyboardInterrupt:
             interrupted = True
         except (PolicyError, JobError):

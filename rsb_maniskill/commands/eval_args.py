@@ -225,6 +225,8 @@ def results_dir(out: str | None, label: str) -> Path:
     """The results directory, made and checked writable now: ``--out``, else ``results/<label>``
     (the label as a safe name)."""
     path = Path(out) if out else RESULTS_ROOT / safe_name(label)
+    if path.exists() and not path.is_dir():
+        raise EvalError(f"results directory {path} is a file, not a directory; choose another --out")
     try:
         writable_dir(path)
     except OSError as err:

@@ -67,14 +67,25 @@ def register(subparsers) -> None:
     r.set_defaults(func=run_replay)
 
 
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
 def run_generate(args: argparse.Namespace) -> int:
+    import signal
+
     try:
         executor = executor_from_args(args.executor, args.address)
     except (ValueError, ImportError) as err:
         print(f"rsb generate: error: {err}", file=sys.stderr)
         return 2
-    with executor or contextlib.nullcontext():
-        return _generate(args, executor)
+    # SIGTERM before the workers' own guard is up (start-up) stops the run like Ctrl-C, not silently
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        with executor or contextlib.nullcontext():
+            return _generate(args, executor)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _generate(args: argparse.Namespace, executor: Any) -> int:

@@ -16,20 +16,21 @@ from __future__ import annotations
 import os
 import traceback
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from rsb_maniskill.env_ids import CPU_SIM_BACKEND
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED, record_episode
 from rsb_maniskill.evaluation.records import perturb_label as record_perturb
 from rsb_maniskill.evaluation.runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
-from rsb_maniskill.parallel.pool import Executor, InProcess, Interrupted, ProcessPool, deal
+from rsb_maniskill.parallel.pool import Executor, InProcess, Interrupted, ProcessPool, deal, watched
 from rsb_maniskill.perturb import label as perturb_label
-from rsb_maniskill.policies.errors import PolicyError, blame_policy, first_line
+from rsb_maniskill.policies.errors import PolicyError, blame_policy, first_line, policy_call_label, stuck_call_error
 from rsb_maniskill.policies.interface import is_batched, policy_name
 from rsb_maniskill.policies.registry import load_policy, policy_spec
 
 Write = Callable[[dict], None]
+RUN_BATCH = 100_000  # episodes left are run this many at a time when they are not one plain range
 
 
 class JobError(RuntimeError):
@@ -120,31 +121,52 @@ def job_records(out_path: str | os.PathLike, settings: EpisodeSettings) -> list[
 
 
 def drive(settings: EpisodeSettings, out_path: str | os.PathLike, run: Callable[[list[int], Write], None],
-          progress: bool = True) -> list[dict]:
+          progress: bool = True, stamp: Mapping[str, Any] | None = None) -> list[dict]:
     """Resume, write and show one evaluation: ``run(todo, write)`` runs the episodes not yet recorded
     (seeds; in counterfactual mode (seed, variant) pairs: resumed variant by variant).
 
-    Reads ``out_path`` once; ``write`` appends a record (durably) and advances the bar. Returns every
+    Reads ``out_path`` once; ``write`` appends a record (durably, with the ``stamp`` fields: the
+    settings id ``rsb eval`` checks on resume) and advances the bar. Returns every
     record of this label / suite / mode in file order, old and new.
     """
     records = job_records(out_path, settings)
     done = {record_episode(r) for r in records}
     episodes = settings.episodes()
-    todo = [e for e in episodes if e not in done]
-    if not todo:
+    members = episodes if isinstance(episodes, range) else set(episodes)
+    n_done = sum(1 for e in done if e in members)
+    if n_done >= len(episodes):
         return records
     mode = settings.instruction_mode + (f", {perturb_label(settings.perturb)}" if settings.perturb else "")
-    bar = ProgressBar(settings.label, settings.suite_id, mode, len(episodes), len(episodes) - len(todo), progress)
+    bar = ProgressBar(settings.label, settings.suite_id, mode, len(episodes), n_done, progress)
     try:
         with RecordWriter(out_path) as writer:
             def write(record: dict) -> None:
-                records.append(writer.write(record))
+                records.append(writer.write({**record, **stamp} if stamp else record))
                 bar.add(record)
 
-            run(todo, write)
+            for todo in _batches(episodes, done, RUN_BATCH):
+                run(todo, write)
     finally:
         bar.close()
     return records
+
+
+def _batches(episodes: Sequence[Any], done: set, size: int) -> Iterator[Sequence[Any]]:
+    """The episodes not in ``done``, in order, ``size`` at a time: a range without done ones stays a
+    range (one batch, nothing listed), else lists of at most ``size``: memory follows the work in
+    flight, not ``-n``."""
+    if isinstance(episodes, range) and not any(e in episodes for e in done):
+        yield episodes
+        return
+    batch: list[Any] = []
+    for e in episodes:
+        if e not in done:
+            batch.append(e)
+            if len(batch) >= size:
+                yield batch
+                batch = []
+    if batch:
+        yield batch
 
 
 def run_episodes(
@@ -198,7 +220,8 @@ def run_episodes(
 
 
 def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progress: bool = True,
-            executor: Executor | None = None) -> list[dict]:
+            executor: Executor | None = None, isolate: bool = False,
+            stamp: Mapping[str, Any] | None = None) -> list[dict]:
     """Run the seeds of ``job`` not yet in ``out_path``; returns all of the job's records.
 
     The seeds left are dealt round-robin to ``num_procs`` spawned workers (or to ``num_procs`` tasks
@@ -208,20 +231,29 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
     (from a worker process too), any other failure a :class:`JobError`; the finished episodes are
     kept either way. A signal stops the workers and raises
     :class:`~rsb_maniskill.parallel.pool.Interrupted`, a KeyboardInterrupt.
+
+    ``isolate``: run even a single worker in a spawned process (what ``rsb eval`` does), so that a
+    policy that exits the process, crashes in native code or outlasts ``job.policy_timeout`` in a
+    blocking call ends in a PolicyError, not in a silent exit or a hang. In this process a policy
+    call cannot be interrupted (a signal cannot stop a blocking C call; ``os._exit`` cannot be caught).
     """
     if job.num_envs > 1 and not job.cpu_vector and policy_spec(job.policy).single_env:
         raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs, "
                          "or the CPU backend's vector env")
 
     def run(todo: list[int], write: Write) -> None:
-        # parallel GPU envs run in this process, or one shard per GPU task of an executor; CPU vector
+        # parallel GPU envs run in one process, or one shard per GPU task of an executor; CPU vector
         # envs, num_envs to each of num_procs workers
         gpu_envs = job.num_envs > 1 and not job.cpu_vector
         shards = deal(todo, 1 if gpu_envs and executor is None else num_procs)
-        chosen = executor or (ProcessPool() if len(shards) > 1 else InProcess())
+        chosen = executor or (ProcessPool() if len(shards) > 1 or isolate else InProcess())
         outcome = chosen.run(run_shard, [(job, shard) for shard in shards], write)
         if outcome.interrupted:
             raise Interrupted(outcome.interrupted)
+        stuck = [t for t in outcome.tasks if getattr(t, "stuck", None)]
+        if stuck:  # a policy call that hung (killed at its limit) or ended its worker
+            t = stuck[0]
+            raise stuck_call_error(t.stuck, job.label, timeout_s=t.timed_out, exit_code=t.exit_code)
         failed = [t.result for t in outcome.tasks if isinstance(t.result, BaseException)]
         if failed:  # the first worker's error, whole (the others' are most likely the same)
             raise failed[0]
@@ -231,7 +263,7 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
             raise JobError(f"{len(errors)} of {len(shards)} evaluation workers failed on {job.suite_id}; worker "
                            f"{first}: {first_line(errors[first])}", detail=errors[first])
 
-    return drive(job, out_path, run, progress)
+    return drive(job, out_path, run, progress, stamp)
 
 
 def _load_policies(job: EvalJob, env: Any) -> Any:
@@ -259,10 +291,14 @@ def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> BaseException | 
     except Exception as err:  # noqa: BLE001  (reported by the driver, in one line)
         settings = ", ".join(f"{k}={v!r}" for k, v in (("obs_mode", job.obs_mode), ("control_mode", job.control_mode),
                                                          *job.env_kwargs.items()) if v is not None)
+        from rsb_maniskill.sim.render import renderer_hint
+
+        hint = renderer_hint(str(err))
         return JobError(f"cannot build the env {job.suite_id} ({settings}): {type(err).__name__}: "
-                        f"{first_line(str(err))}", detail=traceback.format_exc())
+                        f"{first_line(str(err))}{f'; {hint}' if hint else ''}", detail=traceback.format_exc())
     try:
-        with blame_policy("building it", policy=job.label, where=job.suite_id):
+        with watched(policy_call_label("building it", job.suite_id), job.policy_timeout), \
+                blame_policy("building it", policy=job.label, where=job.suite_id):
             policy = _load_policies(job, env)
         if job.num_envs > 1:
             batched_loop(env, policy, job, seeds, write)

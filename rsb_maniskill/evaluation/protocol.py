@@ -49,11 +49,17 @@ def eval_seeds(suite_id: str, n: int = EPISODES_PER_SUITE) -> list[int]:
     The first n of a longer run are the same episodes, so a 100-episode smoke test is a prefix of
     the full 500-episode evaluation.
     """
+    return list(eval_seed_range(suite_id, n))
+
+
+def eval_seed_range(suite_id: str, n: int = EPISODES_PER_SUITE) -> range:
+    """:func:`eval_seeds` as a ``range``: what ``rsb eval`` hands the runner, so that ``-n`` costs no
+    memory (the seeds are made as they are run, never listed)."""
     if split_env_id(suite_id)[0] not in SUITE_IDS:
         raise ValueError(f"unknown suite id {suite_id!r}; valid ids: {', '.join(SUITE_IDS)} (and each with -Objects)")
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
-    return [EVAL_SEED_BASE + i for i in range(n)]
+    return range(EVAL_SEED_BASE, EVAL_SEED_BASE + n)
 
 
 def scene_variants(suite_id: str, variants: int | None = None) -> int:
@@ -65,11 +71,12 @@ def scene_variants(suite_id: str, variants: int | None = None) -> int:
     return check_variants(default_variants(n) if variants is None else variants, n)
 
 
-def mode_episodes(seeds: Sequence[int], mode: str, variants: int | None = None) -> list[Episode]:
+def mode_episodes(seeds: Sequence[int], mode: str, variants: int | None = None) -> Sequence[Episode]:
     """The episodes an instruction mode runs on ``seeds``: the seeds themselves, or in counterfactual
-    mode variants 0..K-1 of each, ``(seed, k)``, the variants of a scene one after the other."""
+    mode variants 0..K-1 of each, ``(seed, k)``, the variants of a scene one after the other. A
+    ``range`` of seeds stays a range (lazy)."""
     if mode != COUNTERFACTUAL:
-        return [int(s) for s in seeds]
+        return seeds if isinstance(seeds, range) else [int(s) for s in seeds]
     if variants is None:
         raise ValueError("counterfactual mode needs K, the variants per scene (protocol.scene_variants)")
     return [(int(s), k) for s in seeds for k in range(int(variants))]

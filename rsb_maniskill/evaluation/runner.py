@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import os
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -38,9 +39,10 @@ from rsb_maniskill.evaluation.protocol import (
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, EVAL_INSTRUCTION_MODES, build_record, perturb_fields
 from rsb_maniskill.evaluation.statements import EpisodeText
 from rsb_maniskill.evaluation.store import safe_name
+from rsb_maniskill.parallel.pool import watched
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.perturb import parse_perturb
-from rsb_maniskill.policies.errors import blame_policy, episode_where
+from rsb_maniskill.policies.errors import blame_policy, episode_where, policy_call_label
 from rsb_maniskill.policies.interface import (
     PerEnvPolicies,
     as_chunk,
@@ -64,7 +66,7 @@ class EpisodeSettings:
     """
 
     suite_id: str
-    seeds: tuple[int, ...]
+    seeds: tuple[int, ...] | range  # a range (rsb eval's) is kept as it is: lazy
     label: str  # the records' ``policy`` field and the table row
     instruction_mode: str = "normal"  # normal, blank ("" for the policy), shuffled (another episode's), counterfactual
     # counterfactual mode: K variants of each scene (default min(N, 4)); episodes() are (seed, variant)
@@ -83,9 +85,14 @@ class EpisodeSettings:
     render_every_step: bool = False
     # Robustness axes of the env, {axis: level} (rsb_maniskill.perturb); records carry them.
     perturb: Mapping[str, int] | None = None
+    # Seconds one policy call (factory, reset, act) may take before its worker process is killed and
+    # the run ends with a PolicyError (None or 0: no limit). Enforced where the loop runs in a
+    # ProcessPool worker (rsb eval always runs it there), not in this process.
+    policy_timeout: float | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+        if not isinstance(self.seeds, range):  # a range stays one: -n costs no memory
+            object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
         object.__setattr__(self, "perturb", parse_perturb(self.perturb) or None)
         if self.instruction_mode not in EVAL_INSTRUCTION_MODES:
             raise ValueError(f"instruction_mode must be one of {EVAL_INSTRUCTION_MODES}, "
@@ -94,12 +101,12 @@ class EpisodeSettings:
             object.__setattr__(self, "variants", scene_variants(self.suite_id, self.variants))
         elif self.variants is not None:
             raise ValueError("variants are counterfactual mode's (instruction_mode='counterfactual')")
-        if len(set(self.seeds)) != len(self.seeds):
+        if not isinstance(self.seeds, range) and len(set(self.seeds)) != len(self.seeds):
             raise ValueError("seeds contain duplicates")
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
 
-    def episodes(self) -> list[Episode]:
+    def episodes(self) -> Sequence[Episode]:
         """What the loops run: the seeds, or in counterfactual mode each seed's variants, (seed, k)."""
         return mode_episodes(self.seeds, self.instruction_mode, self.variants)
 
@@ -287,10 +294,14 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                               said=said))
 
 
-def _blamed(settings: EpisodeSettings, call: str, seeds: Sequence[int]) -> Any:
-    """The policy's ``call`` on ``seeds``: what goes wrong in it is a PolicyError naming the episode."""
-    return blame_policy(call, policy=settings.label, where=episode_where(settings.suite_id, seeds,
-                                                                          settings.instruction_mode))
+@contextmanager
+def _blamed(settings: EpisodeSettings, call: str, seeds: Sequence[int]) -> Iterator[None]:
+    """The policy's ``call`` on ``seeds``: what goes wrong in it is a PolicyError naming the episode;
+    in a worker process, a call that outlasts ``settings.policy_timeout`` or ends the process is too."""
+    where = episode_where(settings.suite_id, seeds, settings.instruction_mode)
+    with watched(policy_call_label(call, where), settings.policy_timeout), \
+            blame_policy(call, policy=settings.label, where=where):
+        yield
 
 
 def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:

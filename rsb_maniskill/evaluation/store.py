@@ -261,6 +261,32 @@ def _has_records(out: Path, section: str, label: str, records: list[dict]) -> bo
     return any(r.get("backbone") == label for r in read_backbone_records(out / BACKBONE_FILE))
 
 
+SETTINGS_FIELD = "settings_id"  # in each record of rsb eval: the digest of the settings it ran with
+
+
+def settings_id(settings: Mapping[str, Any], keys: tuple[str, ...]) -> str:
+    """A short digest of a row's ``keys`` settings: each record carries it (``SETTINGS_FIELD``), so
+    a resume checks the records it extends even when ``MANIFEST_FILE`` is gone."""
+    import hashlib
+
+    text = json.dumps({k: settings.get(k) for k in keys}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _check_record_settings(out: Path, label: str, settings: Mapping[str, Any], keys: tuple[str, ...], section: str,
+                           records: list[dict]) -> None:
+    """The settings id the records of ``label`` carry against these settings' (what a resume checks
+    when ``MANIFEST_FILE`` has no row for them, or one that was edited): ManifestError, one line."""
+    if section == "runs":
+        wanted = settings_id(settings, keys)
+        other = [r for r in records if r.get("policy") == label and r.get(SETTINGS_FIELD) not in (None, wanted)]
+        if other:
+            raise ManifestError(f"{out / RECORDS_FILE} holds {len(other)} episodes of {label!r} run with other "
+                                f"settings than these ({', '.join(keys)}: settings id {other[0][SETTINGS_FIELD]} "
+                                f"there, {wanted} now). Use the same settings to resume, or another --out / --name "
+                                "for a new run.")
+
+
 def check_manifest(out: Path, label: str, settings: Mapping[str, Any], *, keys: tuple[str, ...],
                    section: str = "runs") -> str | None:
     """Record this row's settings in ``MANIFEST_FILE`` (under ``section``: ``runs`` for policies,
@@ -284,12 +310,14 @@ def check_manifest(out: Path, label: str, settings: Mapping[str, Any], *, keys: 
     if old is not None:
         diff = [k for k in keys if old.get(k) != settings.get(k)]
         if not diff:
+            _check_record_settings(out, label, settings, keys, section, records)
             return None
         shown = ", ".join(f"{k}: {old.get(k)!r} before, {settings.get(k)!r} now" for k in diff)
         if _has_records(out, section, label, records):
             raise ManifestError(f"{out} already holds episodes of {label!r} run with other settings ({shown}). "
                                 "Use the same settings to resume, or another --out / --name for a new run.")
         note = f"{path}: {label!r} was started with other settings and recorded nothing; replaced ({shown})"
+    _check_record_settings(out, label, settings, keys, section, records)
     manifest[section][label] = {**settings, "rsb_version": package_version(), "code_commit": code_commit()}
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(manifest, indent=2) + "\n")

@@ -18,6 +18,7 @@ import h5py
 from rsb_maniskill.outdirs import probe_writable
 
 TMP_TAG = ".tmp"
+MAX_OPEN_INPUTS = 64  # a merge keeps at most this many input files open
 
 
 class DatasetError(RuntimeError):
@@ -36,6 +37,45 @@ def temp_h5_path(final_h5: str | os.PathLike, tag: str = "") -> Path:
     """Hidden temp name in the same directory (same file system, so rename is atomic)."""
     p = Path(final_h5)
     return p.with_name(f".{p.stem}{TMP_TAG}{os.getpid()}{tag}.h5")
+
+
+RESUME_SETTINGS = "settings.json"  # in a resume folder: what the interrupted run was asked for
+RESUME_LOCK = "lock"  # in a resume folder: held (flock) by the run writing into it
+DEMO_PREFIX = "demo"  # a kept demo in a resume folder: demo<seed>.h5 + .json, one episode each
+
+
+def resume_dir_of(final_h5: str | os.PathLike) -> Path:
+    """The hidden folder where a run toward ``final_h5`` keeps each finished demo as it ends
+    (``.<stem>.partial``): what an interrupted run leaves, and what the same command resumes from."""
+    p = Path(final_h5)
+    return p.with_name(f".{p.stem}.partial")
+
+
+def demo_path(resume_dir: str | os.PathLike, seed: int) -> Path:
+    return Path(resume_dir) / f"{DEMO_PREFIX}{int(seed):010d}.h5"
+
+
+def resume_demos(resume_dir: str | os.PathLike) -> dict[int, Path]:
+    """The finished demos of a resume folder, by seed, after removing what a killed run left half
+    written (temp files, a json without its h5). A demo pair is renamed into place whole (json
+    first, h5 last), so an h5 there always has its json."""
+    d = Path(resume_dir)
+    demos: dict[int, Path] = {}
+    for p in sorted(d.iterdir()) if d.is_dir() else []:
+        name = p.name
+        if name in (RESUME_SETTINGS, RESUME_LOCK):
+            continue
+        if name.startswith(DEMO_PREFIX) and name.endswith(".h5") and json_path_of(p).exists():
+            try:
+                demos[int(name[len(DEMO_PREFIX):-3])] = p
+                continue
+            except ValueError:
+                pass
+        if name.startswith(DEMO_PREFIX) and name.endswith(".json") and p.with_suffix(".h5").exists():
+            continue
+        if p.is_file() or p.is_symlink():
+            p.unlink()
+    return demos
 
 
 def existing_outputs(h5_path: str | os.PathLike) -> list[Path]:
@@ -176,6 +216,16 @@ def merge_pairs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike, 
     if not inputs:
         raise DatasetError("nothing to merge: no input files")
     json_path_of(output)
+    seen: dict[Path, str] = {}
+    for path in inputs:
+        real = Path(path).resolve()
+        if real in seen:
+            raise DatasetError(f"{path} is given twice (also as {seen[real]}): its episodes would be duplicated; "
+                               "name each input once")
+        seen[real] = str(path)
+    if output.resolve() in seen:
+        raise DatasetError(f"--out {output} is one of the inputs: merging a file into itself would duplicate its "
+                           "episodes; write to a new path")
     if existing_outputs(output) and not overwrite:
         raise DatasetError(f"{output} exists; pass --overwrite to replace it")
     sources = []  # (input path, episode entry)
@@ -189,6 +239,12 @@ def merge_pairs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike, 
                                f"({_env_signature(data['env_info'])} vs {_env_signature(first['env_info'])}); "
                                "only datasets of the same env and env kwargs can be merged")
         sources.extend((Path(path), ep) for ep in data["episodes"])
+    by_seed: dict[object, Path] = {}
+    for path, ep in sources:
+        seed = ep.get("episode_seed")
+        if seed is not None and by_seed.setdefault(seed, path) != path:
+            raise DatasetError(f"episode seed {seed} is in both {by_seed[seed]} and {path}: the same demo twice "
+                               "(a file copied, a shard merged twice); merge each demo once")
     if sort_key is not None:
         sources.sort(key=lambda s: sort_key(s[1]))
     merged = {k: v for k, v in first.items() if k != "episodes"}
@@ -200,6 +256,8 @@ def merge_pairs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike, 
     try:
         with h5py.File(tmp, "w") as out:
             for new_id, (path, ep) in enumerate(sources):
+                if path not in handles and len(handles) >= MAX_OPEN_INPUTS:  # many one-demo files: few open
+                    handles.pop(next(iter(handles))).close()
                 src = handles.get(path) or handles.setdefault(path, h5py.File(path, "r"))
                 src.copy(src[f"traj_{ep['episode_id']}"], out, f"traj_{new_id}")
                 merged["episodes"].append({**ep, "episode_id": new_id})

@@ -10,16 +10,23 @@ The run, in the order it happens, and where each part lives:
 - the request (:mod:`.config`) is checked before any file is written;
 - the shard's seeds or questions are dealt to workers by arithmetic (:mod:`.shards`);
 - the workers (:mod:`.worker`) run in this process, in spawned ones, or as Ray tasks
-  (:mod:`rsb_maniskill.parallel.pool`, the executors evaluation uses too), each into a part file under
-  a hidden temp name, reporting every episode to the progress bar here;
-- the parts are merged (sorted by seed, or by question) into the final file, renamed into place,
-  with an ``rsb`` block saying how it was made (:mod:`.summary`).
+  (:mod:`rsb_maniskill.parallel.pool`, the executors evaluation uses too), each saving every kept
+  demo as its own pair in a hidden resume folder (``.<name>.partial``) as it ends, and reporting
+  every episode to the progress bar here;
+- the demos are merged (sorted by seed, or by question) into the final file, renamed into place,
+  with an ``rsb`` block saying how it was made (:mod:`.summary`); the resume folder goes.
 
-SIGINT / SIGTERM stop the run between episodes and finalise a valid dataset of the episodes
-completed so far.
+SIGINT / SIGTERM stop the run between episodes (kill -9 anywhere): the finished demos stay in the
+resume folder and the same command continues from them, skipping their seeds; a killed run's
+half-written files are removed then. Every seed is a fresh scene, so the demos are those an
+uninterrupted run keeps, byte for byte.
 """
 from __future__ import annotations
 
+import dataclasses
+import json
+import os
+import shutil
 import signal
 import sys
 import time
@@ -90,42 +97,145 @@ class _Progress:
         self.bar.close()
 
 
-def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateSummary:
-    """Runs the whole job: validate, run workers, merge their parts into the final file.
+def _finished(cfg: GenerateConfig, final: Path, pool_size: int, workers: int, requested: int) -> dict | None:
+    """The ``rsb`` block of ``final`` when it is the complete output of this very request (the same
+    command run again: nothing to do), else None."""
+    try:
+        have = dataset.check_pair(final).get("rsb") or {}
+    except (dataset.DatasetError, OSError):
+        return None
+    want = rsb_header(cfg, pool_size, workers, requested, [])["rsb"]
+    same = ("env_id", "split", "pool_size", "obs_mode", "mode", "questions", "seed_start", "shard", "num_procs",
+            "max_attempts", "requested", "expert", "env_kwargs_extra", "benchmark_version")
+    if have.get("complete") and all(json.dumps(have.get(k)) == json.dumps(want.get(k)) for k in same):
+        return have
+    return None
 
-    ``executor`` runs the workers (e.g. a :class:`~rsb_maniskill.parallel.ray_pool.RayExecutor`, whose
-    machines must see ``cfg.out``); default: this process for one worker, else a process pool."""
+
+def _resume_settings(cfg: GenerateConfig) -> dict:
+    """What a resumed run must share with the run it continues (the demos it would keep)."""
+    keep = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("progress", "verbose", "overwrite")}
+    return json.loads(json.dumps(keep))
+
+
+def _lock_resume(resume: Path, final: Path, overwrite: bool) -> Any:
+    """Holds the resume folder for this run (an flock, released even by kill -9): a second
+    ``rsb generate`` onto the same output is refused, instead of removing the first one's files.
+    ``overwrite``: the folder is emptied first. Returns the open lock file (close it to release)."""
+    import fcntl
+
+    resume.mkdir(exist_ok=True)
+    handle = open(resume / dataset.RESUME_LOCK, "a")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        raise GenerateError(f"another rsb generate is writing {final} (its demos are in {resume}); wait for it to "
+                            "end, or choose another --out / --traj-name") from None
+    if overwrite:
+        for old in resume.iterdir():
+            if old.name != dataset.RESUME_LOCK:
+                shutil.rmtree(old) if old.is_dir() else old.unlink()
+    return handle
+
+
+def _remove_stale_temps(final: Path) -> None:
+    """Temp files of ``final`` a killed run left next to it (a merge cut short, the part files of
+    older versions): only this run, holding the resume folder's lock, writes there."""
+    for stale in final.parent.glob(f".{final.stem}{dataset.TMP_TAG}*"):
+        if stale.is_file():
+            stale.unlink()
+
+
+def _open_resume(cfg: GenerateConfig, resume: Path) -> dict[int, Path]:
+    """The demos an interrupted run of the same request kept in ``resume`` (the folder is made, or
+    cleaned of half-written files); GenerateError when that run was asked for something else."""
+    settings_path = resume / dataset.RESUME_SETTINGS
+    wanted = _resume_settings(cfg)
+    if settings_path.exists():
+        try:
+            had = json.loads(settings_path.read_text())
+        except (OSError, ValueError):
+            had = None
+        if had != wanted:
+            diff = sorted(k for k in set(wanted) | set(had or {}) if (had or {}).get(k) != wanted.get(k))
+            shown = ", ".join(f"{k}: {(had or {}).get(k)!r} before, {wanted.get(k)!r} now" for k in diff[:3])
+            raise GenerateError(f"{resume} holds the demos of an interrupted run with other settings ({shown}); "
+                                "rerun that command to continue it, or pass --overwrite to start over")
+        return dataset.resume_demos(resume)
+    for stale in resume.iterdir():  # no settings: a run killed before it wrote them; nothing to keep
+        if stale.name != dataset.RESUME_LOCK:
+            stale.unlink()
+    tmp = resume / f".{dataset.RESUME_SETTINGS}.tmp{os.getpid()}"
+    tmp.write_text(json.dumps(wanted, indent=1))
+    os.replace(tmp, settings_path)
+    return {}
+
+
+def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateSummary:
+    """Runs the whole job: validate, run workers, merge their demos into the final file.
+
+    Each kept demo is saved as it ends in a hidden resume folder next to the output
+    (:func:`~rsb_maniskill.motionplan.dataset.resume_dir_of`); an interrupted or killed run leaves it
+    there and the same request continues from it (the demos are those an uninterrupted run keeps,
+    byte for byte). ``executor`` runs the workers (e.g. a
+    :class:`~rsb_maniskill.parallel.ray_pool.RayExecutor`, whose machines must see ``cfg.out``);
+    default: this process for one worker, else a process pool."""
     t0 = time.perf_counter()
     pool_size = _validate(cfg)
     final = output_path(cfg)
-    if dataset.existing_outputs(final) and not cfg.overwrite:
-        raise GenerateError(f"{final} exists; pass --overwrite to replace it (or choose another --out / --traj-name)")
     plans = plan_work(cfg, pool_size)
     requested = sum(p.wanted for p in plans)
+    if dataset.existing_outputs(final) and not cfg.overwrite:
+        done = _finished(cfg, final, pool_size, len(plans), requested)
+        if done is None:
+            raise GenerateError(f"{final} exists; pass --overwrite to replace it (or choose another --out / "
+                                "--traj-name)")
+        resume = dataset.resume_dir_of(final)
+        if resume.exists():  # killed between the final rename and the clean-up: its demos are in the file
+            _lock_resume(resume, final, overwrite=False).close()
+            shutil.rmtree(resume, ignore_errors=True)
+        _remove_stale_temps(final)
+        return GenerateSummary(final, requested, done["completed"], done["failures"], done["skipped_questions"],
+                               None, [], time.perf_counter() - t0, 0.0, 0.0, 0, already=True)
     if requested == 0:
         raise GenerateError("nothing to do: this shard owns no seeds / questions")
     try:
         created = dataset.check_writable_dir(final.parent)
     except dataset.DatasetError as err:
         raise GenerateError(str(err)) from err
+    resume = dataset.resume_dir_of(final)
+    lock = _lock_resume(resume, final, cfg.overwrite)
+    _remove_stale_temps(final)
+    try:
+        kept_before = _open_resume(cfg, resume)
+    except GenerateError:
+        lock.close()
+        dataset.remove_empty_dirs(created)
+        raise
     video_dir = None
     if cfg.save_video:
         video_dir = final.parent / "videos" / final.name.split(".")[0]
         video_dir.mkdir(parents=True, exist_ok=True)
-    parts = {p.worker: dataset.temp_h5_path(final, f".part{p.worker}") for p in plans}
-    path = None
+    parts = {p.worker: resume / f".work{p.worker}{dataset.TMP_TAG}{os.getpid()}.h5" for p in plans}
+    path, summaries, interrupted = None, [], False
     try:
-        summaries = _run_workers(cfg, plans, parts, video_dir, requested, executor)
+        summaries = _run_workers(cfg, plans, parts, video_dir, requested, executor, resume, sorted(kept_before))
         header = rsb_header(cfg, pool_size, len(plans), requested, summaries)
         errors = [s["error"] for s in summaries if s["error"]]
-        completed = sum(s["kept"] for s in summaries)
-        if completed:
-            errors += _merge_parts(cfg, parts, summaries, final, pool_size, header)
+        interrupted = header["rsb"]["interrupted"] is not None
+        demos = dataset.resume_demos(resume)
+        completed = len(demos)
+        if completed and not interrupted:
+            errors += _merge_demos(cfg, demos, final, pool_size, header)
             path = final
     finally:
         for part in parts.values():
             dataset.remove_pair(part)
-        if path is None:
+        if not interrupted:  # done (or failed): the demos are in the final file, or there were none
+            shutil.rmtree(resume, ignore_errors=True)
+        lock.close()
+        if path is None and not interrupted:
             if video_dir is not None:
                 dataset.remove_empty_dirs([video_dir, video_dir.parent])
             dataset.remove_empty_dirs(created)
@@ -133,24 +243,26 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
     return GenerateSummary(path, requested, completed, rsb["failures"], rsb["skipped_questions"],
                            rsb["interrupted"], errors, time.perf_counter() - t0,
                            sum(s["plan_time"] for s in summaries), sum(s["sim_time"] for s in summaries),
-                           sum(s["kept_steps"] for s in summaries))
+                           sum(s["kept_steps"] for s in summaries),
+                           resume_dir=resume if interrupted and completed else None)
 
 
-def run_plan(task: tuple[GenerateConfig, WorkPlan, str, str | None], emit: Any) -> dict:
+def run_plan(task: tuple[GenerateConfig, WorkPlan, str, str | None, str, list[int]], emit: Any) -> dict:
     """Executor target: one worker's share (the simulator is imported here, not by this module)."""
     from rsb_maniskill.motionplan.worker import run_worker
 
-    cfg, plan, part, video_dir = task
-    return run_worker(cfg, plan, part, video_dir, emit)
+    cfg, plan, part, video_dir, resume, done = task
+    return run_worker(cfg, plan, part, video_dir, emit, resume_dir=resume, done=set(done))
 
 
 def _run_workers(cfg: GenerateConfig, plans: list[WorkPlan], parts: dict[int, Path], video_dir: Path | None,
-                 requested: int, executor: Executor | None = None) -> list[dict]:
+                 requested: int, executor: Executor | None, resume: Path, done: list[int]) -> list[dict]:
     """Runs the workers (in this process when there is one) behind a progress bar; their summaries."""
     from rsb_maniskill.motionplan.worker import worker_summary
 
     progress = _Progress(requested, cfg.progress, cfg.verbose)
-    tasks = [(cfg, p, str(parts[p.worker]), str(video_dir) if video_dir else None) for p in plans]
+    tasks = [(cfg, p, str(parts[p.worker]), str(video_dir) if video_dir else None, str(resume), done)
+             for p in plans]
     try:
         try:
             chosen = executor or (InProcess() if len(plans) == 1 else ProcessPool())
@@ -175,25 +287,25 @@ def _run_workers(cfg: GenerateConfig, plans: list[WorkPlan], parts: dict[int, Pa
     return summaries
 
 
-def _merge_parts(cfg: GenerateConfig, parts: dict[int, Path], summaries: list[dict], final: Path, pool_size: int,
+def _merge_demos(cfg: GenerateConfig, demos: dict[int, Path], final: Path, pool_size: int,
                  header: dict) -> list[str]:
-    """Merges the readable parts into ``final``; returns errors about parts that had demos but are unreadable."""
+    """Merges the kept demos into ``final``; returns errors about demos that are unreadable."""
     from rsb_maniskill.parallel.pool import InterruptGuard
 
     errors = []
     with InterruptGuard() as guard:  # finishing up: a late signal must not cut the merge short
         guard.disarm()
-        valid_parts = []
-        for k in sorted(parts):
+        valid = []
+        for seed in sorted(demos):
             try:
-                dataset.check_pair(parts[k])
-                valid_parts.append(parts[k])
+                dataset.check_pair(demos[seed])
+                valid.append(demos[seed])
             except (dataset.DatasetError, OSError) as err:
-                if any(s["kept"] for s in summaries if s["worker"] == k):
-                    errors.append(f"part {parts[k].name} unreadable: {err}")
+                errors.append(f"demo {demos[seed].name} unreadable: {err}")
         if cfg.questions is not None:
             key = lambda ep: (ep["episode_seed"] % pool_size, ep["episode_seed"])  # noqa: E731
         else:
             key = lambda ep: ep["episode_seed"]  # noqa: E731
-        dataset.merge_pairs(valid_parts, final, overwrite=True, sort_key=key, header=header)
+        if valid:
+            dataset.merge_pairs(valid, final, overwrite=True, sort_key=key, header=header)
     return errors

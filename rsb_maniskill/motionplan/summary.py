@@ -24,6 +24,8 @@ class GenerateSummary:
     plan_time: float
     sim_time: float
     kept_steps: int
+    resume_dir: Path | None = None  # an interrupted run's finished demos, which the same command continues from
+    already: bool = False  # the output was there, complete, from the same request: nothing was run
 
     @property
     def exit_code(self) -> int:
@@ -74,8 +76,13 @@ def describe(summary: GenerateSummary) -> str:
     """Human summary printed at the end of ``rsb generate``."""
     lines = []
     tried = summary.completed + len(summary.failures)
+    if summary.already:
+        return (f"{summary.path} holds the {summary.completed} demos of this request already (complete); nothing to "
+                "do (--overwrite makes them again)")
     if summary.path:
         lines.append(f"wrote {summary.completed} demos to {summary.path} (+ {summary.path.with_suffix('.json').name})")
+    elif summary.interrupted:
+        lines.append("no output file yet")
     else:
         lines.append("no demos completed; no output written")
     if tried:
@@ -89,8 +96,9 @@ def describe(summary: GenerateSummary) -> str:
         lines.append(f"{len(summary.skipped_questions)} questions got no demo after --max-attempts seeds: "
                      f"{summary.skipped_questions[:20]}{' ...' if len(summary.skipped_questions) > 20 else ''}")
     if summary.interrupted:
-        lines.append(f"interrupted by {summary.interrupted}: kept the {summary.completed} finished demos "
-                     f"of {summary.requested} requested")
+        where = f" in {summary.resume_dir}" if summary.resume_dir else ""
+        lines.append(f"interrupted by {summary.interrupted}: kept the {summary.completed} finished demos of "
+                     f"{summary.requested} requested{where}; rerun the same command to continue")
     for err in summary.errors:
         lines.append(f"error: {err}")
     return "\n".join(lines)

@@ -60,14 +60,18 @@ def worker_summary(worker: int, part: str | Path, **fields: Any) -> dict:
 
 
 def run_worker(cfg: GenerateConfig, plan: WorkPlan, part_h5: str | Path, video_dir: str | Path | None,
-               report: Callable[[dict], None]) -> dict:
-    """Generates this worker's share into ``part_h5`` (a valid pair even when interrupted)."""
+               report: Callable[[dict], None], *, resume_dir: str | Path | None = None,
+               done: set[int] = frozenset()) -> dict:
+    """Generates this worker's share: each kept demo saved whole into ``resume_dir`` as it ends
+    (default: ``part_h5``'s folder); the seeds in ``done`` are demos kept before, counted, not run.
+    ``part_h5`` is the recorder's scratch file."""
     import gymnasium as gym
 
     import rsb_maniskill  # noqa: F401  (registers the RSB envs)
     from rsb_maniskill.env_ids import CONTROL_FREQ
 
     part_h5 = Path(part_h5)
+    resume = Path(resume_dir) if resume_dir is not None else part_h5.parent
     expert_cls = load_expert(cfg.expert)
     summary = worker_summary(plan.worker, part_h5)
     meta: dict[int, dict] = {}  # seed -> what the part's json entry gets once it is closed
@@ -77,7 +81,7 @@ def run_worker(cfg: GenerateConfig, plan: WorkPlan, part_h5: str | Path, video_d
                            record_reward=True, video_fps=CONTROL_FREQ, source_type="motionplanning",
                            source_desc=SOURCE_DESC)
         try:
-            _run_share(cfg, plan, env, expert_cls, guard, summary, meta, video_dir, report)
+            _run_share(cfg, plan, env, expert_cls, guard, summary, meta, video_dir, report, resume, done)
         except Interrupted as err:
             guard.disarm()
             summary["interrupted"] = signal.Signals(err.signum).name
@@ -88,15 +92,13 @@ def run_worker(cfg: GenerateConfig, plan: WorkPlan, part_h5: str | Path, video_d
                 summary["error"] += "\n" + traceback.format_exc()
         finally:
             guard.disarm()
-            env.close()  # writes the json of the kept episodes, closes the h5
-            if meta:
-                dataset.annotate_episodes(part_h5, meta)
+            env.close()  # closes the scratch pair (the demos are saved already)
     return summary
 
 
 def _run_share(cfg: GenerateConfig, plan: WorkPlan, env: DemoRecorder, expert_cls: Callable,
                guard: InterruptGuard, summary: dict, meta: dict[int, dict], video_dir: str | Path | None,
-               report: Callable[[dict], None]) -> None:
+               report: Callable[[dict], None], resume: Path, done: set[int]) -> None:
     schedule = seed_schedule(plan, cfg.max_attempts)
     consecutive_failures, pending_question, kept = 0, None, None
     while summary["kept"] < plan.wanted:
@@ -107,6 +109,12 @@ def _run_share(cfg: GenerateConfig, plan: WorkPlan, env: DemoRecorder, expert_cl
         if pending_question is not None and q != pending_question:
             summary["skipped_questions"].append(pending_question)  # attempts exhausted
         pending_question = q
+        if seed in done:  # kept by an interrupted run of this request
+            kept, pending_question, consecutive_failures = True, None, 0
+            summary["kept"] += 1
+            report(dict(type="episode", worker=plan.worker, seed=seed, question_index=seed % plan.pool_size,
+                        kept=True, reason="", resumed=True))
+            continue
         env.reset(seed=seed)
         spec = env.unwrapped.episode_specs[0]
         result, kept, reason = _attempt(env, expert_cls)
@@ -118,6 +126,7 @@ def _run_share(cfg: GenerateConfig, plan: WorkPlan, env: DemoRecorder, expert_cl
             if kept:
                 env.flush_trajectory()
                 meta[seed] = _episode_meta(cfg, spec, msg, env, video_dir)
+                save_demo(env, seed, meta[seed], resume)
                 summary["kept"] += 1
                 summary["kept_steps"] += msg["steps"]
                 pending_question = None
@@ -137,6 +146,29 @@ def _run_share(cfg: GenerateConfig, plan: WorkPlan, env: DemoRecorder, expert_cl
                                f"(last: seed {seed}, {reason}); stopping this worker")
     if pending_question is not None and summary["kept"] < plan.wanted:
         summary["skipped_questions"].append(pending_question)
+
+
+def save_demo(env: DemoRecorder, seed: int, fields: dict, resume: Path) -> Path:
+    """The episode just flushed to the recorder's file, copied whole as its own one-episode pair
+    ``demo<seed>.h5/.json`` (with its RSB ``fields`` in the json entry), renamed into place json
+    first, h5 last: it survives any later kill of this process."""
+    import h5py
+
+    h5 = env._h5_file
+    h5.flush()
+    entry = dict(env._json_data["episodes"][-1])
+    final = dataset.demo_path(resume, seed)
+    tmp = final.with_name(f".{final.stem}{dataset.TMP_TAG}{os.getpid()}.h5")
+    try:
+        with h5py.File(tmp, "w") as out:
+            h5.copy(h5[f"traj_{entry['episode_id']}"], out, "traj_0")
+        data = {k: v for k, v in env._json_data.items() if k != "episodes"}
+        data["episodes"] = [{**entry, "episode_id": 0, **fields}]
+        dataset.dump_json(dataset.json_path_of(tmp), data)
+        return dataset.finalize_pair(tmp, final)
+    except BaseException:
+        dataset.remove_pair(tmp)
+        raise
 
 
 def _attempt(env: DemoRecorder, expert_cls: Callable) -> tuple[Any, bool, str]:

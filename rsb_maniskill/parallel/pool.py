@@ -22,7 +22,6 @@ How many workers, and on which GPUs (``--num-procs auto``): :mod:`rsb_maniskill.
 from __future__ import annotations
 
 import os
-import queue as queue_module
 import signal
 import time
 import traceback
@@ -97,6 +96,9 @@ class TaskOutcome:
     result: Any = None
     error: str | None = None  # the worker's exception and traceback, or how it died ("exited with code -9")
     interrupted: int | None = None  # the signal that stopped the worker, if one did
+    stuck: str | None = None  # the watched block (see :func:`watched`) it died or was killed in
+    timed_out: float | None = None  # the limit that block outlasted (it was killed), if it did
+    exit_code: int | None = None  # the exit code of a worker that died without an outcome
 
 
 @dataclass
@@ -133,6 +135,13 @@ class ProcessPool:
     ``devices``: GPUs as ``CUDA_VISIBLE_DEVICES`` names them; worker k starts with
     ``CUDA_VISIBLE_DEVICES=devices[k % len(devices)]``, so it renders (and runs CUDA) on that one
     GPU: set in its environment before its interpreter starts, hence before the simulator loads.
+
+    Each worker writes to its own pipe, synchronously (a message sent is in the pipe, even if the
+    worker then dies at once), and the parent waits on the pipes and on the processes' sentinels
+    together: a dead worker is noticed as it dies. Workers die with this process (Linux:
+    ``PR_SET_PDEATHSIG``; elsewhere a parent-pid watch). A block of the worker run under
+    :func:`watched` that outlasts its limit gets the worker killed, and the outcome's ``stuck``
+    names the block; a worker that dies inside one (``os._exit`` in a policy) names it too.
     """
 
     def __init__(self, grace_s: float = 120.0, poll_s: float = 0.5, devices: Sequence[str] = ()) -> None:
@@ -146,33 +155,48 @@ class ProcessPool:
 
     def run(self, target: Target, tasks: Sequence[Any], on_message: Emit) -> RunOutcome:
         import multiprocessing as mp
+        from multiprocessing.connection import wait
 
         ctx = mp.get_context("spawn")
-        q = ctx.Queue()
-        procs = [ctx.Process(target=_worker_main, args=(target, task, i, q), daemon=True)
+        pipes = [ctx.Pipe(duplex=False) for _ in tasks]
+        watches = [ctx.Array("d", 2, lock=False) for _ in tasks]  # (since, limit) of the watched block, 0: none
+        labels = [ctx.Array("c", _LABEL_BYTES, lock=False) for _ in tasks]
+        procs = [ctx.Process(target=_worker_main, args=(target, task, i, pipes[i][1], watches[i], labels[i],
+                                                        os.getpid()), daemon=True)
                  for i, task in enumerate(tasks)]
         done: dict[int, TaskOutcome] = {}
-        silent_polls = [0] * len(procs)
+        readers = {i: pipes[i][0] for i in range(len(tasks))}
         with InterruptGuard() as guard:
             try:
                 for k, p in enumerate(procs):
                     with _environ(CUDA_VISIBLE_DEVICES=self.device_of(k)):  # the child inherits it
                         p.start()
+                    pipes[k][1].close()  # the child holds the writing end
                 deadline = None
                 while len(done) < len(procs):
                     try:
-                        try:
-                            kind, i, payload = q.get(timeout=self.poll_s)
-                        except queue_module.Empty:
-                            self._check_dead(procs, done, silent_polls)
-                            if deadline is not None and time.monotonic() > deadline:
-                                self._kill(procs, done, "killed: did not stop in time after the interruption")
-                            continue
-                        if kind == "done":
-                            done[i] = payload
-                        else:
-                            with guard.critical():  # a record or an episode is written whole
-                                on_message(payload)
+                        live = {readers[i]: i for i in readers}
+                        sentinels = {procs[i].sentinel: i for i in range(len(procs)) if i not in done}
+                        ready = wait([*live, *sentinels], timeout=self.poll_s)
+                        for conn in [c for c in ready if c in live]:
+                            i = live[conn]
+                            try:
+                                kind, payload = conn.recv()
+                            except (EOFError, OSError):
+                                del readers[i]
+                                continue
+                            if kind == "done":
+                                done[i] = payload
+                            else:
+                                with guard.critical():  # a record or an episode is written whole
+                                    on_message(payload)
+                        for s in [s for s in ready if s in sentinels]:
+                            i = sentinels[s]
+                            if i not in done and not (i in readers and readers[i].poll()):
+                                done[i] = self._died(i, procs[i], watches[i], labels[i])
+                        self._check_watches(procs, done, watches, labels)
+                        if deadline is not None and time.monotonic() > deadline:
+                            self._kill(procs, done, "killed: did not stop in time after the interruption")
                     except Interrupted:
                         guard.disarm()
                         for k, p in enumerate(procs):
@@ -188,15 +212,31 @@ class ProcessPool:
                     if p.is_alive():
                         p.kill()
                         p.join(timeout=10)
+                for reader, _ in pipes:
+                    reader.close()
         return RunOutcome([done[i] for i in range(len(procs))], interrupted=guard.received)
 
-    def _check_dead(self, procs: list, done: dict[int, TaskOutcome], silent_polls: list[int]) -> None:
-        # A finished worker's last messages may still be in the pipe: give them a few polls.
+    @staticmethod
+    def _died(index: int, proc: Any, watch: Any, label: Any) -> TaskOutcome:
+        proc.join(timeout=5)
+        code = proc.exitcode
+        if watch[0]:  # it died inside a watched block: that block ended the process
+            return TaskOutcome(index, error=f"exited with code {code}", stuck=label.value.decode(errors="replace"),
+                               exit_code=code)
+        return TaskOutcome(index, error=f"exited with code {code}", exit_code=code)
+
+    @staticmethod
+    def _check_watches(procs: list, done: dict[int, TaskOutcome], watches: list, labels: list) -> None:
+        now = time.monotonic()
         for k, p in enumerate(procs):
-            if k not in done and p.exitcode is not None:
-                silent_polls[k] += 1
-                if silent_polls[k] > 4:
-                    done[k] = TaskOutcome(k, error=f"exited with code {p.exitcode}")
+            since, limit = watches[k][0], watches[k][1]
+            if k not in done and since and limit and now - since > limit:
+                what = labels[k].value.decode(errors="replace")
+                if p.is_alive():
+                    p.kill()
+                    p.join(timeout=10)
+                done[k] = TaskOutcome(k, error=f"killed: {what} did not return within {limit:g} s",
+                                      stuck=what, timed_out=limit)
 
     @staticmethod
     def _kill(procs: list, done: dict[int, TaskOutcome], why: str) -> None:
@@ -205,6 +245,54 @@ class ProcessPool:
                 if p.is_alive():
                     p.kill()
                 done[k] = TaskOutcome(k, error=why)
+
+
+_LABEL_BYTES = 512
+_WATCH: tuple[Any, Any] | None = None  # in a worker: its (since, limit) array and label, shared with the parent
+
+
+@contextmanager
+def watched(label: str, limit_s: float | None) -> Iterator[None]:
+    """A block the parent watches: in a :class:`ProcessPool` worker, the parent kills the worker
+    if the block runs longer than ``limit_s`` (None or 0: no limit, but a death inside it is still
+    named ``label``). Elsewhere (this process) it does nothing."""
+    if _WATCH is None:
+        yield
+        return
+    times, text = _WATCH
+    text.value = label.encode()[:_LABEL_BYTES - 1]
+    times[1] = float(limit_s or 0)
+    times[0] = time.monotonic()  # CLOCK_MONOTONIC: the same clock in every process of the machine
+    try:
+        yield
+    finally:
+        times[0] = 0.0
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """This process is killed when ``parent_pid`` dies (even by kill -9): ``PR_SET_PDEATHSIG`` on
+    Linux, else a thread that watches the parent's pid."""
+    import sys
+    import threading
+
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(1, signal.SIGKILL, 0, 0, 0) == 0:  # PR_SET_PDEATHSIG = 1
+                if os.getppid() != parent_pid:  # the parent died before the call
+                    os._exit(1)
+                return
+        except (OSError, AttributeError):
+            pass
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="parent-watch").start()
 
 
 @contextmanager
@@ -222,12 +310,16 @@ def _environ(**values: str | None) -> Iterator[None]:
                 os.environ[k] = v
 
 
-def _worker_main(target: Target, task: Any, index: int, q: Any) -> None:
-    """Process entry: runs ``target`` under a guard and always posts its outcome."""
+def _worker_main(target: Target, task: Any, index: int, conn: Any, watch: Any, label: Any,
+                 parent_pid: int) -> None:
+    """Process entry: runs ``target`` under a guard and always sends its outcome."""
+    global _WATCH
+    die_with_parent(parent_pid)
+    _WATCH = (watch, label)
     with InterruptGuard() as guard:
         def emit(message: Any) -> None:
             with guard.critical():
-                q.put(("msg", index, message))
+                conn.send(("msg", message))
 
         try:
             outcome = TaskOutcome(index, result=target(task, emit))
@@ -236,10 +328,13 @@ def _worker_main(target: Target, task: Any, index: int, q: Any) -> None:
         except BaseException as err:  # noqa: BLE001  (reported to the parent, with the traceback)
             outcome = TaskOutcome(index, error=f"{err!r}\n{traceback.format_exc()}")
         guard.disarm()
-        q.put(("done", index, outcome))
+        watch[0] = 0.0
+        conn.send(("done", outcome))
+        conn.close()
 
 
 def deal(items: Sequence[Any], parts: int) -> list[list[Any]]:
-    """Round-robin split of ``items`` into at most ``parts`` non-empty lists (item k to list k % n)."""
+    """Round-robin split of ``items`` into at most ``parts`` non-empty lists (item k to list k % n);
+    a ``range`` splits into ranges (nothing listed)."""
     n = max(1, min(parts, len(items)))
-    return [list(items[k::n]) for k in range(n)]
+    return [items[k::n] if isinstance(items, range) else list(items[k::n]) for k in range(n)]

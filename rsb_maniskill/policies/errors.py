@@ -49,17 +49,43 @@ def episode_where(suite_id: str, seeds: Sequence[Any], instruction_mode: str) ->
 def blame_policy(call: str, *, policy: str, where: str) -> Iterator[None]:
     """The block calls the policy (``call``: "reset", "act", ...) and checks its output: a
     :class:`PolicyError` raised in it gets the policy and the episode named, any other exception
-    becomes one (the policy raised it), keeping its traceback. Ctrl-C passes through."""
+    becomes one (the policy raised it), keeping its traceback; so does ``sys.exit()`` (SystemExit).
+    Ctrl-C passes through."""
     try:
         yield
     except PolicyError as err:
         err.policy, err.where = err.policy or policy, err.where or where
         err.detail = err.detail or traceback.format_exc()
         raise
+    except SystemExit as err:  # sys.exit() in a policy must not end the evaluation as if it were done
+        raise PolicyError(f"{call} called sys.exit({err.code!r}): a policy must return or raise, never exit the "
+                          "process", policy=policy, where=where, detail=traceback.format_exc()) from err
     except Exception as err:
         said = first_line(str(err))
         raise PolicyError(f"{call} raised {type(err).__name__}{f': {said}' if said else ''}", policy=policy,
                           where=where, detail=traceback.format_exc()) from err
+
+
+_CALL_SEP = "\x1f"  # between the call and the episode in a watched block's label
+
+
+def policy_call_label(call: str, where: str) -> str:
+    """How a policy call is named to the process pool's watchdog (read back by :func:`stuck_call_error`)."""
+    return f"{call}{_CALL_SEP}{where}"
+
+
+def stuck_call_error(label: str, policy: str, *, timeout_s: float | None = None,
+                     exit_code: int | None = None) -> PolicyError:
+    """The PolicyError of a policy call that outlasted its time limit (its worker was killed), or
+    during which the worker process ended (``os._exit``, a crash in native code)."""
+    call, _, where = label.partition(_CALL_SEP)
+    if timeout_s is not None:
+        message = (f"{call} did not return within {timeout_s:g} s (the limit of one policy call: "
+                   "--policy-timeout SECONDS, 0 for none)")
+    else:
+        how = f"killed by signal {-exit_code}" if exit_code is not None and exit_code < 0 else f"exit code {exit_code}"
+        message = f"{call} ended the worker process ({how}): a policy must return or raise, never exit"
+    return PolicyError(message, policy=policy, where=where or None)
 
 
 def first_line(text: str) -> str:

@@ -41,6 +41,21 @@ class RendererUnavailableError(RuntimeError):
     """No Vulkan device that SAPIEN can render with."""
 
 
+def renderer_hint(message: str) -> str | None:
+    """What to do about an error that says the renderer is missing (SAPIEN's "failed to find a
+    rendering device", a Vulkan error), in one sentence naming ``rsb doctor``; None for other errors."""
+    text = message.lower()
+    if not ("vulkan" in text or "rendering device" in text or "render device" in text):
+        return None
+    for var in ("VK_ICD_FILENAMES", "VK_DRIVER_FILES"):
+        value = os.environ.get(var)
+        missing = [f for f in (value or "").split(os.pathsep) if f and not os.path.exists(f)]
+        if missing:
+            return (f"{var}={value} names no file ({missing[0]}): unset it or point it at a Vulkan ICD json "
+                    f"(e.g. {ICD_DIRS[0]}/lvp_icd.x86_64.json); `rsb doctor` shows what this machine has")
+    return "no Vulkan renderer: `rsb doctor` shows what this machine has and how to fix it"
+
+
 def select_vulkan_driver() -> str | None:
     """Points the Vulkan loader at lavapipe when no NVIDIA driver is installed; returns the ICD used."""
     if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):

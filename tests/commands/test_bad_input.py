@@ -336,9 +336,10 @@ def test_every_option_refuses_a_word_it_cannot_take(path, option, value, capsys)
     assert line.endswith(f"(see rsb {' '.join(path)} --help)".replace("rsb  ", "rsb ")), line
 
 
-def test_a_summary_written_at_an_interruption_says_it_is_partial(tmp_path, capsys):
+def test_a_summary_written_at_an_interruption_says_it_is_partial(tmp_path, capsys, monkeypatch):
     """Ctrl-C in the second of three episodes: summary.md / .json and report.html say "partial:
     interrupted, 1 of 3 episodes"; the resumed run's summary no longer does."""
+    monkeypatch.setenv("RSB_TEST_INTERRUPT_MARKER", str(tmp_path / "interrupted-once"))
     out = tmp_path / "cut"
     argv = ["eval", "bad_policies:InterruptsOnce", "-o", "state", "-n", "3", "--max-steps", "5", "--out", str(out),
             *RUN]

@@ -246,10 +246,13 @@ def test_existing_output_needs_overwrite(tmp_path, dataset):
     cfg = _cfg(tmp_path, num=1)
     first = generate(cfg)
     before = first.path.read_bytes()
+    again = generate(cfg)  # the same request again: done already, nothing run, nothing written
+    assert again.already and again.completed == 1 and again.exit_code == 0 and first.path.read_bytes() == before
+    cfg.seed_start = 5  # another request onto the same file
     with pytest.raises(GenerateError, match="--overwrite"):
         generate(cfg)
     assert first.path.read_bytes() == before
-    cfg.overwrite, cfg.seed_start = True, 5
+    cfg.overwrite = True
     second = generate(cfg)
     data = _check_dataset(second.path)
     assert [ep["episode_seed"] for ep in data["episodes"]] == [5]
@@ -265,9 +268,10 @@ def _sigterm_after_first_episode(tmp_path: Path, procs: int) -> tuple[int, Path,
                             cwd=REPO)
     directory = out / ENV_ID / "motionplanning"
     deadline = time.monotonic() + 240
+    resume = directory / ".train.state.pd_joint_pos.physx_cpu.partial"
     while time.monotonic() < deadline and proc.poll() is None:
-        parts = list(directory.glob(".*part*.json")) if directory.exists() else []
-        if parts:  # a part's json is first written when its first episode is kept
+        parts = list(resume.glob("demo*.h5")) if resume.exists() else []
+        if parts:  # each kept demo is saved whole as it ends
             break
         time.sleep(0.2)
     assert proc.poll() is None, proc.communicate()
@@ -277,14 +281,26 @@ def _sigterm_after_first_episode(tmp_path: Path, procs: int) -> tuple[int, Path,
     return proc.returncode, directory / "train.state.pd_joint_pos.physx_cpu.h5", stdout + stderr
 
 
-def test_sigterm_leaves_valid_file_of_finished_episodes(tmp_path):
+def _check_kept(path: Path, log: str) -> list[Path]:
+    """After a signal: no output file that looks finished; each finished demo kept whole in the
+    resume folder, and the run says where and how to continue. Returns the kept demos."""
+    assert not path.exists() and not path.with_suffix(".json").exists()
+    resume = path.parent / f".{path.stem}.partial"
+    demos = sorted(resume.glob("demo*.h5"))
+    assert 1 <= len(demos) < 200
+    for demo in demos:
+        assert len(_check_dataset(demo)["episodes"]) == 1
+    assert sorted(p.name for p in resume.iterdir()) == sorted(
+        ["lock", "settings.json", *(d.name for d in demos), *(d.with_suffix(".json").name for d in demos)])
+    assert f"kept the {len(demos)} finished demos of 200 requested in {resume}" in log
+    assert "rerun the same command to continue" in log
+    return demos
+
+
+def test_sigterm_keeps_the_finished_demos_for_the_same_command(tmp_path):
     rc, path, log = _sigterm_after_first_episode(tmp_path, procs=1)
     assert rc == 128 + signal.SIGTERM, log
-    data = _check_dataset(path)
-    assert 1 <= len(data["episodes"]) < 200
-    assert data["rsb"]["interrupted"] == "SIGTERM" and not data["rsb"]["complete"]
-    assert data["rsb"]["completed"] == len(data["episodes"])
-    assert sorted(p.name for p in path.parent.iterdir()) == [path.name, path.with_suffix(".json").name]
+    _check_kept(path, log)
 
 
 def test_replay_actions_reproduce_success(dataset, tmp_path):
@@ -393,9 +409,7 @@ def test_two_processes_make_the_same_dataset_as_one(tmp_path):
 def test_sigterm_with_worker_processes(tmp_path):
     rc, path, log = _sigterm_after_first_episode(tmp_path, procs=2)
     assert rc == 128 + signal.SIGTERM, log
-    data = _check_dataset(path)
-    assert 1 <= len(data["episodes"]) < 200
-    assert sorted(p.name for p in path.parent.iterdir()) == [path.name, path.with_suffix(".json").name]
+    _check_kept(path, log)
 
 
 @pytest.mark.slow

@@ -52,8 +52,8 @@ def wait_for_stop(task, emit):
 def finish_up_on_stop(task, emit):
     """Like the generation worker: its own guard turns the signal into a clean, partial result."""
     with InterruptGuard():
-        emit(("started", task))
-        try:
+        try:  # the emit too: the parent may signal as soon as the message is in the pipe
+            emit(("started", task))
             deadline = time.monotonic() + 60
             while time.monotonic() < deadline:
                 time.sleep(0.01)

@@ -209,7 +209,8 @@ def test_the_counterfactual_variants_pass_the_audit(suite_id):
 def test_the_design_effect_counts_a_repeated_episode_once():
     """Each outcome three times in its group: the interval of the 400 distinct ones; groups of one
     keep the plain interval (but for the n / (n - 1) of the cluster-robust variance)."""
-    from rsb_maniskill.audit.reference import design_effect, rate
+    from rsb_maniskill.audit.reference import rate
+    from rsb_maniskill.evaluation.stats import design_effect
 
     base = (np.random.default_rng(0).random(400) < 0.3).astype(float)
     tripled, scenes = np.repeat(base, 3), np.repeat(np.arange(400), 3)

@@ -13,6 +13,7 @@ import numpy as np
 from rsb_maniskill.audit.guessers import credit
 from rsb_maniskill.audit.readers import BoundReader
 from rsb_maniskill.evaluation.metrics import wilson_interval
+from rsb_maniskill.evaluation.stats import design_effect
 from rsb_maniskill.semantic.spec import EpisodeSpec
 
 
@@ -22,7 +23,7 @@ def rate(credits: np.ndarray, clusters: np.ndarray | None = None) -> tuple[float
 
     ``clusters``: one id per episode where episodes come in dependent groups (the episodes that
     ask one question: a guesser reads it alike each time). The interval then counts ``n / deff``
-    episodes, deff the groups' :func:`design_effect`: Kish's effective sample size."""
+    episodes, deff the groups' design effect (``evaluation/stats.py``): Kish's effective sample size."""
     n = len(credits)
     s = float(credits.sum())
     if clusters is None:
@@ -31,20 +32,6 @@ def rate(credits: np.ndarray, clusters: np.ndarray | None = None) -> tuple[float
     n_eff = n / design_effect(credits, clusters)
     lo, hi = wilson_interval(s / n * n_eff, n_eff)
     return s / n, lo, hi
-
-
-def design_effect(credits: np.ndarray, clusters: np.ndarray) -> float:
-    """Cluster-robust variance of the mean credit over its variance were the episodes independent
-    (both from the credits themselves, so tie shares cancel out), at least 1."""
-    n = len(credits)
-    _, group = np.unique(clusters, return_inverse=True)
-    c = int(group.max()) + 1
-    var = float(np.var(credits))
-    if c < 2 or var == 0:
-        return 1.0
-    resid = np.bincount(group, weights=credits - credits.mean(), minlength=c)
-    robust = c / (c - 1) * float(np.sum(resid ** 2)) / n ** 2
-    return max(1.0, robust / (var / n))
 
 
 def lift(accuracy: float, n_choices: int) -> float:

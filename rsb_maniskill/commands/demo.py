@@ -8,7 +8,7 @@ On RSB-Math-4 (procedural questions: no dataset needed) it writes, under ``--out
   GSR / TSR / nSG summary (Markdown, JSON, CSV, PNG), ``results.json``, a video of the first
   episode and ``report.html``, the page to open first (the last line printed names it).
 
-About a minute on two CPU cores.
+About 35 s on two shared CPU cores (measured: 34 s and 38 s), after the set-up.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """`--num-procs auto` against every explicit worker count, on this machine, in one run.
 
-    python benchmarks/auto_workers.py [--job generate eval] [-n 16] [--repeats 2] [--suite RSB-Math-4]
+    python benchmarks/auto_workers.py [--job generate eval] [-n 16] [--repeats 2] [--suites RSB-Math-4]
                                       [-o state|rgb]
 
 Runs the same small job as a user types it, each time in a fresh process (start-up and worker
@@ -96,8 +96,9 @@ def bench(job: str, args: argparse.Namespace, cpus: int) -> None:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--job", nargs="+", choices=("generate", "eval"), default=["generate", "eval"])
-    p.add_argument("--suite", default="RSB-Math-4")
-    p.add_argument("-n", "--num", type=int, default=16, help="demos (generate) or episodes (eval) a run")
+    p.add_argument("--suites", "--suite", dest="suite", default="RSB-Math-4", help="one suite")
+    p.add_argument("-n", "--num-episodes", dest="num", type=int, default=16,
+                   help="demos (generate) or episodes (eval) a run")
     p.add_argument("-o", "--obs-mode", default="state", help="state (default) or rgb: rendering workers")
     p.add_argument("--repeats", type=int, default=2)
     args = p.parse_args()

@@ -1,5 +1,5 @@
 """Semantic engine speed: ms per episode spec from a loaded pool (per suite) and the GSM8K /
-MMLU load times. Usage: python benchmarks/bench_semantic.py [--data-dir DIR] [--episodes N]
+MMLU load times. Usage: python benchmarks/bench_semantic.py [--data-dir DIR] [-n N]
 
 Targets (issue 3): well under 1 ms per spec; loading GSM8K and MMLU under 2 s.
 """
@@ -16,7 +16,7 @@ from rsb_maniskill.semantic.pools import get_pool
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--data-dir", default=None, help="else $RSB_DATA_DIR, else hub cache")
-    ap.add_argument("--episodes", type=int, default=2000)
+    ap.add_argument("-n", "--num-episodes", dest="episodes", type=int, default=2000)
     args = ap.parse_args()
 
     clear_cache()

@@ -30,7 +30,7 @@ def run(env_id: str, num: int, procs: int) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--env", default="RSB-Math-4")
-    p.add_argument("-n", "--num", type=int, default=20, help="successful demos per run")
+    p.add_argument("-n", "--num-episodes", dest="num", type=int, default=20, help="successful demos per run")
     p.add_argument("--procs", type=int, nargs="+", default=[1, 2])
     args = p.parse_args()
     rows = [run(args.env, args.num, k) for k in args.procs]

@@ -1,6 +1,6 @@
 """Evaluation throughput of `rsb eval`: episodes per minute, on the protocol's first seeds.
 
-    python benchmarks/eval_throughput.py [--suite RSB-Math-4] [-n 40] [--procs 1 2] [--policy oracle]
+    python benchmarks/eval_throughput.py [--suites RSB-Math-4] [-n 40] [--procs 1 2] [--policy oracle]
     python benchmarks/eval_throughput.py --rgb [-n 3] [--chunk 10] [--max-steps 100]
 
 Default: a built-in policy with state observations (what oracle / blind / random read) with 1 and
@@ -47,9 +47,10 @@ def show(rows: list[tuple[str, dict]]) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--suite", default="RSB-Math-4")
+    p.add_argument("--suites", "--suite", dest="suite", default="RSB-Math-4", help="one suite")
     p.add_argument("--policy", default="oracle", choices=["oracle", "blind", "random"])
-    p.add_argument("-n", "--num", type=int, default=None, help="episodes per run (default 40; 3 with --rgb)")
+    p.add_argument("-n", "--num-episodes", dest="num", type=int, default=None,
+                   help="episodes per run (default 40; 3 with --rgb)")
     p.add_argument("--procs", type=int, nargs="+", default=[1, 2])
     p.add_argument("--rgb", action="store_true", help="render on demand vs every step, rgb cameras")
     p.add_argument("--chunk", type=int, default=10, help="--rgb: actions per chunk (default 10)")

@@ -1,6 +1,6 @@
 """Local process pool vs Ray executor: the same evaluation, in one run, on this machine.
 
-    python benchmarks/executor_overhead.py [--suite RSB-Math-4] [-n 16] [--workers 2] [--policy blind]
+    python benchmarks/executor_overhead.py [--suites RSB-Math-4] [-n 16] [--workers 2] [--policy blind]
 
 Runs ``run_job`` on the protocol's first ``n`` seeds with ``--workers`` spawned processes, then
 with as many Ray tasks on a local Ray cluster (started once, before the timing: on a real cluster
@@ -31,9 +31,9 @@ def timed(job: EvalJob, workers: int, executor=None) -> tuple[float, list[dict]]
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--suite", default="RSB-Math-4")
+    p.add_argument("--suites", "--suite", dest="suite", default="RSB-Math-4", help="one suite")
     p.add_argument("--policy", default="blind", choices=["oracle", "blind", "random"])
-    p.add_argument("-n", "--num", type=int, default=16)
+    p.add_argument("-n", "--num-episodes", dest="num", type=int, default=16)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--ray-first", action="store_true", help="time Ray before the local pool (order effects)")
     args = p.parse_args()

@@ -1,6 +1,6 @@
 """vla-eval's protocol against native `rsb eval`: seconds per 150-step episode, measured in one run.
 
-    python benchmarks/vla_eval_speed.py [--suite RSB-Math-4] [-n 3] [--chunk 10] [--steps 150]
+    python benchmarks/vla_eval_speed.py [--suites RSB-Math-4] [-n 3] [--chunk 10] [--steps 150]
 
 The same seeded random chunks of ``--chunk`` actions (RandomPolicy over the env's action space, seed
 0) on the three 320x240 rgb cameras, the same protocol episodes, one process:
@@ -101,8 +101,9 @@ def run_rows(args: argparse.Namespace) -> list[tuple[str, list[float], list[int]
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--suite", default="RSB-Math-4")
-    p.add_argument("-n", "--num", type=int, default=3, help="episodes per row and round (default 3)")
+    p.add_argument("--suites", "--suite", dest="suite", default="RSB-Math-4", help="one suite")
+    p.add_argument("-n", "--num-episodes", dest="num", type=int, default=3,
+                   help="episodes per row and round (default 3)")
     p.add_argument("--chunk", type=int, default=10, help="actions per chunk, the server's chunk_size (default 10)")
     p.add_argument("--steps", type=int, default=150, help="steps per episode (default 150)")
     p.add_argument("--rounds", type=int, default=2, help="rounds of all rows, pooled (default 2): load that "

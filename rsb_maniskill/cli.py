@@ -36,14 +36,26 @@ class Parser(argparse.ArgumentParser):
     """argparse with a usage error in one line, as every other error: what is wrong, and where the
     help is (its sub-parsers are of this class too)."""
 
+    top = False  # the `rsb` parser itself; its sub-parsers refuse what they do not know themselves
+
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
+        """A sub-command refuses an unknown option with its own usage (argparse would hand it up
+        to `rsb`, whose error names no command)."""
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras and not self.top:
+            self.print_usage(sys.stderr)
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace, extras
 
 
 def build_parser() -> argparse.ArgumentParser:
     from rsb_maniskill.version import version_line
 
     parser = Parser(prog="rsb", description="RoboSemanticBench on ManiSkill3")
+    parser.top = True
     parser.add_argument("--version", action="version", version=version_line(),
                         help="print the package and benchmark versions and exit")
     parser.add_argument("--debug", action="store_true",

@@ -7,6 +7,7 @@ SAPIEN attribute (the test lists the attributes this module reads and looks for 
 """
 from __future__ import annotations
 
+import logging
 from contextlib import contextmanager
 from typing import Any, Iterator, Mapping
 
@@ -117,3 +118,17 @@ def check_versions() -> list[str]:
         if spec and module.__version__.split("+")[0] not in SpecifierSet(spec):
             out.append(f"{dist} {module.__version__} (written against {spec})")
     return out
+
+
+def _not_the_cpu_render_fallback(record: logging.LogRecord) -> bool:
+    return "Rendering might be disabled" not in record.getMessage()
+
+
+def quiet_cpu_render_fallback() -> None:
+    """Drops ManiSkill's "CUDA device was not found ... Rendering might be disabled" warning (its
+    logger in ``mani_skill.utils.logging_utils``, printed at every env made without CUDA). Call it
+    only where rendering was checked to work on the CPU (lavapipe): there the warning is wrong."""
+    from mani_skill.utils.logging_utils import logger
+
+    if _not_the_cpu_render_fallback not in logger.filters:
+        logger.addFilter(_not_the_cpu_render_fallback)

@@ -107,6 +107,8 @@ class _SuitesAction(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
+        if option_string is None and values is self.default:  # an empty positional: keep what --suites set
+            return
         try:
             suites = resolve_env_ids(values)
         except ValueError as err:
@@ -120,12 +122,12 @@ class _SuitesAction(argparse.Action):
 
 def add_suites_argument(parser: argparse.ArgumentParser, default: Sequence[str] = ("paper",),
                         positional: bool = False, help: str | None = None) -> None:
-    """The one way a command takes suites: ``--suites`` (or a positional ``SUITE ...`` list), names
-    separated by spaces or commas; ``args.suites`` holds the resolved env ids (``default``, resolved,
-    when none is given)."""
+    """The one way a command takes suites: ``--suites``, and where ``positional`` a ``SUITE ...`` list
+    too (either spelling), names separated by spaces or commas; ``args.suites`` holds the resolved env
+    ids (``default``, resolved, when none is given)."""
     kwargs: dict[str, Any] = dict(nargs="*" if positional else "+", action=_SuitesAction, metavar="SUITE",
                                   default=resolve_env_ids(default), help=help or SUITES_HELP)
     if positional:
         parser.add_argument("suites", **kwargs)
-    else:
-        parser.add_argument("--suites", **kwargs)
+        kwargs.update(nargs="+", help="the same as SUITE ...", default=argparse.SUPPRESS)
+    parser.add_argument("--suites", **kwargs)

@@ -8,6 +8,12 @@ VENV=${RSB_VENV:-.venv}
 PY=${PYTHON:-python3}
 SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
 
+SECONDS=0
+stage() {
+  # One line per stage with the time since the start: a fresh machine's set-up takes minutes.
+  echo "setup: [${SECONDS} s] $*"
+}
+
 have_nvidia() { command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1; }
 
 lavapipe_version() {
@@ -53,6 +59,7 @@ install_chromium() {
     || echo "setup: warning: apt-get install chromium failed; the report's browser test will fail" >&2
 }
 
+stage "1/5 Vulkan driver"
 if have_nvidia; then
   echo "setup: NVIDIA GPU found; using its Vulkan driver"
   command -v apt-get >/dev/null 2>&1 && ! ldconfig -p | grep -q libvulkan.so.1 && { $SUDO apt-get update -qq; $SUDO apt-get install -y -qq libvulkan1 >/dev/null; } || true
@@ -60,13 +67,16 @@ else
   install_software_vulkan
 fi
 
+stage "2/5 Chromium (for the report page's browser test)"
 install_chromium
 
+stage "3/5 virtual environment $VENV and pip"
 if [ ! -x "$VENV/bin/python" ]; then
   $PY -m venv "$VENV"
 fi
 PIP="$VENV/bin/python -m pip"
 $PIP install -q --upgrade pip >/dev/null
+stage "4/5 PyTorch (the CPU build where there is no GPU; about 200 MB)"
 if ! $VENV/bin/python -c "import torch" 2>/dev/null; then
   if have_nvidia; then
     $PIP install -q torch
@@ -77,10 +87,11 @@ if ! $VENV/bin/python -c "import torch" 2>/dev/null; then
       || $PIP install -q torch --index-url https://download.pytorch.org/whl/cpu
   fi
 fi
+stage "5/5 rsb_maniskill and its pins (ManiSkill, SAPIEN, mplib, LeRobot, Ray, ...)"
 $PIP install -q -e ".[dev,expert,eval,hub,export,ray,baselines,vla_eval]"
 if have_nvidia; then
   # GPU physics needs SAPIEN's PhysX GPU library, fetched from GitHub: stage it now, while there
   # is network (compute nodes often have none). Prints where it went.
   $VENV/bin/python -m rsb_maniskill.sim.physx_gpu || echo "setup: warning: PhysX GPU library not staged; GPU physics (physx_cuda) will need it (see docs/gpu.md)" >&2
 fi
-echo "setup: done ($($VENV/bin/python -c 'import mani_skill, sapien, torch; print("mani_skill", mani_skill.__version__, "sapien", sapien.__version__, "torch", torch.__version__)'))"
+echo "setup: done in ${SECONDS} s ($($VENV/bin/python -c 'import mani_skill, sapien, torch; print("mani_skill", mani_skill.__version__, "sapien", sapien.__version__, "torch", torch.__version__)'))"

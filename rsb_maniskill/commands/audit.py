@@ -26,11 +26,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "chance + 3 points, an ambiguous set, or split overlap). Question-aware readers (similarity to "
                     "the question, numbers reachable from the question's) are reference rows; a 10-choice suite fails "
                     "when a reader lifts it above its 4-choice twin, intervals apart (the twin rule).")
+    from rsb_maniskill.commands.vocab import add_old_spelling
     from rsb_maniskill.env_ids import SUITES_HELP, add_suites_argument
 
     add_suites_argument(p, default=(), positional=True, help=SUITES_HELP + "; omit with --specs")
     p.add_argument("--split", default="test", choices=("train", "test"), help="split to audit (default test)")
-    p.add_argument("-n", "--episodes", type=int, default=3000, help="audited episodes per suite (default 3000)")
+    p.add_argument("-n", "--num-episodes", dest="episodes", metavar="N", type=int, default=3000,
+                   help="episodes per suite: audited test episodes (default 3000)")
+    add_old_spelling(p, "--episodes", "--num-episodes")
     p.add_argument("--train-episodes", type=int, default=None, help="train-split episodes for the probe (default: -n)")
     p.add_argument("--specs", nargs="+", default=None, metavar="FILE.jsonl",
                    help="audit your own episodes: EpisodeSpec JSON lines (e.g. `rsb questions --json`) with "

@@ -9,6 +9,7 @@ import contextlib
 import sys
 from typing import Any
 
+from rsb_maniskill.commands.vocab import add_old_spelling
 from rsb_maniskill.env_ids import add_suites_argument
 from rsb_maniskill.motionplan.config import DEFAULT_EXPERT
 from rsb_maniskill.parallel.plan import add_worker_args, executor_from_args, obs_mode_renders, resolve_workers
@@ -25,9 +26,10 @@ def register(subparsers) -> None:
                     "Output: <out>/<ENV_ID>/motionplanning/<split>.<obs_mode>.pd_joint_pos.physx_cpu.h5 and .json.")
     add_suites_argument(p, default=(), positional=True)
     p.add_argument("--split", default="train", help="question pool: train (default) or test")
-    p.add_argument("-n", "--num", type=int, default=None,
-                   help="number of successful demos (total over all shards); with --questions: "
-                        "only the first N questions")
+    p.add_argument("-n", "--num-episodes", dest="num", metavar="N", type=int, default=None,
+                   help="episodes per suite: successful demos kept (failed attempts are not counted; the total "
+                        "over all shards); with --questions: only the first N questions")
+    add_old_spelling(p, "--num", "--num-episodes")
     p.add_argument("--questions", default=None, metavar="all|START:STOP",
                    help="one demo per question of the pool (seeds q, q+P, q+2P, ... for question q)")
     p.add_argument("--seed-start", type=int, default=0, help="first seed (seed mode; default 0)")
@@ -41,7 +43,9 @@ def register(subparsers) -> None:
     p.add_argument("--max-attempts", type=int, default=20,
                    help="seeds tried per question (--questions), or failures in a row before a "
                         "worker gives up (seed mode); default 20")
-    p.add_argument("--instructions", default=None, help="env kwarg: seen / unseen instruction templates")
+    p.add_argument("--instruction-set", dest="instructions", default=None,
+                   help="env kwarg: seen / unseen instruction templates")
+    add_old_spelling(p, "--instructions", "--instruction-set")
     p.add_argument("--color-map", default=None, help="env kwarg: fixed / shuffle (4-choice colours)")
     p.add_argument("--data-dir", default=None, help="env kwarg: GSM8K / MMLU-Pro directory")
     p.add_argument("--expert", default=DEFAULT_EXPERT, help=argparse.SUPPRESS)

@@ -12,6 +12,7 @@ import sys
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the semantic engine's sub-commands to the `rsb` dispatcher."""
+    from rsb_maniskill.commands.vocab import add_old_spelling
     from rsb_maniskill.env_ids import add_suites_argument
     from rsb_maniskill.semantic.suites import COLOR_MAPS, INSTRUCTION_SETS, SPLITS
 
@@ -20,10 +21,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Print sample episode specifications (question, options, instruction, answer).")
     add_suites_argument(p, default=(), positional=True)
     p.add_argument("--split", default="train", help=f"{' | '.join(SPLITS)} (test = evaluation pool)")
-    p.add_argument("-n", "--num", type=int, default=5, help="number of episodes (default 5)")
+    p.add_argument("-n", "--num-episodes", dest="num", metavar="N", type=int, default=5,
+                   help="episodes per suite (default 5)")
+    add_old_spelling(p, "--num", "--num-episodes")
     p.add_argument("--seed", type=int, default=0, help="first seed (episodes use seed, seed+1, ...)")
-    p.add_argument("--instructions", choices=INSTRUCTION_SETS, default=None,
+    p.add_argument("--instruction-set", dest="instructions", choices=INSTRUCTION_SETS, default=None,
                    help="template set (default: seen for train, unseen for test)")
+    add_old_spelling(p, "--instructions", "--instruction-set")
     p.add_argument("--color-map", choices=COLOR_MAPS, default="fixed")
     p.add_argument("--data-dir", default=None,
                    help="directory with gsm8k/ and mmlu_pro/ (else $RSB_DATA_DIR, else hub cache)")
@@ -38,8 +42,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d = subparsers.add_parser("data", help="question data (GSM8K, MMLU-Pro)")
     dsub = d.add_subparsers(dest="data_command", metavar="ACTION")
     dl = dsub.add_parser("download", help="fetch and cache the pinned hub data for offline use")
-    dl.add_argument("--export", default=None, metavar="DIR",
+    dl.add_argument("--out", dest="export", default=None, metavar="DIR",
                     help="also write the data in its original formats under DIR (usable as RSB_DATA_DIR)")
+    add_old_spelling(dl, "--export", "--out")
     dl.set_defaults(func=cmd_data_download)
     d.set_defaults(func=lambda args: (d.print_help(), 2)[1])
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.commands.vocab import add_old_spelling
     from rsb_maniskill.evaluation.store import RECORDS_FILE
 
     p = subparsers.add_parser(
@@ -29,7 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "With --compare A B: the two runs' GSR / TSR / nSG per suite side by side, B - A, and whether "
                     "their 95 % intervals separate (Markdown). Records of two benchmark versions never pool.")
     p.add_argument("results_dir", metavar="RESULTS_DIR", nargs="?")
-    p.add_argument("-o", "--out", default=None, help="page to write (default: RESULTS_DIR/report.html)")
+    p.add_argument("--out", default=None, help="page to write (default: RESULTS_DIR/report.html)")
+    add_old_spelling(p, "-o", "--out")
     p.add_argument("--title", default=None, help="page title (default: the directory's name)")
     p.add_argument("--compare", nargs=2, metavar=("DIR_A", "DIR_B"), default=None,
                    help="compare two results directories (or directories holding a results.json)")

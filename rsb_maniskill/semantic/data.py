@@ -52,7 +52,7 @@ def _how_to_provide(what: str) -> str:
             f"`rsb doctor` shows what this machine has.")
 
 
-REFILL_HINT = (f"fetch a full copy with `rsb data download --export DIR` and pass --data-dir DIR (or set "
+REFILL_HINT = (f"fetch a full copy with `rsb data download --out DIR` and pass --data-dir DIR (or set "
                f"{ENV_VAR}=DIR), or point --data-dir / {ENV_VAR} at another full copy (a broken file in the hub "
                f"cache: delete it, then `rsb data download`)")
 

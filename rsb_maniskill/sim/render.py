@@ -104,6 +104,7 @@ def ensure_renderer() -> None:
 
     The probe runs in a subprocess because a broken Vulkan stack can crash rather than raise."""
     if os.environ.get(_PROBE_ENV) == "1":
+        _quiet_fallback_warning()
         return
     try:
         out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120)
@@ -113,6 +114,16 @@ def ensure_renderer() -> None:
         detail = (out.stderr.strip().splitlines() or [f"exit code {out.returncode}"])[-1]
         raise RendererUnavailableError(f"SAPIEN found no usable Vulkan device ({detail}). {FIX}")
     os.environ[_PROBE_ENV] = "1"
+    _quiet_fallback_warning()
+
+
+def _quiet_fallback_warning() -> None:
+    """Rendering works here (checked): ManiSkill's "Rendering might be disabled" would mislead."""
+    try:
+        from rsb_maniskill.compat import quiet_cpu_render_fallback
+    except ImportError:  # `rsb doctor` loads this file without the package
+        return
+    quiet_cpu_render_fallback()
 
 
 def hold_render_engine(device: object | None = None) -> bool:
@@ -133,6 +144,7 @@ def hold_render_engine(device: object | None = None) -> bool:
 
                 device = parse_sim_and_render_backend(CPU_SIM_BACKEND, "gpu").render_device
             _HELD["engine"] = sapien.render.RenderSystem(device)
+            _quiet_fallback_warning()  # it renders: the next envs' "might be disabled" would mislead
         except Exception:  # no usable Vulkan device here; rendering would fail the same way later
             _HELD["engine"] = None
     return _HELD["engine"] is not None

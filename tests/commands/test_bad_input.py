@@ -325,7 +325,7 @@ OPTIONS = _options()
 def test_the_walk_finds_the_options():
     found = {(" ".join(path), option) for path, option, _ in OPTIONS}
     assert {("eval", "--num-episodes"), ("eval", "--instruction"), ("dataset build", "--shard-size"),
-            ("audit", "--episodes"), ("questions", "--num")} <= found
+            ("audit", "--num-episodes"), ("questions", "--num-episodes")} <= found
 
 
 @pytest.mark.parametrize("path, option, value", OPTIONS, ids=[f"{' '.join(p)} {o}" for p, o, _ in OPTIONS])

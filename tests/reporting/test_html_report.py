@@ -69,7 +69,7 @@ def test_eval_writes_the_report_and_rsb_report_rewrites_it(results, capsys):
     assert len(data) == len(records) == 6 + N_SYNTHETIC
     assert sum(1 for c in data if c["thumbs"]) == 1 and "oracle_RSB-Math-4_normal_seed" in text
     # the paper tables are summary.md's, and the row of the oracle reads 100.0 in Table 3
-    assert main(["report", str(results), "-o", str(results / "copy.html"), "--title", "t"]) == 0
+    assert main(["report", str(results), "--out", str(results / "copy.html"), "--title", "t"]) == 0
     assert "<title>t</title>" in (results / "copy.html").read_text()
     tsr_table = text.split("paper Table 3")[1].split("</table>")[0]
     assert re.search(r"<td>oracle</td><td>100\.0</td>", tsr_table)

@@ -163,7 +163,7 @@ def test_hub_path_uses_pinned_revisions(monkeypatch, tmp_path):
 
 
 def test_hub_parquet_roundtrip(monkeypatch, tmp_path):
-    """The hub's parquet layout is read, and `rsb data download --export` writes a directory that
+    """The hub's parquet layout is read, and `rsb data download --out` writes a directory that
     serves as $RSB_DATA_DIR (GSM8K in its original jsonl, MMLU-Pro in the hub's parquet)."""
     files = {
         "main/train-00000-of-00001.parquet": {"question": ["Q a?"], "answer": ["#### 5"]},

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from rsb_maniskill.evaluation.bias import (
+from rsb_maniskill.reporting.sections.bias import (
     ALPHA,
     MIN_GRASPS,
     bias_table,
@@ -21,7 +21,7 @@ from rsb_maniskill.evaluation.bias import (
 )
 from rsb_maniskill.evaluation.positions import left_ranks, ranks_from_xyz
 from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD
-from rsb_maniskill.reporting.bias import bias_markdown, bias_plots
+from rsb_maniskill.reporting.sections.bias import bias_markdown, bias_plots
 from rsb_maniskill.reporting.summary import results_from_records
 from rsb_maniskill.reporting.writer import write_report
 from rsb_maniskill.semantic import EpisodeSampler

@@ -7,7 +7,7 @@ import random
 
 import pytest
 
-from rsb_maniskill.evaluation.counterfactual import POOLED, counterfactual_json, counterfactual_table
+from rsb_maniskill.reporting.sections.counterfactual import POOLED, counterfactual_json, counterfactual_table
 from rsb_maniskill.evaluation.jobs import drive
 from rsb_maniskill.evaluation.metrics import wilson_interval
 from rsb_maniskill.evaluation.protocol import (

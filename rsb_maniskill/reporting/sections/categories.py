@@ -13,11 +13,14 @@ fewer than :data:`SMALL_CELL` episodes are kept but flagged. Pure functions of r
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, Iterable, Mapping
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, nsg, num_choices, outcome, suite_order
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, dedupe, record_row
-from rsb_maniskill.semantic.categories import DIMENSIONS, SUITE_KIND, value_order
+from rsb_maniskill.reporting.cells import markdown_table, rate_cell
+from rsb_maniskill.reporting.sections.base import SMALL_MARK, Section, write_rows
+from rsb_maniskill.semantic.categories import DIMENSIONS, SUITE_KIND, value_label, value_order
 
 SMALL_CELL = 20  # episodes: a cell with fewer is shown, marked as too small to read much into
 PER_SUITE = tuple(d for d in DIMENSIONS if d != SUITE_KIND)  # suite kind is one value per suite: pooled
@@ -125,3 +128,104 @@ def category_tables(records: Iterable[Mapping[str, Any]]) -> dict[str, RowCatego
     for r in dedupe(records):
         rows.setdefault(record_row(r), []).append(r)
     return {label: _row_categories(recs) for label, recs in rows.items()}
+
+
+# ---------------------------------------------------------------- written
+Tables = Mapping[str, RowCategories]
+
+HEADER = ["Category", "Episodes", "TSR", "nSG", "First grasp right", "First grasps"]
+SMALL_NOTE = (f"{SMALL_MARK} fewer than {SMALL_CELL} episodes: shown, but its interval is wide; read it with care.")
+RERUN = "Rerun `rsb eval` into a new `--out` directory to get them."
+NONE_NOTE = ("The records carry no categories (written before records had them, or by a harness that does not "
+             f"record them): no per-category table. {RERUN}")
+
+
+def _cells(c: CategoryCell) -> list[str]:
+    return [f"{c.n_episodes}{SMALL_MARK if c.small else ''}", rate_cell(c.tsr), rate_cell(c.nsg),
+            rate_cell(c.first_right), str(c.n_first)]
+
+
+def _kind_label(kind: str, n: int) -> str:
+    return f"{value_label(SUITE_KIND, kind)}, {n} choices"
+
+
+def has_categories(tables: Tables) -> bool:
+    return any(t.suites for t in tables.values())
+
+
+def categories_markdown(tables: Tables) -> str:
+    """Per row and suite the category table, then Direct vs question suites where a row ran both."""
+    parts = []
+    if not has_categories(tables):
+        return "### No per-category tables\n\n" + NONE_NOTE + "\n"
+    for label, t in tables.items():
+        for s, dims in t.suites.items():
+            rows = []
+            for d, cells in dims.items():
+                rows.append([f"**{DIMENSIONS[d]}**"] + [""] * (len(HEADER) - 1))
+                rows += [[value_label(d, v)] + _cells(c) for v, c in cells.items()]
+            parts.append(f"### {label} on {s}: by category (%)\n\n" + markdown_table(HEADER, rows))
+        if len({k for k, _ in t.kinds}) > 1:
+            rows = [[_kind_label(k, n)] + _cells(c) for (k, n), c in t.kinds.items()]
+            parts.append(f"### {label}: Direct vs question suites (%)\n\n"
+                         "Pooled over the suites of each kind and number of choices.\n\n"
+                         + markdown_table(["Suites"] + HEADER[1:], rows))
+    skipped = [f"{label} ({t.n_without})" for label, t in tables.items() if t.n_without]
+    notes = ["TSR and nSG as in the paper tables, over the episodes of the category; first grasp right: the first "
+             "candidate grasped was the target, of the episodes with a grasp (first grasps). In brackets: Wilson "
+             "95% intervals.", SMALL_NOTE]
+    if skipped:
+        notes.append("Records without categories, left out: " + ", ".join(skipped) + ". " + RERUN)
+    return "\n\n".join(parts) + "\n\n" + "\n\n".join(notes) + "\n"
+
+
+def categories_json(tables: Tables) -> dict[str, Any]:
+    return {"small_cell": SMALL_CELL, "rows": {label: t.to_dict() for label, t in tables.items()},
+            **({} if has_categories(tables) else {"note": NONE_NOTE})}
+
+
+def _row(label: str, suite: str, n: int, dimension: str, value: str, c: CategoryCell) -> dict[str, Any]:
+    out: dict[str, Any] = {"row": label, "suite_id": suite, "n_choices": n, "dimension": dimension, "value": value,
+                           "n_episodes": c.n_episodes, "n_grasped": c.n_grasped, "n_success": c.n_success,
+                           "n_first_grasp": c.n_first, "n_first_grasp_right": c.n_first_right, "small": c.small}
+    for k in ("tsr", "nsg", "first_right"):
+        rate = getattr(c, k)
+        out.update({k: rate.value, f"{k}_low": rate.low, f"{k}_high": rate.high})
+    return out
+
+
+def categories_rows(tables: Tables) -> list[dict[str, Any]]:
+    """Long format, one row per (policy row, suite, dimension, value); the pooled Direct vs
+    question cells have ``suite_id`` ``"(pooled)"``."""
+    out = []
+    for label, t in tables.items():
+        for s, dims in t.suites.items():
+            for d, cells in dims.items():
+                out += [_row(label, s, c.n_choices, d, v, c) for v, c in cells.items()]
+        out += [_row(label, "(pooled)", n, SUITE_KIND, k, c) for (k, n), c in t.kinds.items()]
+    return out
+
+
+class CategoriesSection(Section):
+    key, anchor, title, nav, page_order = "categories", "categories", "Per-category results", "By category", 60
+    summary_order = 40
+    note = ("Which kinds of question a policy gets right: per suite, TSR, nSG and first grasp right (the first "
+            "candidate grasped was the target) by the episode's category, from the records (Math: operator, answer "
+            "size; HardMath: GSM8K reasoning steps, answer size; General: source, MMLU-Pro category; every suite: "
+            "instruction template). Grey lines: fewer than 20 episodes. In brackets: Wilson 95% intervals.")
+
+    def compute(self, records: Sequence[Mapping[str, Any]], results_dir: Path) -> Tables | None:
+        return category_tables(records) if records else None
+
+    def to_json(self, table: Tables) -> Any:
+        return categories_json(table)
+
+    def markdown(self, table: Tables) -> str:
+        return categories_markdown(table)
+
+    def files(self, table: Tables, out: Path, stem: str) -> dict[str, Path]:
+        rows = categories_rows(table)
+        return {"csv:categories": write_rows(rows, out / f"{stem}_categories.csv")} if rows else {}
+
+
+SECTION = CategoriesSection()

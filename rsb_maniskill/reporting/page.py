@@ -49,7 +49,7 @@ FRAME_QUALITY = 75
 OUTCOME_LABELS = {"success": "success", "not_placed": "not placed", "wrong_target": "wrong target",
                   "no_grasp": "no grasp"}
 OUTCOME_COLORS = {"success": "#2ca02c", "not_placed": "#e6a100", "wrong_target": "#d62728", "no_grasp": "#8c8c8c"}
-BAR_COLORS = {"gsr": "#9ecae1", "tsr": "#2171b5", "nsg": "#fd8d3c"}
+BAR_COLORS = {"gsr": "#9ecae1", "tsr": "#2171b5", "nsg": "#fd8d3c"}  # the bars and their legend
 # What the page shows about a policy row's settings (run.json), beside its averages.
 SETTINGS_SHOWN = ("policy", "policy_kwargs", "obs_mode")
 # The error analysis's place among the sections (``Section.page_order``): smaller ones above it.
@@ -262,7 +262,7 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
         rows=_summary_rows(results, {c["row"]: c["policy"] for c in cards}, read_manifest(results_dir)),
         tables=markdown_to_html(paper), pooled_errors=markdown_to_html(pooled_errors), errors=_error_rows(results),
         upper=upper, lower=lower, nav=nav,
-        outcomes=OUTCOMES, colors=OUTCOME_COLORS, labels=OUTCOME_LABELS,
+        outcomes=OUTCOMES, colors=OUTCOME_COLORS, bar_colors=BAR_COLORS, labels=OUTCOME_LABELS,
         filters=[{"key": key, "name": name, "options": options, "labels": labels}
                  for key, name, options, labels in filters],
         episodes=_script_json(cards), style=_script_json({"colors": OUTCOME_COLORS, "labels": OUTCOME_LABELS}),

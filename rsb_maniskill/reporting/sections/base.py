@@ -17,6 +17,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 from markupsafe import Markup
 
+_PIPE = re.compile(r"(?<!\\)\|")  # a column's border, not an escaped pipe inside a cell (cells.cell)
 SMALL_MARK = "†"  # after the count of a cell too small to trust (the page greys its line)
 
 
@@ -85,7 +86,7 @@ def write_rows(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> Pa
 
 # ---------------------------------------------------------------- Markdown tables -> HTML
 def _inline(text: str) -> str:
-    text = html.escape(text.strip()).replace("\\*", "*")
+    text = html.escape(text.strip()).replace("\\*", "*").replace("\\|", "|")
     return re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", text)
 
 
@@ -102,7 +103,7 @@ def markdown_to_html(md: str) -> Markup:
     def flush() -> None:
         if not table:
             return
-        rows = [[c for c in line.strip().strip("|").split("|")] for line in table]
+        rows = [_PIPE.split(line.strip().removeprefix("|").removesuffix("|")) for line in table]
         head, body = rows[0], [r for r in rows[2:]]
         out.append('<div class="scroll"><table><thead><tr>' + "".join(f"<th>{_inline(c)}</th>" for c in head)
                    + "</tr></thead><tbody>" + "".join(_body_row(r) for r in body) + "</tbody></table></div>")

@@ -10,18 +10,19 @@ import json
 import numpy as np
 import pytest
 
+from rsb_maniskill.evaluation.positions import left_ranks, ranks_from_xyz
+from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD
 from rsb_maniskill.reporting.sections.bias import (
     ALPHA,
     MIN_GRASPS,
+    bias_markdown,
+    bias_plots,
     bias_table,
     chi_square,
     p_text,
     position_column,
     position_label,
 )
-from rsb_maniskill.evaluation.positions import left_ranks, ranks_from_xyz
-from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD
-from rsb_maniskill.reporting.sections.bias import bias_markdown, bias_plots
 from rsb_maniskill.reporting.summary import results_from_records
 from rsb_maniskill.reporting.writer import write_report
 from rsb_maniskill.semantic import EpisodeSampler

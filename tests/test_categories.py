@@ -11,10 +11,16 @@ import re
 import pytest
 from test_eval_runner import FakeRSBEnv, ScriptedPolicy
 
-from rsb_maniskill.reporting.sections.categories import SMALL_CELL, category_cell, category_tables
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, LEFT_RANK_FIELD
 from rsb_maniskill.evaluation.runner import EpisodeSettings, episode_loop
-from rsb_maniskill.reporting.sections.categories import SMALL_MARK, categories_markdown, categories_rows
+from rsb_maniskill.reporting.sections.categories import (
+    SMALL_CELL,
+    SMALL_MARK,
+    categories_markdown,
+    categories_rows,
+    category_cell,
+    category_tables,
+)
 from rsb_maniskill.reporting.summary import results_from_records
 from rsb_maniskill.reporting.writer import write_report
 from rsb_maniskill.semantic import EpisodeSampler, clear_cache

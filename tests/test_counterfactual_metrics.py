@@ -7,7 +7,6 @@ import random
 
 import pytest
 
-from rsb_maniskill.reporting.sections.counterfactual import POOLED, counterfactual_json, counterfactual_table
 from rsb_maniskill.evaluation.jobs import drive
 from rsb_maniskill.evaluation.metrics import wilson_interval
 from rsb_maniskill.evaluation.protocol import (
@@ -22,6 +21,7 @@ from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, validate_re
 from rsb_maniskill.evaluation.runner import EpisodeSettings
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
 from rsb_maniskill.policies.reference import blind_target
+from rsb_maniskill.reporting.sections.counterfactual import POOLED, counterfactual_json, counterfactual_table
 
 SUITE = "RSB-Math-4"
 

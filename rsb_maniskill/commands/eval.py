@@ -194,8 +194,7 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
 
 def _print_counterfactual(records: list[dict]) -> None:
     """The follow / switch / stuck tables of counterfactual runs (nothing without them)."""
-    from rsb_maniskill.reporting.sections.counterfactual import counterfactual_table
-    from rsb_maniskill.reporting.sections.counterfactual import counterfactual_markdown
+    from rsb_maniskill.reporting.sections.counterfactual import counterfactual_markdown, counterfactual_table
 
     table = counterfactual_table(records)
     if table:

@@ -235,6 +235,13 @@ def _error_rows(results: Mapping[str, Mapping[str, SuiteMetrics]]) -> list[dict[
     return out
 
 
+def default_title(policies: Sequence[str], shown: int = 3) -> str:
+    """The page's title without ``--title``: the runs it shows (their ``--name`` or policy), not the
+    folder's name (``eval`` says nothing)."""
+    more = f" and {len(policies) - shown} more" if len(policies) > shown else ""
+    return "RSB evaluation: " + ", ".join(policies[:shown]) + more
+
+
 def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: str | None = None) -> str:
     """The report page for ``records`` (episode files of ``results_dir`` feed the thumbnails)."""
     from rsb_maniskill.version import benchmark_label, code_label
@@ -255,7 +262,7 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
     lower = [page for s, page in pages if page and s.page_order >= ERRORS_ORDER]
     nav = [{"anchor": s.anchor, "label": s.nav} for s in shown if s.nav]
     return templates().get_template(PAGE_TEMPLATE).render(
-        title=title or f"RSB evaluation: {results_dir.resolve().name}",
+        title=title or default_title(policies),
         version=benchmark_label(one_version(records) or ""), n_episodes=len(cards), n_rows=len(results),
         n_suites=len(suites), n_videos=sum(1 for c in cards if c["video"]), code=code_label(),
         stamp=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),

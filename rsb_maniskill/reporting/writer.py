@@ -99,11 +99,40 @@ def write_html_report(results_dir: str | os.PathLike, out: str | os.PathLike | N
         records = read_records(results_dir / RECORDS_FILE)
     if not records:
         raise ReportError(f"{results_dir / RECORDS_FILE} holds no episode records yet")
-    path = Path(out) if out is not None else results_dir / REPORT_FILE
+    path = page_path(results_dir, out)
     page = build_html(records, results_dir, title)
     if partial:  # under the title, before the page's own line
         page = page.replace("</h1>", f'</h1><p class="meta"><b>{html.escape(partial)}</b></p>', 1)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(page, encoding="utf-8")
-    os.replace(tmp, path)  # a reader never sees half a page
+    write_atomic(path, page)
     return path
+
+
+def page_path(results_dir: str | os.PathLike, out: str | os.PathLike | None = None) -> Path:
+    """Where the page goes: ``out`` (a folder: ``out/report.html``), else ``RESULTS_DIR/report.html``.
+    Checked before anything is written: its folder must exist and take files."""
+    path = Path(out) if out is not None else Path(results_dir) / REPORT_FILE
+    if path.is_dir():
+        path = path / REPORT_FILE
+    if not path.parent.is_dir():
+        raise ReportError(f"cannot write the page {path}: {path.parent} is not a folder; give a page path in an "
+                          "existing folder")
+    if not writable(path.parent):
+        raise ReportError(f"cannot write the page {path}: {path.parent} is read-only; give a page path in a "
+                          "writable folder")
+    return path
+
+
+def writable(folder: str | os.PathLike) -> bool:
+    """Whether files can be created in ``folder``."""
+    return os.access(folder, os.W_OK | os.X_OK)
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """``text`` into ``path`` through a temporary file beside it, removed on every path: a reader never
+    sees half a file, and a failed write leaves nothing behind."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

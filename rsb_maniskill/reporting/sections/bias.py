@@ -61,13 +61,20 @@ def position_column(rank: int, n: int) -> str:
     return f"{rank + 1} ({position_label(rank, n)})" if rank in (0, n - 1) else str(rank + 1)
 
 
-def p_text(p: float | None) -> str:
-    """``"p < 0.001"``, ``"p = 0.004"``, ``"p = 0.42"``."""
+def p_text(p: float | None, alpha: float | None = None) -> str:
+    """``"p < 0.001"``, ``"p = 0.004"``, ``"p = 0.42"``: two significant digits, more where rounding
+    would carry ``p`` across the rule ``p < alpha`` (0.0123 is "p = 0.012", never "p = 0.01" beside a
+    "p < 0.01" rule; 0.00996 is "p = 0.00996", not "p = 0.01")."""
     if p is None:
         return "p n/a"
     if p < 0.001:
         return "p < 0.001"
-    return f"p = {p:.3f}" if p < 0.01 else f"p = {p:.2f}"
+    alpha = ALPHA if alpha is None else alpha
+    for digits in range(2, 8):
+        text = f"{p:.{digits}g}"
+        if (float(text) < alpha) == (p < alpha) and float(text) != alpha or digits == 7:
+            return f"p = {text}"
+    return f"p = {p}"
 
 
 def chi_square(observed: Sequence[float], expected: Sequence[float]) -> tuple[float | None, float | None]:

@@ -8,7 +8,6 @@ import random
 import pytest
 
 from rsb_maniskill.evaluation.jobs import drive
-from rsb_maniskill.evaluation.metrics import wilson_interval
 from rsb_maniskill.evaluation.protocol import (
     check_ablation_mode,
     episode_of,
@@ -74,16 +73,13 @@ def test_a_uniform_grasper_is_at_chance():
 
 
 def test_the_switch_interval_holds_its_coverage_for_a_uniform_grasper():
-    """Counted over the pairs that share no variant (2 a scene of 4 variants), the interval covers the
-    switch rate of a uniform grasper at least as often as a 95 % interval should, and is no wider
-    than that count allows."""
+    """Counted over scenes (the design effect of a scene's pairs), the interval covers the switch rate
+    of a uniform grasper at least as often as a 95 % interval should."""
     misses = 0
     runs = 200
     for seed in range(runs):
         m = metrics(scenes(lambda rng, t, pick: rng.randrange(4), n_scenes=20, seed=seed))
         misses += not m.switch.low <= 0.75 <= m.switch.high
-        lo, hi = wilson_interval(m.switch.value * 40, 40)
-        assert (m.switch.low, m.switch.high) == pytest.approx((lo, hi))
     assert misses <= 0.05 * runs, misses
 
 

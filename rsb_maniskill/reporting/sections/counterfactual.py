@@ -34,8 +34,9 @@ from itertools import combinations
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from rsb_maniskill.evaluation.metrics import Rate, num_choices, wilson_interval
+from rsb_maniskill.evaluation.metrics import Rate, num_choices
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, record_row
+from rsb_maniskill.evaluation.stats import clustered_rate
 from rsb_maniskill.reporting.cells import NA, markdown_table, pct, rate_cell
 from rsb_maniskill.reporting.figures import png_uri, png_with_legend_below, rate_bars
 from rsb_maniskill.reporting.sections.base import Section, write_rows
@@ -63,10 +64,13 @@ class Counts:
     chance_followed: float = 0.0  # expected numerators of a uniform random grasper
     chance_switched: float = 0.0
     chance_stuck: float = 0.0
+    # Per scene, its own numerators and denominators ("followed", "grasped", ...): the intervals count
+    # scenes, not variants (three of a scene's four variants ask the same question).
+    per_scene: tuple[Mapping[str, int], ...] = ()
 
     def __add__(self, o: "Counts") -> "Counts":
         kinds = set(self.kind_grasped) | set(o.kind_grasped)
-        return Counts(**{k: getattr(self, k) + getattr(o, k) for k in _SUMMED},
+        return Counts(**{k: getattr(self, k) + getattr(o, k) for k in _SUMMED}, per_scene=self.per_scene + o.per_scene,
                       kind_grasped={k: self.kind_grasped.get(k, 0) + o.kind_grasped.get(k, 0) for k in kinds},
                       kind_followed={k: self.kind_followed.get(k, 0) + o.kind_followed.get(k, 0) for k in kinds})
 
@@ -94,9 +98,9 @@ class CounterfactualMetrics:
     @classmethod
     def of(cls, counts: Counts, n_choices: int | None, k: int | None) -> "CounterfactualMetrics":
         c = counts
-        return cls(n_choices, k, c, Rate.of(c.followed, c.grasped), Rate.of(c.followed, c.variants),
-                   {kind: Rate.of(c.kind_followed.get(kind, 0), c.kind_grasped.get(kind, 0)) for kind in KINDS},
-                   switch_rate(c.switched, c.pairs, c.disjoint_pairs), Rate.of(c.stuck, c.full_scenes),
+        return cls(n_choices, k, c, scene_rate(c, "followed", "grasped"), scene_rate(c, "followed", "variants"),
+                   {kind: scene_rate(c, f"{kind}_followed", f"{kind}_grasped") for kind in KINDS},
+                   scene_rate(c, "switched", "pairs"), Rate.of(c.stuck, c.full_scenes),
                    _ratio(c.chance_followed, c.grasped), _ratio(c.chance_switched, c.pairs),
                    _ratio(c.chance_stuck, c.full_scenes))
 
@@ -118,13 +122,19 @@ def _ratio(x: float, n: int) -> float | None:
     return x / n if n else None
 
 
-def switch_rate(switched: int, pairs: int, disjoint: int) -> Rate:
-    """``switched / pairs`` with the Wilson interval of that rate over ``disjoint`` pairs."""
-    if not pairs:
+def scene_rate(counts: Counts, hits: str, of: str) -> Rate:
+    """``sum(hits) / sum(of)`` over the scenes of ``counts``, with Wilson's 95 % interval at the
+    effective sample size (Kish's design effect over scenes, ``stats.clustered_rate``): a scene whose
+    variants all went the same way counts about once, not K times."""
+    values: list[int] = []
+    clusters: list[int] = []
+    for i, scene in enumerate(counts.per_scene):
+        n, k = scene.get(of, 0), scene.get(hits, 0)
+        values += [1] * k + [0] * (n - k)
+        clusters += [i] * n
+    if not values:
         return Rate(None, None, None)
-    p = switched / pairs
-    lo, hi = wilson_interval(p * disjoint, disjoint) if disjoint else (0.0, 1.0)
-    return Rate(p, lo, hi)
+    return clustered_rate(values, clusters)
 
 
 def grasped(record: Mapping[str, Any]) -> int | None:
@@ -148,6 +158,11 @@ def scene_counts(variants: Sequence[Mapping[str, Any]], n_choices: int) -> Count
              if a is not None and b is not None and ta != tb]
     full = len(picks) >= 2 and all(g is not None for g in picks)
     n_grasped = sum(g is not None for g in picks)
+    followed = sum(g == t for g, t in zip(picks, targets) if g is not None)
+    own = {"followed": followed, "grasped": n_grasped, "variants": len(picks), "pairs": len(pairs),
+           "switched": sum(a != b for a, b in pairs),
+           **{f"{kind}_{what}": d.get(kind, 0) for kind in KINDS
+              for what, d in (("grasped", kind_grasped), ("followed", kind_followed))}}
     return Counts(
         scenes=1, variants=len(picks), grasped=n_grasped,
         followed=sum(g == t for g, t in zip(picks, targets) if g is not None),
@@ -155,7 +170,7 @@ def scene_counts(variants: Sequence[Mapping[str, Any]], n_choices: int) -> Count
         pairs=len(pairs), switched=sum(a != b for a, b in pairs), disjoint_pairs=min(n_grasped // 2, len(pairs)),
         full_scenes=int(full), stuck=int(full and len(set(picks)) == 1),
         chance_followed=n_grasped / n_choices, chance_switched=len(pairs) * (1 - 1 / n_choices),
-        chance_stuck=(1 / n_choices) ** (len(picks) - 1) if full else 0.0)
+        chance_stuck=(1 / n_choices) ** (len(picks) - 1) if full else 0.0, per_scene=(own,))
 
 
 def counterfactual_records(records: Iterable[Mapping[str, Any]]) -> list[dict]:
@@ -215,8 +230,9 @@ NOTE = ("Follow: the grasped candidate is the variant's target, over variants wi
         "different targets, both grasped, got different candidates. Stuck: one candidate grasped in every variant "
         "of a scene, over scenes whose every variant was grasped. Chance: a policy grasping uniformly at random, "
         f"follow {CHANCE_FORMULAS['follow']}, switch {CHANCE_FORMULAS['switch']}, stuck "
-        f"{CHANCE_FORMULAS['stuck']}. %, Wilson 95% intervals (switch: over the pairs of a scene that share no "
-        "variant, K/2 a scene, as the pairs of a scene are not independent).")
+        f"{CHANCE_FORMULAS['stuck']}. %, Wilson 95% intervals over scenes: a scene's variants (and its pairs) are "
+        "not independent, so follow and switch are counted at their effective number of scenes (Kish's design "
+        "effect); stuck counts one a scene.")
 
 
 def _n(value: int | None) -> str:
@@ -303,7 +319,7 @@ class CounterfactualSection(Section):
             "time (remap: the same question with the answer bound to another candidate; requestion: another "
             "question). Follow: the grasp went to the variant's target; switch: variants with different targets got "
             "different grasps; stuck: one candidate grasped in every variant, whatever the instruction. Dashed "
-            "marks: a policy grasping at random. Whiskers and brackets: Wilson 95% intervals.")
+            "marks: a policy grasping at random. Whiskers and brackets: Wilson 95% intervals over scenes.")
 
     def compute(self, records: Sequence[Mapping[str, Any]], results_dir: Path) -> Table | None:
         return counterfactual_table(records) or None

@@ -5,8 +5,9 @@ layout and candidates; the answer on a different candidate in each, ``semantic/c
 Its records carry ``variant``, ``variant_kind``, the variant's ``target_block`` and what was
 grasped first, ``first_grasped`` (-1: nothing). Over them, per suite and pooled:
 
-- **follow rate** = variants whose grasped candidate is the variant's target / variants with a
-  grasp (``follow``); also over all variants (``follow_all``: a variant without a grasp counts as
+- **follow rate** = changed variants (k > 0) whose grasped candidate is the variant's target /
+  changed variants with a grasp (``follow``); also over every grasped variant (``follow_grasped``),
+  over all variants (``follow_all``: a variant without a grasp counts as
   not followed), and per kind (remap: the binding moved; requestion: the question changed).
 - **switch rate** = pairs of variants of one scene, both with a grasp and with different targets,
   whose grasped candidates differ / such pairs. A policy that reads the instruction switches.
@@ -66,7 +67,7 @@ class Counts:
     chance_stuck: float = 0.0
     # Per scene, its own numerators and denominators ("followed", "grasped", ...): the intervals count
     # scenes, not variants (three of a scene's four variants ask the same question).
-    per_scene: tuple[Mapping[str, int], ...] = ()
+    per_scene: tuple[Mapping[str, float], ...] = ()
 
     def __add__(self, o: "Counts") -> "Counts":
         kinds = set(self.kind_grasped) | set(o.kind_grasped)
@@ -86,7 +87,7 @@ class CounterfactualMetrics:
     n_choices: int | None  # None when pooled over suites of different N
     variants_per_scene: int | None  # K, None when scenes differ
     counts: Counts
-    follow: Rate  # over variants with a grasp
+    follow: Rate  # the headline: over the changed variants (k > 0: remap, requestion) with a grasp
     follow_all: Rate  # over all variants
     follow_by_kind: dict[str, Rate]
     switch: Rate
@@ -94,15 +95,22 @@ class CounterfactualMetrics:
     chance_follow: float | None
     chance_switch: float | None
     chance_stuck: float | None
+    follow_grasped: Rate = Rate(None, None, None)  # over every variant with a grasp, the protocol's (k = 0) too
+    switched_and_followed: Rate = Rate(None, None, None)  # pairs with different targets, both grasps on target
+    spread: Mapping[str, int] = field(default_factory=dict)  # scenes: all / some / none of their changed variants
 
     @classmethod
     def of(cls, counts: Counts, n_choices: int | None, k: int | None) -> "CounterfactualMetrics":
         c = counts
-        return cls(n_choices, k, c, scene_rate(c, "followed", "grasped"), scene_rate(c, "followed", "variants"),
+        changed = sum(sc.get(f"{kind}_grasped", 0) for sc in c.per_scene for kind in KINDS)
+        chance_changed = sum(sc.get("chance_changed", 0.0) for sc in c.per_scene)
+        return cls(n_choices, k, c, scene_rate(c, "changed_followed", "changed_grasped"),
+                   scene_rate(c, "followed", "variants"),
                    {kind: scene_rate(c, f"{kind}_followed", f"{kind}_grasped") for kind in KINDS},
                    scene_rate(c, "switched", "pairs"), Rate.of(c.stuck, c.full_scenes),
-                   _ratio(c.chance_followed, c.grasped), _ratio(c.chance_switched, c.pairs),
-                   _ratio(c.chance_stuck, c.full_scenes))
+                   _ratio(chance_changed, changed), _ratio(c.chance_switched, c.pairs),
+                   _ratio(c.chance_stuck, c.full_scenes), scene_rate(c, "followed", "grasped"),
+                   scene_rate(c, "both_followed", "pairs"), spread(c))
 
     def to_dict(self) -> dict[str, Any]:
         def rate(r: Rate) -> dict[str, float | None]:
@@ -115,11 +123,24 @@ class CounterfactualMetrics:
                 "follow": rate(self.follow), "follow_all": rate(self.follow_all),
                 "follow_by_kind": {k: rate(r) for k, r in self.follow_by_kind.items()},
                 "switch": rate(self.switch), "stuck": rate(self.stuck),
+                "follow_grasped": rate(self.follow_grasped), "switched_and_followed": rate(self.switched_and_followed),
+                "spread": dict(self.spread),
                 "chance": {"follow": self.chance_follow, "switch": self.chance_switch, "stuck": self.chance_stuck}}
 
 
 def _ratio(x: float, n: int) -> float | None:
     return x / n if n else None
+
+
+def spread(counts: Counts) -> dict[str, int]:
+    """Scenes with a grasped changed variant, by how many of those followed: ``all``, ``some``, ``none``
+    (a policy that follows half its variants everywhere differs from one that follows half its scenes)."""
+    out = {"all": 0, "some": 0, "none": 0}
+    for scene in counts.per_scene:
+        n, k = scene.get("changed_grasped", 0), scene.get("changed_followed", 0)
+        if n:
+            out["all" if k == n else "none" if k == 0 else "some"] += 1
+    return out
 
 
 def scene_rate(counts: Counts, hits: str, of: str) -> Rate:
@@ -159,7 +180,12 @@ def scene_counts(variants: Sequence[Mapping[str, Any]], n_choices: int) -> Count
     full = len(picks) >= 2 and all(g is not None for g in picks)
     n_grasped = sum(g is not None for g in picks)
     followed = sum(g == t for g, t in zip(picks, targets) if g is not None)
+    both = sum(a == ta and b == tb for (a, ta), (b, tb) in combinations(zip(picks, targets), 2)
+               if a is not None and b is not None and ta != tb)
+    changed_grasped = sum(kind_grasped.values())
     own = {"followed": followed, "grasped": n_grasped, "variants": len(picks), "pairs": len(pairs),
+           "both_followed": both, "changed_grasped": changed_grasped,
+           "changed_followed": sum(kind_followed.values()), "chance_changed": changed_grasped / n_choices,
            "switched": sum(a != b for a, b in pairs),
            **{f"{kind}_{what}": d.get(kind, 0) for kind in KINDS
               for what, d in (("grasped", kind_grasped), ("followed", kind_followed))}}
@@ -209,8 +235,12 @@ def counterfactual_table(records: Iterable[Mapping[str, Any]]) -> Table:
 
 def counterfactual_json(table: Table) -> dict[str, Any]:
     """The ``counterfactual`` section of summary.json."""
-    return {"definitions": {"follow": "grasped candidate == the variant's target, over variants with a grasp "
-                                      "(follow_all: over all variants)",
+    return {"definitions": {"follow": "grasped candidate == the variant's target, over the changed variants "
+                                      "(k > 0) with a grasp (follow_grasped: every variant with a grasp; "
+                                      "follow_all: every variant)",
+                            "switched_and_followed": "both grasps on their targets, over pairs of variants of a "
+                                                     "scene with different targets, both grasped",
+                            "spread": "scenes with a grasped changed variant: all, some or none of those followed",
                             "switch": "grasped candidates differ, over pairs of variants of a scene with different "
                                       "targets, both grasped",
                             "stuck": "one candidate grasped in every variant of a scene, over scenes whose every "
@@ -222,11 +252,15 @@ def counterfactual_json(table: Table) -> dict[str, Any]:
 # ---------------------------------------------------------------- written
 RATES = ("follow", "switch", "stuck")  # the plotted rates, each beside its chance line
 COLORS = {"follow": "#2171b5", "switch": "#41ab5d", "stuck": "#d94801"}
-LABELS = {"follow": "follow (of grasped)", "switch": "switch", "stuck": "stuck"}
+LABELS = {"follow": "follow (changed, of grasped)", "switch": "switch", "stuck": "stuck"}
 HEADER = ["Suite", "N", "K", "Scenes", "Follow", "chance", "Follow (all)", "remap", "requestion", "Switch",
-          "chance", "Stuck", "chance"]
-NOTE = ("Follow: the grasped candidate is the variant's target, over variants with a grasp (Follow (all): over "
-        "every variant; remap / requestion: by the kind of variant). Switch: two variants of a scene with "
+          "chance", "Switched & followed", "Stuck", "chance", "Scenes followed: all / some / none"]
+NOTE = ("Follow: the grasped candidate is the variant's target, over the changed variants (k > 0: the answer "
+        "moved) with a grasp (Follow (all): over every variant, the protocol's k = 0 too; remap / requestion: by "
+        "the kind of variant). Switched & followed: pairs of variants with different targets, both grasps on "
+        "their targets (a policy that always grasps one option scores switch, never this). Scenes followed: "
+        "scenes with a grasped changed variant, by whether all, some or none of those followed. Switch: two "
+        "variants of a scene with "
         "different targets, both grasped, got different candidates. Stuck: one candidate grasped in every variant "
         "of a scene, over scenes whose every variant was grasped. Chance: a policy grasping uniformly at random, "
         f"follow {CHANCE_FORMULAS['follow']}, switch {CHANCE_FORMULAS['switch']}, stuck "
@@ -243,7 +277,8 @@ def _cells(suite: str, m: CounterfactualMetrics) -> list[str]:
     return [suite, _n(m.n_choices), _n(m.variants_per_scene), str(m.counts.scenes), rate_cell(m.follow),
             pct(m.chance_follow), rate_cell(m.follow_all), rate_cell(m.follow_by_kind["remap"]),
             rate_cell(m.follow_by_kind["requestion"]), rate_cell(m.switch), pct(m.chance_switch),
-            rate_cell(m.stuck), pct(m.chance_stuck)]
+            rate_cell(m.switched_and_followed), rate_cell(m.stuck), pct(m.chance_stuck),
+            " / ".join(str(m.spread.get(k, 0)) for k in ("all", "some", "none"))]
 
 
 def counterfactual_markdown(table: Table) -> str:
@@ -263,12 +298,13 @@ def counterfactual_rows(table: Table) -> list[dict[str, Any]]:
             flat: dict[str, Any] = {"row": row, "suite_id": suite}
             flat.update({k: d[k] for k in ("n_choices", "variants_per_scene", "scenes", "variants", "grasped",
                                            "pairs", "disjoint_pairs", "full_scenes")})
-            for name in ("follow", "follow_all", "switch", "stuck"):
+            for name in ("follow", "follow_all", "follow_grasped", "switch", "switched_and_followed", "stuck"):
                 flat.update({f"{name}{suffix}": d[name][key] for suffix, key in (("", "value"), ("_low", "low"),
                                                                                   ("_high", "high"))})
             for kind, r in d["follow_by_kind"].items():
                 flat[f"follow_{kind}"] = r["value"]
             flat.update({f"chance_{k}": v for k, v in d["chance"].items()})
+            flat.update({f"scenes_followed_{k}": v for k, v in d["spread"].items()})
             out.append(flat)
     return out
 

@@ -173,10 +173,32 @@ def test_small_cells_are_marked_not_hidden():
     recs = [_math(i, "plus" if i < 25 else "times", True, 0) for i in range(30)]
     md = categories_markdown(category_tables(recs))
     assert re.search(r"^\| plus \| 25 \|", md, re.M)
-    assert re.search(rf"^\| times \| 5{SMALL_MARK} \|", md, re.M) and f"{SMALL_MARK} fewer than {SMALL_CELL}" in md
+    assert re.search(rf"^\| times \| 5{SMALL_MARK} \|", md, re.M) and f"fewer than {SMALL_CELL}" in md
     rows = categories_rows(category_tables(recs))
     assert {(r["value"], r["small"]) for r in rows if r["dimension"] == "operator"} == {("plus", False),
                                                                                        ("times", True)}
+
+
+def test_each_rate_is_greyed_by_its_own_denominator():
+    """Issue 49: a 100-episode cell with 3 grasps has an nSG over 3 grasps: marked (and greyed on the
+    page), while its TSR over 100 episodes is not."""
+    from rsb_maniskill.reporting.sections.base import markdown_to_html
+
+    recs = [_math(i, "plus", i < 2, 0 if i < 3 else -1) for i in range(100)]
+    cell = category_tables(recs)["p"].suites["RSB-Math-4"]["operator"]["plus"]
+    assert cell.n_episodes == 100 and cell.n_grasped == 3
+    assert cell.small_rates() == {"tsr": False, "nsg": True, "first_right": True}
+    md = categories_markdown(category_tables(recs))
+    line = next(x for x in md.splitlines() if x.startswith("| plus |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert not cells[1].endswith(SMALL_MARK) and not cells[2].endswith(SMALL_MARK)  # episodes, TSR
+    assert cells[3].endswith(SMALL_MARK) and cells[4].endswith(SMALL_MARK)  # nSG, first grasp right
+    page = markdown_to_html(md)
+    row = re.search(r"<tr><td>plus</td>(.*?)</tr>", page)[1]
+    assert re.findall(r"<td( class=\"small\")?>", row) == ["", "", ' class="small"', ' class="small"', ""]
+    rows = categories_rows(category_tables(recs))
+    plus = next(r for r in rows if r["value"] == "plus" and r["dimension"] == "operator")
+    assert (plus["small"], plus["small_nsg"], plus["small_tsr"]) == (False, True, False)
 
 
 def test_old_records_without_categories_are_said_and_skipped(tmp_path):

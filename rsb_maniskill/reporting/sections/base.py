@@ -91,9 +91,9 @@ def _inline(text: str) -> str:
 
 
 def _body_row(cells: Sequence[str]) -> str:
-    # a line marked with the small-cell dagger is greyed: shown, never hidden
-    attr = ' class="small"' if any(SMALL_MARK in c for c in cells) else ""
-    return f"<tr{attr}>" + "".join(f"<td>{_inline(c)}</td>" for c in cells) + "</tr>"
+    # a cell marked with the small-cell dagger is greyed: shown, never hidden; each by its own count
+    return "<tr>" + "".join(f'<td class="small">{_inline(c)}</td>' if SMALL_MARK in c else f"<td>{_inline(c)}</td>"
+                            for c in cells) + "</tr>"
 
 
 def markdown_to_html(md: str) -> Markup:

@@ -57,9 +57,16 @@ class CategoryCell:
     def small(self) -> bool:
         return self.n_episodes < SMALL_CELL
 
+    def small_rates(self) -> dict[str, bool]:
+        """Each rate against its own denominator: TSR over episodes, nSG over grasps, first grasp right
+        over first grasps (a 100-episode cell with 3 grasps has a small nSG)."""
+        return {"tsr": self.n_episodes < SMALL_CELL, "nsg": self.n_grasped < SMALL_CELL,
+                "first_right": self.n_first < SMALL_CELL}
+
     def to_dict(self) -> dict[str, Any]:
         return {"n_episodes": self.n_episodes, "n_grasped": self.n_grasped, "n_success": self.n_success,
                 "n_first_grasp": self.n_first, "n_first_grasp_right": self.n_first_right, "small": self.small,
+                "small_rates": self.small_rates(),
                 **{k: asdict(getattr(self, k)) for k in ("tsr", "nsg", "first_right")}}
 
 
@@ -134,15 +141,22 @@ def category_tables(records: Iterable[Mapping[str, Any]]) -> dict[str, RowCatego
 Tables = Mapping[str, RowCategories]
 
 HEADER = ["Category", "Episodes", "TSR", "nSG", "First grasp right", "First grasps"]
-SMALL_NOTE = (f"{SMALL_MARK} fewer than {SMALL_CELL} episodes: shown, but its interval is wide; read it with care.")
+SMALL_NOTE = (f"{SMALL_MARK} after a count: fewer than {SMALL_CELL} episodes; after a rate: fewer than {SMALL_CELL} "
+              "in its own denominator (TSR: episodes, nSG: grasps, first grasp right: first grasps). Shown, but "
+              "its interval is wide; read it with care.")
 RERUN = "Rerun `rsb eval` into a new `--out` directory to get them."
 NONE_NOTE = ("The records carry no categories (written before records had them, or by a harness that does not "
              f"record them): no per-category table. {RERUN}")
 
 
 def _cells(c: CategoryCell) -> list[str]:
-    return [f"{c.n_episodes}{SMALL_MARK if c.small else ''}", rate_cell(c.tsr), rate_cell(c.nsg),
-            rate_cell(c.first_right), str(c.n_first)]
+    small = c.small_rates()
+
+    def rate(key: str) -> str:
+        return rate_cell(getattr(c, key)) + (SMALL_MARK if small[key] else "")
+
+    return [f"{c.n_episodes}{SMALL_MARK if c.small else ''}", rate("tsr"), rate("nsg"), rate("first_right"),
+            str(c.n_first)]
 
 
 def _kind_label(kind: str, n: int) -> str:
@@ -187,7 +201,8 @@ def categories_json(tables: Tables) -> dict[str, Any]:
 def _row(label: str, suite: str, n: int, dimension: str, value: str, c: CategoryCell) -> dict[str, Any]:
     out: dict[str, Any] = {"row": label, "suite_id": suite, "n_choices": n, "dimension": dimension, "value": value,
                            "n_episodes": c.n_episodes, "n_grasped": c.n_grasped, "n_success": c.n_success,
-                           "n_first_grasp": c.n_first, "n_first_grasp_right": c.n_first_right, "small": c.small}
+                           "n_first_grasp": c.n_first, "n_first_grasp_right": c.n_first_right, "small": c.small,
+                           **{f"small_{k}": v for k, v in c.small_rates().items()}}
     for k in ("tsr", "nsg", "first_right"):
         rate = getattr(c, k)
         out.update({k: rate.value, f"{k}_low": rate.low, f"{k}_high": rate.high})

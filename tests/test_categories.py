@@ -224,3 +224,23 @@ def test_write_report_writes_the_categories_section_and_csv(tmp_path):
     assert {(r["dimension"], r["value"]) for r in rows} >= {("operator", "plus"), ("operator", "minus"),
                                                            ("template", "20"), ("suite_kind", "question")}
     assert "by category" in paths["markdown"].read_text()
+
+
+def test_one_test_across_each_dimension_holm_corrected():
+    """Issue 49: TSR 90 % on plus against 10 % on times is a difference that survives Holm's correction;
+    the answer sizes, equal in rate, show none; every adjusted p is at least its raw p."""
+    from rsb_maniskill.reporting.sections.categories import FAMILY_ALPHA, categories_json, dimension_tests
+
+    recs = [_math(i, "plus" if i < 60 else "times", (i % 10 < 9) if i < 60 else (i % 10 < 1), 0)
+            for i in range(120)]
+    for r in recs:  # answer size independent of success: alternate blocks of ten, each with the same outcomes
+        r[CATEGORIES_FIELD] = {**r[CATEGORIES_FIELD], "answer_size": "2 digits" if r["seed"] // 10 % 2 else "3 digits"}
+    tests = {t.dimension: t for t in dimension_tests(category_tables(recs))}
+    assert tests["operator"].differs and tests["operator"].p_holm < FAMILY_ALPHA
+    assert not tests["answer_size"].differs and tests["answer_size"].p > 0.5
+    assert all(t.p_holm >= t.p for t in tests.values() if t.p is not None)
+    assert tests["template"].p is None  # one template: not tested
+    md = categories_markdown(category_tables(recs))
+    assert "operator: TSR differs" in md and "answer size: no difference shown" in md
+    js = categories_json(category_tables(recs))
+    assert {t["dimension"]: t["differs"] for t in js["dimension_tests"]}["operator"] is True

@@ -149,6 +149,71 @@ NONE_NOTE = ("The records carry no categories (written before records had them, 
              f"record them): no per-category table. {RERUN}")
 
 
+FAMILY_ALPHA = 0.05  # the family-wise error rate of the tests across a dimension's values (Holm)
+
+
+@dataclass(frozen=True)
+class DimensionTest:
+    """Does TSR differ across a dimension's values (one policy row, one suite)? A chi-square test of
+    homogeneity of successes over the values; ``p_holm`` Holm-adjusted over every such test of the
+    summary, so "differs" holds at ``FAMILY_ALPHA`` family-wise however many cells are shown."""
+
+    row: str
+    suite: str
+    dimension: str
+    n_values: int
+    chi2: float | None
+    p: float | None
+    p_holm: float | None = None
+
+    @property
+    def name(self) -> str:
+        """The dimension in a sentence: ``"answer size"``."""
+        return DIMENSIONS[self.dimension].split(" (")[0].lower()
+
+    @property
+    def differs(self) -> bool:
+        return self.p_holm is not None and self.p_holm < FAMILY_ALPHA
+
+    def text(self) -> str:
+        if self.p is None:
+            return f"{self.name}: not tested (fewer than two values)"
+        verdict = "TSR differs" if self.differs else "no difference shown"
+        return (f"{self.name}: {verdict} (p = {self.p:.2g}, Holm-adjusted "
+                f"{self.p_holm:.2g})")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "differs": self.differs}
+
+
+def _homogeneity(counts: list[tuple[int, int]]) -> tuple[float | None, float | None]:
+    """Chi-square test of homogeneity of (successes, failures) over the values (None: under two values)."""
+    counts = [c for c in counts if sum(c)]
+    if len(counts) < 2:
+        return None, None
+    if not sum(k for k, _ in counts) or not sum(f for _, f in counts):
+        return 0.0, 1.0  # every value all success, or all failure: nothing differs
+    from scipy.stats import chi2_contingency
+
+    chi2, p, _, _ = chi2_contingency(counts, correction=False)
+    return float(chi2), float(p)
+
+
+def dimension_tests(tables: Tables) -> list[DimensionTest]:
+    """One test per (row, suite, dimension), Holm-adjusted together."""
+    from dataclasses import replace
+
+    from rsb_maniskill.evaluation.stats import holm
+
+    tests = []
+    for label, t in tables.items():
+        for s, dims in t.suites.items():
+            for d, cells in dims.items():
+                chi2, p = _homogeneity([(c.n_success, c.n_episodes - c.n_success) for c in cells.values()])
+                tests.append(DimensionTest(label, s, d, len(cells), chi2, p))
+    return [replace(t, p_holm=a) for t, a in zip(tests, holm([t.p for t in tests]))]
+
+
 def _cells(c: CategoryCell) -> list[str]:
     small = c.small_rates()
 
@@ -172,13 +237,18 @@ def categories_markdown(tables: Tables) -> str:
     parts = []
     if not has_categories(tables):
         return "### No per-category tables\n\n" + NONE_NOTE + "\n"
+    tests: dict[tuple[str, str], list[DimensionTest]] = {}
+    for x in dimension_tests(tables):
+        tests.setdefault((x.row, x.suite), []).append(x)
     for label, t in tables.items():
         for s, dims in t.suites.items():
             rows = []
             for d, cells in dims.items():
                 rows.append([f"**{DIMENSIONS[d]}**"] + [""] * (len(HEADER) - 1))
                 rows += [[value_label(d, v)] + _cells(c) for v, c in cells.items()]
-            parts.append(f"### {label} on {s}: by category (%)\n\n" + markdown_table(HEADER, rows))
+            across = "; ".join(x.text() for x in tests.get((label, s), []))
+            parts.append(f"### {label} on {s}: by category (%)\n\n" + markdown_table(HEADER, rows)
+                         + (f"\n\nAcross each dimension's values: {across}." if across else ""))
         if len({k for k, _ in t.kinds}) > 1:
             rows = [[_kind_label(k, n)] + _cells(c) for (k, n), c in t.kinds.items()]
             parts.append(f"### {label}: Direct vs question suites (%)\n\n"
@@ -187,7 +257,11 @@ def categories_markdown(tables: Tables) -> str:
     skipped = [f"{label} ({t.n_without})" for label, t in tables.items() if t.n_without]
     notes = ["TSR and nSG as in the paper tables, over the episodes of the category; first grasp right: the first "
              "candidate grasped was the target, of the episodes with a grasp (first grasps). In brackets: Wilson "
-             "95% intervals.", SMALL_NOTE]
+             "95% intervals.", SMALL_NOTE,
+             "Across each dimension's values: does TSR differ between them? A chi-square test of homogeneity per "
+             "policy, suite and dimension, its p-value Holm-adjusted over every such test of this summary; "
+             f"\"TSR differs\" where the adjusted p is under {FAMILY_ALPHA} (family-wise). A single interval clear "
+             "of the others with no difference shown is noise until more episodes say otherwise."]
     if skipped:
         notes.append("Records without categories, left out: " + ", ".join(skipped) + ". " + RERUN)
     return "\n\n".join(parts) + "\n\n" + "\n\n".join(notes) + "\n"
@@ -195,6 +269,7 @@ def categories_markdown(tables: Tables) -> str:
 
 def categories_json(tables: Tables) -> dict[str, Any]:
     return {"small_cell": SMALL_CELL, "rows": {label: t.to_dict() for label, t in tables.items()},
+            "family_alpha": FAMILY_ALPHA, "dimension_tests": [x.to_dict() for x in dimension_tests(tables)],
             **({} if has_categories(tables) else {"note": NONE_NOTE})}
 
 

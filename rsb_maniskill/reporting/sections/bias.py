@@ -130,17 +130,25 @@ class Preference:
                    key=lambda i: (self.observed[i] - self.expected[i]) / max(self.expected[i], 1e-9) ** 0.5)
 
     @property
+    def strongest(self) -> int:
+        """Index of the category furthest from its expected count, either way (largest |Pearson residual|)."""
+        return max(range(len(self.labels)),
+                   key=lambda i: abs(self.observed[i] - self.expected[i]) / max(self.expected[i], 1e-9) ** 0.5)
+
+    @property
     def significant(self) -> bool:
         return self.p is not None and self.p < ALPHA
 
     def verdict(self) -> str:
-        """One line: ``prefers the leftmost block: 41 % of grasps, expected 25 %, p < 0.001``."""
+        """One line: ``prefers the leftmost block: 41 % of grasps, expected 25 %, p < 0.001`` (or
+        ``avoids ...`` when the value furthest from its expected share is under it)."""
         if self.p is None:
             return f"too few grasps to test (n = {self.n})"
         if not self.significant:
             return f"no preference detected ({p_text(self.p)})"
-        i = self.preferred
-        return (f"prefers {self.phrases[i]}: {100 * self.observed[i] / self.n:.0f} % of grasps, "
+        i = self.strongest  # worded from the data: a policy may shun one value more than it favours any
+        verb = "prefers" if self.observed[i] >= self.expected[i] else "avoids"
+        return (f"{verb} {self.phrases[i]}: {100 * self.observed[i] / self.n:.0f} % of grasps, "
                 f"expected {100 * self.expected[i] / self.n:.0f} %, {p_text(self.p)}")
 
     def to_dict(self) -> dict[str, Any]:

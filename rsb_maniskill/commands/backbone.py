@@ -6,7 +6,7 @@
 
 The backbones and the asking are ``evaluation/backbone.py``; the answers go to ``<out>/backbone.jsonl``
 beside an eval run's ``episodes.jsonl`` (rerunning resumes), and with both the summaries and
-report.html show the semantic gap (``reporting/gap.py``).
+report.html show the semantic gap (``reporting/sections/gap.py``).
 """
 from __future__ import annotations
 
@@ -80,7 +80,7 @@ def _run_backbone(args: argparse.Namespace) -> int:
         read_backbone_records,
         read_records,
     )
-    from rsb_maniskill.reporting.gap import backbone_markdown, gap_markdown, gap_table
+    from rsb_maniskill.reporting.sections.gap import backbone_markdown, gap_markdown, gap_table
 
     suites = args.suites  # resolved at parse time (env_ids.add_suites_argument)
     if args.num_episodes < 1:

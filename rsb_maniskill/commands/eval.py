@@ -217,8 +217,7 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
 
 def _print_counterfactual(records: list[dict]) -> None:
     """The follow / switch / stuck tables of counterfactual runs (nothing without them)."""
-    from rsb_maniskill.evaluation.counterfactual import counterfactual_table
-    from rsb_maniskill.reporting.counterfactual import counterfactual_markdown
+    from rsb_maniskill.reporting.sections.counterfactual import counterfactual_markdown, counterfactual_table
 
     table = counterfactual_table(records)
     if table:
@@ -325,8 +324,8 @@ def _run_eval(args: argparse.Namespace) -> int:
 
     from rsb_maniskill.evaluation.records import perturb_label as record_perturb
     from rsb_maniskill.perturb import label as perturb_label
-    from rsb_maniskill.reporting.reasoning import reasoning_markdown, reasoning_table
-    from rsb_maniskill.reporting.robustness import robustness_markdown, robustness_table
+    from rsb_maniskill.reporting.sections.reasoning import reasoning_markdown, reasoning_table
+    from rsb_maniskill.reporting.sections.robustness import robustness_markdown, robustness_table
     from rsb_maniskill.reporting.summary import markdown_tables, results_from_records
     from rsb_maniskill.reporting.writer import write_html_report, write_report
 

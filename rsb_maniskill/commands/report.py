@@ -59,7 +59,7 @@ def run_report(args: argparse.Namespace) -> int:
     from rsb_maniskill.reporting.results import RESULTS_FILE, compare, load_results
     from rsb_maniskill.reporting.summary import results_from_records
     from rsb_maniskill.reporting.vla_eval_results import is_vla_eval_results
-    from rsb_maniskill.reporting.writer import ReportError, write_html_report, write_report
+    from rsb_maniskill.reporting.writer import ReportError, page_path, writable, write_html_report, write_report
 
     try:
         if args.compare:
@@ -81,8 +81,13 @@ def run_report(args: argparse.Namespace) -> int:
                                   "`rsb eval` run")
             if not records:
                 raise ReportError(f"{source} holds no episode records yet")
-            # one pass: the summaries, results.json and the page, all from the same records
-            results = write_report(results_from_records(records), args.results_dir, records=records)["results"]
+            page_path(args.results_dir, args.out)  # a page that cannot be written fails now, before any file
+            # one pass: the summaries, results.json and the page, all from the same records; a read-only
+            # results folder is left as it is (the page still goes to --out)
+            if writable(args.results_dir):
+                results = write_report(results_from_records(records), args.results_dir, records=records)["results"]
+            else:
+                results = f"not written ({args.results_dir} is read-only; summary.* and results.json neither)"
             path = write_html_report(args.results_dir, args.out, records=records, title=args.title)
     except (ReportError, ValueError, OSError) as err:
         print(f"rsb report: error: {err}", file=sys.stderr)

@@ -14,7 +14,7 @@ policy's text (``semantic.answers``), so "option B", "the green block" and "10" 
 
 Each episode's record goes to ``<out>/backbone.jsonl`` beside an eval run's ``episodes.jsonl``
 (rerunning resumes); ``rsb report`` then sets the backbone's accuracy beside the policy's TSR and
-nSG on the same episodes (``reporting/gap.py``). Built in, as reference lines:
+nSG on the same episodes (``reporting/sections/gap.py``). Built in, as reference lines:
 
 - ``arithmetic`` solves RSB-Math exactly from the question's text and says nothing elsewhere: the
   upper line of a backbone on Math;

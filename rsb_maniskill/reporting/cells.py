@@ -6,6 +6,7 @@ these, so a rate reads the same everywhere: ``12.5`` in a table whose header say
 """
 from __future__ import annotations
 
+import re
 from typing import Any, Sequence
 
 NA = "n/a"  # an undefined rate (nSG without a grasp, a share of nothing)
@@ -31,8 +32,15 @@ def delta(a: float | None, b: float | None) -> str:
     return NA if a is None or b is None else f"{100 * (a - b):+.1f}"
 
 
+def cell(text: str) -> str:
+    """A table cell's text with its pipes escaped (``\\|``), so a row label such as ``--name a|b``
+    stays in its column (a pipe already escaped stays as it is)."""
+    return re.sub(r"(?<!\\)\|", r"\\|", str(text))
+
+
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    """A Markdown pipe table: the first column left-aligned, the others centred."""
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    """A Markdown pipe table: the first column left-aligned, the others centred; pipes in cells escaped."""
+    lines = ["| " + " | ".join(map(cell, header)) + " |",
+             "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
+    lines += ["| " + " | ".join(map(cell, r)) + " |" for r in rows]
     return "\n".join(lines)

@@ -23,7 +23,6 @@ import base64
 import html
 import json
 import math
-import re
 from datetime import datetime, timezone
 from functools import lru_cache
 from pathlib import Path
@@ -33,9 +32,10 @@ from markupsafe import Markup
 
 from rsb_maniskill.evaluation.metrics import OUTCOMES, SuiteMetrics, average, outcome, suite_order
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, EVAL_INSTRUCTION_MODES, dedupe, one_version, record_row
-from rsb_maniskill.evaluation.store import BACKBONE_FILE, read_backbone_records, read_manifest
-from rsb_maniskill.reporting.categories import SMALL_MARK
+from rsb_maniskill.evaluation.store import read_manifest
+from rsb_maniskill.reporting import sections
 from rsb_maniskill.reporting.cells import pct
+from rsb_maniskill.reporting.sections.base import markdown_to_html
 from rsb_maniskill.reporting.summary import ERRORS_HEADING, markdown_tables, results_from_records, suite_columns
 
 TEMPLATES = "reporting/templates"  # package data of rsb_maniskill
@@ -49,9 +49,11 @@ FRAME_QUALITY = 75
 OUTCOME_LABELS = {"success": "success", "not_placed": "not placed", "wrong_target": "wrong target",
                   "no_grasp": "no grasp"}
 OUTCOME_COLORS = {"success": "#2ca02c", "not_placed": "#e6a100", "wrong_target": "#d62728", "no_grasp": "#8c8c8c"}
-BAR_COLORS = {"gsr": "#9ecae1", "tsr": "#2171b5", "nsg": "#fd8d3c"}
+BAR_COLORS = {"gsr": "#9ecae1", "tsr": "#2171b5", "nsg": "#fd8d3c"}  # the bars and their legend
 # What the page shows about a policy row's settings (run.json), beside its averages.
 SETTINGS_SHOWN = ("policy", "policy_kwargs", "obs_mode")
+# The error analysis's place among the sections (``Section.page_order``): smaller ones above it.
+ERRORS_ORDER = 50
 
 
 # ---------------------------------------------------------------- episodes
@@ -188,44 +190,6 @@ def bars_svg(row: Mapping[str, SuiteMetrics]) -> str:
     return "".join(out)
 
 
-# ---------------------------------------------------------------- Markdown tables -> HTML
-def _inline(text: str) -> str:
-    text = html.escape(text.strip()).replace("\\*", "*")
-    return re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", text)
-
-
-def _body_row(cells: Sequence[str]) -> str:
-    # a line marked with the small-cell dagger is greyed: shown, never hidden
-    attr = ' class="small"' if any(SMALL_MARK in c for c in cells) else ""
-    return f"<tr{attr}>" + "".join(f"<td>{_inline(c)}</td>" for c in cells) + "</tr>"
-
-
-def markdown_to_html(md: str) -> Markup:
-    """The subset ``summary.markdown_tables`` writes: ``###`` headings, pipe tables, paragraphs."""
-    out, table = [], []
-
-    def flush() -> None:
-        if not table:
-            return
-        rows = [[c for c in line.strip().strip("|").split("|")] for line in table]
-        head, body = rows[0], [r for r in rows[2:]]
-        out.append('<div class="scroll"><table><thead><tr>' + "".join(f"<th>{_inline(c)}</th>" for c in head)
-                   + "</tr></thead><tbody>" + "".join(_body_row(r) for r in body) + "</tbody></table></div>")
-        table.clear()
-
-    for line in md.splitlines():
-        if line.startswith("|"):
-            table.append(line)
-            continue
-        flush()
-        if line.startswith("### "):
-            out.append(f"<h3>{_inline(line[4:])}</h3>")
-        elif line.strip():
-            out.append(f"<p class=\"note\">{_inline(line)}</p>")
-    flush()
-    return Markup("\n".join(out))
-
-
 # ---------------------------------------------------------------- page
 @lru_cache(maxsize=1)
 def templates() -> Any:
@@ -271,63 +235,11 @@ def _error_rows(results: Mapping[str, Mapping[str, SuiteMetrics]]) -> list[dict[
     return out
 
 
-def _robustness(records: Sequence[Mapping[str, Any]]) -> Markup | None:
-    """The robustness tables (per axis and level, GSR / TSR / nSG and their change from level 0),
-    or None when no episode was perturbed."""
-    from rsb_maniskill.reporting.robustness import robustness_markdown, robustness_table
-
-    table = robustness_table(records)
-    return markdown_to_html(robustness_markdown(table)) if table else None
-
-
-def _reasoning(records: Sequence[Mapping[str, Any]]) -> Markup | None:
-    """Table 5 (what a talking policy stated against what it grasped), or None when no policy talked."""
-    from rsb_maniskill.reporting.reasoning import reasoning_markdown, reasoning_table
-
-    table = reasoning_table(records)
-    return markdown_to_html(reasoning_markdown(table)) if table else None
-
-
-def _categories(records: Sequence[Mapping[str, Any]]) -> Markup:
-    """The per-category tables (a note when the records carry no categories)."""
-    from rsb_maniskill.evaluation.categories import category_tables
-    from rsb_maniskill.reporting.categories import categories_markdown
-
-    return markdown_to_html(categories_markdown(category_tables(records)))
-
-
-def _bias(records: Sequence[Mapping[str, Any]]) -> tuple[Markup | None, list[dict[str, Any]]]:
-    """The bias tables, and what the page draws of them (a bar chart per row, suite and axis)."""
-    from rsb_maniskill.evaluation.bias import bias_table
-    from rsb_maniskill.reporting.bias import bias_markdown, bias_plots
-
-    table = bias_table(records)
-    return (markdown_to_html(bias_markdown(table)) if table else None), bias_plots(table)
-
-
-def _gap(records: Sequence[Mapping[str, Any]], results_dir: Path) -> tuple[Markup | None, str | None]:
-    """The semantic gap's tables and plot (a backbone's answers beside the policy's actions, ``rsb
-    backbone``), or (None, None) when the directory holds no answers."""
-    from rsb_maniskill.reporting.gap import backbone_markdown, gap_markdown, gap_table, plot_gap_uri
-
-    if not (results_dir / BACKBONE_FILE).exists():
-        return None, None
-    answers = read_backbone_records(results_dir / BACKBONE_FILE)
-    table = gap_table(records, answers)
-    plot = plot_gap_uri(table[0]) if table[0] else None
-    return markdown_to_html(backbone_markdown(answers) + "\n" + gap_markdown(table)), plot
-
-
-def _counterfactual(records: Sequence[Mapping[str, Any]]) -> tuple[Markup | None, str | None]:
-    """The counterfactual-scenes tables and plot (``rsb eval --instruction counterfactual``), or
-    (None, None) when the records hold none."""
-    from rsb_maniskill.evaluation.counterfactual import counterfactual_table
-    from rsb_maniskill.reporting.counterfactual import counterfactual_markdown, plot_counterfactual_uri
-
-    table = counterfactual_table(records)
-    if not table:
-        return None, None
-    return markdown_to_html(counterfactual_markdown(table)), plot_counterfactual_uri(table)
+def default_title(policies: Sequence[str], shown: int = 3) -> str:
+    """The page's title without ``--title``: the runs it shows (their ``--name`` or policy), not the
+    folder's name (``eval`` says nothing)."""
+    more = f" and {len(policies) - shown} more" if len(policies) > shown else ""
+    return "RSB evaluation: " + ", ".join(policies[:shown]) + more
 
 
 def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: str | None = None) -> str:
@@ -342,22 +254,22 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
     modes = [m for m in EVAL_INSTRUCTION_MODES if any(c["mode"] == m for c in cards)]
     filters = [("policy", "Policy", policies, {}), ("suite", "Suite", suites, {}),
                ("mode", "Instruction", modes, {}), ("outcome", "Outcome", list(OUTCOMES), OUTCOME_LABELS)]
-    gap, gap_plot = _gap(records, results_dir)
-    counterfactual, counterfactual_plot = _counterfactual(records)
     paper, _, pooled_errors = markdown_tables(results).partition(ERRORS_HEADING)  # Table 7 joins #errors
     pooled_errors = ERRORS_HEADING + pooled_errors
-    bias, bias_charts = _bias(records)
+    shown = sorted(sections.SECTIONS, key=lambda s: s.page_order)
+    pages = [(s, s.page(records, results_dir)) for s in shown]
+    upper = [page for s, page in pages if page and s.page_order < ERRORS_ORDER]
+    lower = [page for s, page in pages if page and s.page_order >= ERRORS_ORDER]
+    nav = [{"anchor": s.anchor, "label": s.nav} for s in shown if s.nav]
     return templates().get_template(PAGE_TEMPLATE).render(
-        title=title or f"RSB evaluation: {results_dir.resolve().name}",
+        title=title or default_title(policies),
         version=benchmark_label(one_version(records) or ""), n_episodes=len(cards), n_rows=len(results),
         n_suites=len(suites), n_videos=sum(1 for c in cards if c["video"]), code=code_label(),
         stamp=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         rows=_summary_rows(results, {c["row"]: c["policy"] for c in cards}, read_manifest(results_dir)),
-        tables=markdown_to_html(paper), pooled_errors=markdown_to_html(pooled_errors), robustness=_robustness(records),
-        categories=_categories(records), bias=bias, bias_charts=bias_charts,
-        reasoning=_reasoning(records), gap=gap, gap_plot=gap_plot, errors=_error_rows(results),
-        counterfactual=counterfactual, counterfactual_plot=counterfactual_plot,
-        outcomes=OUTCOMES, colors=OUTCOME_COLORS, labels=OUTCOME_LABELS,
+        tables=markdown_to_html(paper), pooled_errors=markdown_to_html(pooled_errors), errors=_error_rows(results),
+        upper=upper, lower=lower, nav=nav,
+        outcomes=OUTCOMES, colors=OUTCOME_COLORS, bar_colors=BAR_COLORS, labels=OUTCOME_LABELS,
         filters=[{"key": key, "name": name, "options": options, "labels": labels}
                  for key, name, options, labels in filters],
         episodes=_script_json(cards), style=_script_json({"colors": OUTCOME_COLORS, "labels": OUTCOME_LABELS}),

@@ -3,7 +3,7 @@
 The semantic engine owns them: they are read from the episode spec and its pool question (never
 parsed from the instruction text), so a report built from records needs no data files.
 :func:`episode_categories` gives them (``EpisodeSampler.categories(spec)`` is the usual entry), the
-runner writes them into each record (``categories``), and ``evaluation/categories.py`` tabulates.
+runner writes them into each record (``categories``), and ``reporting/sections/categories.py`` tabulates.
 
 Dimensions (a key, a string value; a suite has the ones that apply to it):
 

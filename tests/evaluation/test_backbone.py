@@ -14,7 +14,7 @@ from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.backbone import ArithmeticBackbone, ask_episodes, load_backbone
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, eval_seeds, shuffled_instruction
 from rsb_maniskill.evaluation.store import BACKBONE_FILE, read_backbone_records
-from rsb_maniskill.reporting.gap import gap_markdown, gap_table
+from rsb_maniskill.reporting.sections.gap import gap_markdown, gap_table
 from rsb_maniskill.semantic import EpisodeSampler
 
 

@@ -7,9 +7,7 @@ import random
 
 import pytest
 
-from rsb_maniskill.evaluation.counterfactual import POOLED, counterfactual_json, counterfactual_table
 from rsb_maniskill.evaluation.jobs import drive
-from rsb_maniskill.evaluation.metrics import wilson_interval
 from rsb_maniskill.evaluation.protocol import (
     check_ablation_mode,
     episode_of,
@@ -22,6 +20,7 @@ from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, validate_re
 from rsb_maniskill.evaluation.runner import EpisodeSettings
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
 from rsb_maniskill.policies.reference import blind_target
+from rsb_maniskill.reporting.sections.counterfactual import POOLED, counterfactual_json, counterfactual_table
 
 SUITE = "RSB-Math-4"
 
@@ -63,8 +62,24 @@ def test_a_policy_that_follows():
 def test_a_stuck_policy_follows_once_a_scene():
     """Grasping one candidate whatever the instruction: with K = N variants it follows exactly one."""
     m = metrics(scenes(lambda rng, t, pick: pick))
-    assert m.follow.value == 0.25 and m.switch.value == 0.0 and m.stuck.value == 1.0
+    assert m.follow_grasped.value == 0.25 and m.switch.value == 0.0 and m.stuck.value == 1.0
     assert m.stuck.low > 0.9 and m.switch.high < 0.1
+    # the headline over the changed variants (k > 0): the scenes whose pick is a changed variant's target
+    changed = [r for r in scenes(lambda rng, t, pick: pick) if r["variant"] > 0]
+    assert m.follow.value == sum(r["first_grasped"] == r["target_block"] for r in changed) / len(changed)
+    assert m.switched_and_followed.value == 0.0  # never two targets at once
+    assert m.spread["all"] == 0 and m.spread["some"] + m.spread["none"] == 50
+
+
+def test_switched_and_followed_and_the_spread_tell_a_guesser_from_a_follower():
+    """Issue 49: a uniform guesser switches at chance (75 %), but rarely switches *and* follows both
+    (1/16 of pairs) and seldom follows in all of a scene's changed variants; a follower does both always."""
+    m = metrics(scenes(lambda rng, t, pick: rng.randrange(4), n_scenes=400))
+    assert m.switch.low < 0.75 < m.switch.high
+    assert m.switched_and_followed.low < 1 / 16 < m.switched_and_followed.high
+    assert m.spread["all"] < 0.1 * 400 < m.spread["some"]
+    follower = metrics(scenes(lambda rng, t, pick: t, n_scenes=20))
+    assert follower.switched_and_followed.value == 1.0 and follower.spread == {"all": 20, "some": 0, "none": 0}
 
 
 def test_a_uniform_grasper_is_at_chance():
@@ -74,16 +89,13 @@ def test_a_uniform_grasper_is_at_chance():
 
 
 def test_the_switch_interval_holds_its_coverage_for_a_uniform_grasper():
-    """Counted over the pairs that share no variant (2 a scene of 4 variants), the interval covers the
-    switch rate of a uniform grasper at least as often as a 95 % interval should, and is no wider
-    than that count allows."""
+    """Counted over scenes (the design effect of a scene's pairs), the interval covers the switch rate
+    of a uniform grasper at least as often as a 95 % interval should."""
     misses = 0
     runs = 200
     for seed in range(runs):
         m = metrics(scenes(lambda rng, t, pick: rng.randrange(4), n_scenes=20, seed=seed))
         misses += not m.switch.low <= 0.75 <= m.switch.high
-        lo, hi = wilson_interval(m.switch.value * 40, 40)
-        assert (m.switch.low, m.switch.high) == pytest.approx((lo, hi))
     assert misses <= 0.05 * runs, misses
 
 
@@ -92,7 +104,8 @@ def test_denominators_without_a_grasp():
             record(2, 0, 3, 3), record(2, 1, 1, 1)]
     m = metrics(recs)
     assert (m.counts.variants, m.counts.grasped) == (6, 4)
-    assert m.follow.value == 3 / 4 and m.follow_all.value == 3 / 6
+    assert m.follow_grasped.value == 3 / 4 and m.follow_all.value == 3 / 6
+    assert m.follow.value == 1 / 2  # changed variants grasped: scene 1 variant 2 (followed), scene 2 variant 1
     assert m.counts.pairs == 2 and m.switch.value == 0.5  # (0, 2) of scene 1 stuck on 0; scene 2 switched
     assert m.counts.disjoint_pairs == 2
     assert m.counts.full_scenes == 1 and m.stuck.value == 0.0  # only scene 2 was grasped in every variant
@@ -107,10 +120,12 @@ def test_pooled_over_suites_weights_chance_by_the_denominator():
     assert list(row) == [SUITE, "RSB-Math-10", POOLED]
     p = row[POOLED]
     assert p.n_choices is None and p.counts.scenes == 40
-    assert p.chance_follow == pytest.approx((40 * 0.25 + 120 * 0.1) / 160)
+    assert p.chance_follow == pytest.approx((30 * 0.25 + 90 * 0.1) / 120)  # over the changed variants
     followed = sum(r["first_grasped"] == r["target_block"] for r in ten)  # 1 in scenes whose 4 targets hold it
-    assert 0 < followed < 30 and row["RSB-Math-10"].follow.value == pytest.approx(followed / 120)
-    assert p.follow.value == pytest.approx((40 + followed) / 160)
+    assert 0 < followed < 30 and row["RSB-Math-10"].follow_grasped.value == pytest.approx(followed / 120)
+    assert p.follow_grasped.value == pytest.approx((40 + followed) / 160)
+    changed = sum(r["first_grasped"] == r["target_block"] for r in ten if r["variant"] > 0)
+    assert p.follow.value == pytest.approx((30 + changed) / 120)
     js = counterfactual_json(counterfactual_table(four + ten))
     assert js["definitions"]["chance"]["stuck"] == "(1/N)^(K-1)"
     assert json.loads(json.dumps(js))["rows"]["p (counterfactual)"][POOLED]["scenes"] == 40

@@ -10,18 +10,19 @@ import json
 import numpy as np
 import pytest
 
-from rsb_maniskill.evaluation.bias import (
+from rsb_maniskill.evaluation.positions import left_ranks, ranks_from_xyz
+from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD
+from rsb_maniskill.reporting.sections.bias import (
     ALPHA,
     MIN_GRASPS,
+    bias_markdown,
+    bias_plots,
     bias_table,
     chi_square,
     p_text,
     position_column,
     position_label,
 )
-from rsb_maniskill.evaluation.positions import left_ranks, ranks_from_xyz
-from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD
-from rsb_maniskill.reporting.bias import bias_markdown, bias_plots
 from rsb_maniskill.reporting.summary import results_from_records
 from rsb_maniskill.reporting.writer import write_report
 from rsb_maniskill.semantic import EpisodeSampler
@@ -215,3 +216,17 @@ def test_leftmost_reference_policy_is_found_biased(tmp_path):
     assert pos.verdict().startswith("prefers the leftmost block: ") and pos.observed[0] >= pos.n - 1
     summary = json.loads((out / "summary.json").read_text())
     assert summary["bias"]["rows"]["leftmost"]["RSB-Math-4"]["axes"]["position"]["significant"]
+
+
+def test_a_policy_that_shuns_one_value_is_said_to_avoid_it():
+    """Issue 49: a policy that never takes the red block and spreads over the others avoids red (the
+    verdict named the most over-represented value "preferred" before)."""
+    from rsb_maniskill.reporting.sections.bias import preference
+
+    order = ("red block", "green block", "blue block", "yellow block")
+    p = preference("candidate", dict(zip(order, (0, 40, 40, 40))), dict.fromkeys(order, 30.0),
+                   {k: f"the {k}" for k in order}, order)
+    assert p.significant and p.verdict().startswith("avoids the red block: 0 % of grasps, expected 25 %")
+    q = preference("candidate", dict(zip(order, (60, 20, 20, 20))), dict.fromkeys(order, 30.0),
+                   {k: f"the {k}" for k in order}, order)
+    assert q.verdict().startswith("prefers the red block: 50 % of grasps")

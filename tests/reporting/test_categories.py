@@ -10,10 +10,16 @@ import re
 
 import pytest
 
-from rsb_maniskill.evaluation.categories import SMALL_CELL, category_cell, category_tables
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, LEFT_RANK_FIELD
 from rsb_maniskill.evaluation.runner import EpisodeSettings, episode_loop
-from rsb_maniskill.reporting.categories import SMALL_MARK, categories_markdown, categories_rows
+from rsb_maniskill.reporting.sections.categories import (
+    SMALL_CELL,
+    SMALL_MARK,
+    categories_markdown,
+    categories_rows,
+    category_cell,
+    category_tables,
+)
 from rsb_maniskill.reporting.summary import results_from_records
 from rsb_maniskill.reporting.writer import write_report
 from rsb_maniskill.semantic import EpisodeSampler, clear_cache
@@ -168,10 +174,32 @@ def test_small_cells_are_marked_not_hidden():
     recs = [_math(i, "plus" if i < 25 else "times", True, 0) for i in range(30)]
     md = categories_markdown(category_tables(recs))
     assert re.search(r"^\| plus \| 25 \|", md, re.M)
-    assert re.search(rf"^\| times \| 5{SMALL_MARK} \|", md, re.M) and f"{SMALL_MARK} fewer than {SMALL_CELL}" in md
+    assert re.search(rf"^\| times \| 5{SMALL_MARK} \|", md, re.M) and f"fewer than {SMALL_CELL}" in md
     rows = categories_rows(category_tables(recs))
     assert {(r["value"], r["small"]) for r in rows if r["dimension"] == "operator"} == {("plus", False),
                                                                                        ("times", True)}
+
+
+def test_each_rate_is_greyed_by_its_own_denominator():
+    """Issue 49: a 100-episode cell with 3 grasps has an nSG over 3 grasps: marked (and greyed on the
+    page), while its TSR over 100 episodes is not."""
+    from rsb_maniskill.reporting.sections.base import markdown_to_html
+
+    recs = [_math(i, "plus", i < 2, 0 if i < 3 else -1) for i in range(100)]
+    cell = category_tables(recs)["p"].suites["RSB-Math-4"]["operator"]["plus"]
+    assert cell.n_episodes == 100 and cell.n_grasped == 3
+    assert cell.small_rates() == {"tsr": False, "nsg": True, "first_right": True}
+    md = categories_markdown(category_tables(recs))
+    line = next(x for x in md.splitlines() if x.startswith("| plus |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert not cells[1].endswith(SMALL_MARK) and not cells[2].endswith(SMALL_MARK)  # episodes, TSR
+    assert cells[3].endswith(SMALL_MARK) and cells[4].endswith(SMALL_MARK)  # nSG, first grasp right
+    page = markdown_to_html(md)
+    row = re.search(r"<tr><td>plus</td>(.*?)</tr>", page)[1]
+    assert re.findall(r"<td( class=\"small\")?>", row) == ["", "", ' class="small"', ' class="small"', ""]
+    rows = categories_rows(category_tables(recs))
+    plus = next(r for r in rows if r["value"] == "plus" and r["dimension"] == "operator")
+    assert (plus["small"], plus["small_nsg"], plus["small_tsr"]) == (False, True, False)
 
 
 def test_old_records_without_categories_are_said_and_skipped(tmp_path):
@@ -197,3 +225,23 @@ def test_write_report_writes_the_categories_section_and_csv(tmp_path):
     assert {(r["dimension"], r["value"]) for r in rows} >= {("operator", "plus"), ("operator", "minus"),
                                                            ("template", "20"), ("suite_kind", "question")}
     assert "by category" in paths["markdown"].read_text()
+
+
+def test_one_test_across_each_dimension_holm_corrected():
+    """Issue 49: TSR 90 % on plus against 10 % on times is a difference that survives Holm's correction;
+    the answer sizes, equal in rate, show none; every adjusted p is at least its raw p."""
+    from rsb_maniskill.reporting.sections.categories import FAMILY_ALPHA, categories_json, dimension_tests
+
+    recs = [_math(i, "plus" if i < 60 else "times", (i % 10 < 9) if i < 60 else (i % 10 < 1), 0)
+            for i in range(120)]
+    for r in recs:  # answer size independent of success: alternate blocks of ten, each with the same outcomes
+        r[CATEGORIES_FIELD] = {**r[CATEGORIES_FIELD], "answer_size": "2 digits" if r["seed"] // 10 % 2 else "3 digits"}
+    tests = {t.dimension: t for t in dimension_tests(category_tables(recs))}
+    assert tests["operator"].differs and tests["operator"].p_holm < FAMILY_ALPHA
+    assert not tests["answer_size"].differs and tests["answer_size"].p > 0.5
+    assert all(t.p_holm >= t.p for t in tests.values() if t.p is not None)
+    assert tests["template"].p is None  # one template: not tested
+    md = categories_markdown(category_tables(recs))
+    assert "operator: TSR differs" in md and "answer size: no difference shown" in md
+    js = categories_json(category_tables(recs))
+    assert {t["dimension"]: t["differs"] for t in js["dimension_tests"]}["operator"] is True

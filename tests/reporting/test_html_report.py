@@ -211,7 +211,7 @@ def test_sections_lightbox_and_long_text_in_chromium(results, tmp_path):
         cats = b.evaluate('[...document.querySelectorAll("#categories h3")].map(h => h.textContent)')
         assert "oracle on RSB-Math-4: by category (%)" in cats
         assert "Operator" in b.evaluate('document.querySelector("#categories table").textContent')
-        assert b.evaluate('document.querySelectorAll("#categories tr.small").length') > 0
+        assert b.evaluate('document.querySelectorAll("#categories td.small").length') > 0
         # bias: verdicts and per-axis tables, and charts drawn with a bar per position and the expected line
         assert "verdicts" in b.evaluate('document.querySelector("#bias").textContent')
         charts = b.evaluate("""[...document.querySelectorAll("svg.biaschart")].map(s => {

@@ -8,12 +8,14 @@ nSG (Wilson 95 % intervals, metrics.py).
 """
 from __future__ import annotations
 
-from typing import Any, Iterable, Mapping
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import SuiteMetrics, summarize
 from rsb_maniskill.evaluation.records import dedupe, perturb_label, row_label
 from rsb_maniskill.perturb import AXES
 from rsb_maniskill.reporting.cells import NA, delta, markdown_table, rate_cell
+from rsb_maniskill.reporting.sections.base import Section
 
 Table = dict[str, dict[str, dict[str, dict[int, SuiteMetrics]]]]  # row -> suite -> axis -> level -> metrics
 
@@ -100,3 +102,22 @@ def robustness_markdown(table: Table) -> str:
             parts.append(f"### Robustness: {row} on {suite} (%, Wilson 95% intervals; Δ in points from level 0)\n\n"
                          + markdown_table(head, rows))
     return "\n\n".join(parts) + ("\n" if parts else "")
+
+
+class RobustnessSection(Section):
+    key, anchor, title, page_order, lead = "robustness", "robustness", "Robustness", 10, ""
+    summary_order = 10
+    note = ("Per axis and level: a GSR drop means the perturbation breaks the grasp, an nSG drop with GSR intact "
+            "that it breaks the choice. Level 0 is the unperturbed run of the same seeds.")
+
+    def compute(self, records: Sequence[Mapping[str, Any]], results_dir: Path) -> Table | None:
+        return robustness_table(records) or None
+
+    def to_json(self, table: Table) -> Any:
+        return robustness_rows(table)
+
+    def markdown(self, table: Table) -> str:
+        return robustness_markdown(table)
+
+
+SECTION = RobustnessSection()

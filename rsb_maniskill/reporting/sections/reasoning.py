@@ -8,7 +8,8 @@ Shares are percentages with Wilson 95 % intervals. Written into ``summary.{md,js
 """
 from __future__ import annotations
 
-from typing import Any, Iterable, Mapping
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, suite_order
 from rsb_maniskill.evaluation.records import dedupe, perturb_label, row_label
@@ -21,6 +22,7 @@ from rsb_maniskill.evaluation.statements import (
     talks,
 )
 from rsb_maniskill.reporting.cells import markdown_table, rate_cell
+from rsb_maniskill.reporting.sections.base import Section, write_rows
 
 Table = Mapping[str, Mapping[str, ReasoningFollowing]]
 STATED = {"right": "Stated right", "wrong": "Stated wrong", "none": "No statement"}
@@ -86,3 +88,26 @@ def reasoning_rows(table: Table) -> list[dict[str, Any]]:
 
 def reasoning_json(table: Table) -> dict[str, Any]:
     return {label: {s: t.to_dict() for s, t in row.items()} for label, row in table.items()}
+
+
+class ReasoningSection(Section):
+    key, anchor, title, page_order, lead = "reasoning_following", "reasoning", "Reasoning following", 20, ""
+    summary_order = 20
+    note = ("For policies that return text: of the episodes where a block was grasped and the task failed, did the "
+            "text state the right option while the arm took a wrong block (the reasoning-following failure), a "
+            "wrong option, or none? In brackets: Wilson 95% intervals.")
+
+    def compute(self, records: Sequence[Mapping[str, Any]], results_dir: Path) -> Table | None:
+        return reasoning_table(records) or None
+
+    def to_json(self, table: Table) -> Any:
+        return reasoning_json(table)
+
+    def markdown(self, table: Table) -> str:
+        return reasoning_markdown(table)
+
+    def files(self, table: Table, out: Path, stem: str) -> dict[str, Path]:
+        return {"csv:reasoning": write_rows(reasoning_rows(table), out / f"{stem}_reasoning.csv")}
+
+
+SECTION = ReasoningSection()

@@ -14,12 +14,14 @@ same question and the same instruction given (so a run on other question data, o
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import Rate, outcome, suite_metrics, suite_order
 from rsb_maniskill.evaluation.records import dedupe, perturb_label, row_label
 from rsb_maniskill.reporting.cells import markdown_table, rate_cell
 from rsb_maniskill.reporting.figures import png_uri, png_with_legend_below, rate_bars
+from rsb_maniskill.reporting.sections.base import Section, write_rows
 
 CROSSING = ("right/right", "right/wrong", "wrong/right", "wrong/wrong")  # backbone / arm, over grasped episodes
 
@@ -228,3 +230,43 @@ def plot_gap(gaps: Sequence[Gap]) -> bytes:
 
 def plot_gap_uri(gaps: Sequence[Gap]) -> str:
     return png_uri(plot_gap(gaps))
+
+
+class GapSection(Section):
+    """With ``rsb backbone`` answers beside the records: the backbone's accuracy and the semantic gap."""
+
+    key, anchor, title, page_order, lead = "backbone", "gap", "The semantic gap", 30, ""
+    summary_order = 30
+    note = ("What the policy's backbone answers (<code>rsb backbone</code>, the same episodes asked as the policy "
+            "gets them) beside what its arm does. In brackets: Wilson 95% intervals.")
+
+    def compute(self, records: Sequence[Mapping[str, Any]], results_dir: Path) -> tuple | None:
+        from rsb_maniskill.evaluation.store import BACKBONE_FILE, read_backbone_records
+
+        if not (results_dir / BACKBONE_FILE).exists():
+            return None
+        answers = read_backbone_records(results_dir / BACKBONE_FILE)
+        return answers, gap_table(records, answers)
+
+    def to_json(self, table: tuple) -> Any:
+        answers, gap = table
+        return gap_json(answers, gap)
+
+    def markdown(self, table: tuple) -> str:
+        answers, gap = table
+        return backbone_markdown(answers) + "\n" + gap_markdown(gap)
+
+    def files(self, table: tuple, out: Path, stem: str) -> dict[str, Path]:
+        gap = table[1]
+        if not gap[0]:
+            return {}
+        png = out / f"{stem}_gap.png"
+        png.write_bytes(plot_gap(gap[0]))
+        return {"csv:gap": write_rows(gap_rows(gap[0]), out / f"{stem}_gap.csv"), "png:gap": png}
+
+    def figure(self, table: tuple) -> dict[str, str] | None:
+        gap = table[1]
+        return {"src": plot_gap_uri(gap[0]), "alt": "the semantic gap per suite"} if gap[0] else None
+
+
+SECTION = GapSection()

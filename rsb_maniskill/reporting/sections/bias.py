@@ -20,13 +20,19 @@ p-value, and each row a one-line verdict. Pure functions of records.
 """
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from rsb_maniskill.evaluation.metrics import group_by_suite, num_choices, suite_order
+from markupsafe import Markup
+
+from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, num_choices, suite_order
 from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD, dedupe, record_row
-from rsb_maniskill.objects.family import split_env_id
+from rsb_maniskill.objects.family import BLOCK_COLORS, split_env_id
+from rsb_maniskill.reporting.cells import NA, markdown_table, pct
+from rsb_maniskill.reporting.sections.base import SMALL_MARK, Section, markdown_to_html, write_rows
 
 POSITION, CANDIDATE, LETTER = "position", "candidate", "letter"
 AXES: dict[str, str] = {POSITION: "position", CANDIDATE: "candidate", LETTER: "option letter"}
@@ -55,13 +61,20 @@ def position_column(rank: int, n: int) -> str:
     return f"{rank + 1} ({position_label(rank, n)})" if rank in (0, n - 1) else str(rank + 1)
 
 
-def p_text(p: float | None) -> str:
-    """``"p < 0.001"``, ``"p = 0.004"``, ``"p = 0.42"``."""
+def p_text(p: float | None, alpha: float | None = None) -> str:
+    """``"p < 0.001"``, ``"p = 0.004"``, ``"p = 0.42"``: two significant digits, more where rounding
+    would carry ``p`` across the rule ``p < alpha`` (0.0123 is "p = 0.012", never "p = 0.01" beside a
+    "p < 0.01" rule; 0.00996 is "p = 0.00996", not "p = 0.01")."""
     if p is None:
         return "p n/a"
     if p < 0.001:
         return "p < 0.001"
-    return f"p = {p:.3f}" if p < 0.01 else f"p = {p:.2f}"
+    alpha = ALPHA if alpha is None else alpha
+    for digits in range(2, 8):
+        text = f"{p:.{digits}g}"
+        if (float(text) < alpha) == (p < alpha) and float(text) != alpha or digits == 7:
+            return f"p = {text}"
+    return f"p = {p}"
 
 
 def chi_square(observed: Sequence[float], expected: Sequence[float]) -> tuple[float | None, float | None]:
@@ -117,17 +130,25 @@ class Preference:
                    key=lambda i: (self.observed[i] - self.expected[i]) / max(self.expected[i], 1e-9) ** 0.5)
 
     @property
+    def strongest(self) -> int:
+        """Index of the category furthest from its expected count, either way (largest |Pearson residual|)."""
+        return max(range(len(self.labels)),
+                   key=lambda i: abs(self.observed[i] - self.expected[i]) / max(self.expected[i], 1e-9) ** 0.5)
+
+    @property
     def significant(self) -> bool:
         return self.p is not None and self.p < ALPHA
 
     def verdict(self) -> str:
-        """One line: ``prefers the leftmost block: 41 % of grasps, expected 25 %, p < 0.001``."""
+        """One line: ``prefers the leftmost block: 41 % of grasps, expected 25 %, p < 0.001`` (or
+        ``avoids ...`` when the value furthest from its expected share is under it)."""
         if self.p is None:
             return f"too few grasps to test (n = {self.n})"
         if not self.significant:
             return f"no preference detected ({p_text(self.p)})"
-        i = self.preferred
-        return (f"prefers {self.phrases[i]}: {100 * self.observed[i] / self.n:.0f} % of grasps, "
+        i = self.strongest  # worded from the data: a policy may shun one value more than it favours any
+        verb = "prefers" if self.observed[i] >= self.expected[i] else "avoids"
+        return (f"{verb} {self.phrases[i]}: {100 * self.observed[i] / self.n:.0f} % of grasps, "
                 f"expected {100 * self.expected[i] / self.n:.0f} %, {p_text(self.p)}")
 
     def to_dict(self) -> dict[str, Any]:
@@ -244,3 +265,162 @@ def bias_table(records: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Suit
         groups = group_by_suite(recs)
         out[label] = {s: suite_bias(groups[s], s) for s in suite_order(groups)}
     return out
+
+
+# ---------------------------------------------------------------- written
+Table = Mapping[str, Mapping[str, SuiteBias]]
+BAR_COLOR = "#6baed6"  # bars of positions, letters and objects (a 4-choice block's bar takes its colour)
+NOTE = (f"Over the episodes with a grasp, the first candidate grasped. Expected: the share a choice blind to the "
+        f"axis gives (each position and option letter 1/N; an object category its share of the candidates). "
+        f"Verdicts: chi-square goodness of fit (scipy.stats.chisquare; p simulated where a category expects "
+        f"fewer than 5 grasps), a preference called at p < {ALPHA}; "
+        f"{SMALL_MARK} fewer than {MIN_GRASPS} grasps, not tested. Positions are ranks from the left in the head "
+        f"camera's image; records without ranks (written before records had them) are not counted there.")
+COINCIDE = ("Option letters are not a separate axis where each always named the same candidate: with the fixed "
+            "colour map option A is the red block in every 4-choice episode (B green, C blue, D yellow), and each "
+            "10-choice block carries its option letter, so colour or letter and option letter coincide there.")
+
+
+def _verdict_cell(b: SuiteBias, axis: str) -> str:
+    if axis in b.axes:
+        return b.axes[axis].verdict()
+    return f"n/a: {b.missing[axis]}" if axis in b.missing else "n/a"
+
+
+def _share_cells(p: Preference, uniform: bool) -> list[str]:
+    if not p.n:
+        return [NA] * len(p.labels)
+    obs = [pct(o / p.n) for o in p.observed]
+    return obs if uniform else [f"{o} ({pct(e / p.n)})" for o, e in zip(obs, p.expected)]
+
+
+def bias_markdown(table: Table) -> str:
+    """The verdicts, then per suite and axis the shares of first grasps."""
+    if not table:
+        return ""
+    axes = [a for a in AXES if any(a in b.axes or a in b.missing for row in table.values() for b in row.values())]
+    verdicts = [[label, s, str(b.n_grasped)] + [_verdict_cell(b, a) for a in axes]
+                for label, row in table.items() for s, b in row.items()]
+    parts = ["### Position and candidate preferences: verdicts\n\n"
+             + markdown_table(["Policy", "Suite", "First grasps"] + [AXES[a].capitalize() for a in axes], verdicts)]
+    suites = suite_order({s for row in table.values() for s in row})
+    for s in suites:
+        for a in axes:
+            prefs = {label: row[s].axes[a] for label, row in table.items() if s in row and a in row[s].axes}
+            if not prefs:
+                continue
+            labels = next(iter(prefs.values())).labels
+            same = all(p.labels == labels for p in prefs.values())
+            uniform = same and all(p.uniform for p in prefs.values())
+            if not same:  # object categories: each row its own columns' union
+                labels = tuple(dict.fromkeys(k for p in prefs.values() for k in p.labels))
+                prefs = {label: _widen(p, labels) for label, p in prefs.items()}
+            rows = []
+            if uniform:
+                rows.append(["expected (blind choice)", ""] + [pct(1 / len(labels))] * len(labels) + [""])
+            for label, p in prefs.items():
+                mark = SMALL_MARK if p.n < MIN_GRASPS else ""
+                rows.append([label, f"{p.n}{mark}"] + _share_cells(p, uniform) + [p.verdict()])
+            how = "" if uniform else "; in brackets: expected"
+            parts.append(f"### First grasp by {axis_title(a, s)} on {s} (% of first grasps{how})\n\n"
+                         + markdown_table(["Policy", "First grasps", *labels, "Verdict"], rows))
+    notes = [NOTE]
+    if any(b.letter_is_candidate for row in table.values() for b in row.values()):
+        notes.append(COINCIDE)
+    return "\n\n".join(parts) + "\n\n" + "\n\n".join(notes) + "\n"
+
+
+def _widen(p: Preference, labels: tuple[str, ...]) -> Preference:
+    """``p`` over ``labels`` (categories it never met: 0 observed, 0 expected)."""
+    obs = dict(zip(p.labels, p.observed))
+    exp = dict(zip(p.labels, p.expected))
+    phr = dict(zip(p.labels, p.phrases))
+    return Preference(p.axis, labels, tuple(phr.get(k, k) for k in labels), tuple(obs.get(k, 0) for k in labels),
+                      tuple(exp.get(k, 0.0) for k in labels), p.chi2, p.p)
+
+
+def bias_json(table: Table) -> dict[str, Any]:
+    return {"alpha": ALPHA, "min_grasps": MIN_GRASPS,
+            "rows": {label: {s: b.to_dict() for s, b in row.items()} for label, row in table.items()}}
+
+
+def bias_rows(table: Table) -> list[dict[str, Any]]:
+    """Long format, one row per (policy row, suite, axis, category)."""
+    out = []
+    for label, row in table.items():
+        for s, b in row.items():
+            for a, p in b.axes.items():
+                for k, o, e in zip(p.labels, p.observed, p.expected):
+                    out.append({"row": label, "suite_id": s, "axis": a, "category": k, "observed": o,
+                                "share": o / p.n if p.n else None, "expected": e,
+                                "expected_share": e / p.n if p.n else None, "n": p.n, "chi2": p.chi2, "p": p.p,
+                                "verdict": p.verdict()})
+    return out
+
+
+def bias_plots(table: Table) -> list[dict[str, Any]]:
+    """What the page draws per policy row and suite: for each axis a bar per category (share of
+    first grasps with its Wilson 95 % interval, a 4-choice block in its colour) and the expected
+    share, the verdict, and the scale (``ymax``: a multiple of 20 % above the highest whisker or line;
+    ``rotate``: tick labels too long to stand under their bar)."""
+    out = []
+    for label, row in table.items():
+        for s, b in row.items():
+            charts = []
+            for a, p in b.axes.items():
+                if not p.n:
+                    continue
+                bars = []
+                for i, (k, o, e) in enumerate(zip(p.labels, p.observed, p.expected)):
+                    rate = Rate.of(o, p.n)
+                    bars.append({"label": k, "short": _short(a, k, i), "share": rate.value, "low": rate.low,
+                                 "high": rate.high, "expected": e / p.n, "count": o, "color": _color(k)})
+                top = max(max(x["high"] for x in bars), max(x["expected"] for x in bars))
+                charts.append({"axis": a, "title": axis_title(a, s), "bars": bars, "verdict": p.verdict(),
+                               "significant": p.significant, "n": p.n, "ymax": min(1.0, math.ceil(top * 5 + 0.25) / 5),
+                               "rotate": max(len(x["short"]) for x in bars) > (6 if len(bars) <= 4 else 2)})
+            if charts:
+                out.append({"label": label, "suite": s, "charts": charts})
+    return out
+
+
+def _short(axis: str, label: str, index: int) -> str:
+    """A bar's tick: positions 1..N from the left, "red", "F", "A", an object's name."""
+    if axis == POSITION:
+        return str(index + 1)
+    return label.removesuffix(" block").removeprefix("block ")
+
+
+def _color(label: str) -> str:
+    rgb = BLOCK_COLORS.get(label.removesuffix(" block"))
+    return "#" + "".join(f"{round(255 * c):02x}" for c in rgb) if rgb else BAR_COLOR
+
+
+class BiasSection(Section):
+    key, anchor, title, nav, page_order = "bias", "bias", "Position and candidate preferences", "Preferences", 70
+    summary_order = 50
+    note = ("Does a policy go for a place or a candidate whatever the question? The first candidate grasped in each "
+            "episode with a grasp, by its position from the left in the head camera, by candidate (colour, letter "
+            "block or object) and by option letter, against the share a choice blind to it gets (dashed red). A "
+            "policy with a favourite shows here even when its TSR is at chance.")
+
+    def compute(self, records: Sequence[Mapping[str, Any]], results_dir: Path) -> Table | None:
+        return bias_table(records) if records else None
+
+    def to_json(self, table: Table) -> Any:
+        return bias_json(table)
+
+    def markdown(self, table: Table) -> str:
+        return bias_markdown(table)
+
+    def files(self, table: Table, out: Path, stem: str) -> dict[str, Path]:
+        return {"csv:bias": write_rows(bias_rows(table), out / f"{stem}_bias.csv")}
+
+    def html(self, table: Table) -> Markup | None:
+        return markdown_to_html(bias_markdown(table)) if table else None
+
+    def charts(self, table: Table) -> list[dict[str, Any]]:
+        return bias_plots(table)
+
+
+SECTION = BiasSection()

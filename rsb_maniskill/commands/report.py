@@ -62,7 +62,16 @@ def run_report(args: argparse.Namespace) -> int:
     try:
         if args.compare:
             a, b = args.compare
-            print(compare(load_results(a), load_results(b), (a, b)), end="")
+            side = compare(load_results(a), load_results(b), (a, b))
+            if all((Path(d) / RECORDS_FILE).exists() for d in (a, b)):
+                from rsb_maniskill.reporting.paired import compare_paired
+
+                paired = compare_paired(read_records(Path(a) / RECORDS_FILE), read_records(Path(b) / RECORDS_FILE),
+                                        (a, b))
+            else:
+                paired = ("Not paired: episode records (episodes.jsonl) are needed in both directories; only the "
+                          "intervals were compared.\n")
+            print(side + "\n" + paired, end="")
             return 0
         if not args.results_dir:
             raise ReportError("give RESULTS_DIR, or --compare DIR_A DIR_B")

@@ -138,6 +138,12 @@ def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] =
     if not pairs:
         raise ValueError(f"no row to compare: {names[0]} has {[r['row'] for r in a['rows']]}, "
                          f"{names[1]} has {[r['row'] for r in b['rows']]} (rows pair by label, or one row each)")
+    shared = [(ra, rb) for ra, rb in pairs if set(ra["suites"]) & set(rb["suites"])]
+    if not shared:
+        raise ValueError(f"{names[0]} ({', '.join(sorted({s for r in a['rows'] for s in r['suites']}))}) and "
+                         f"{names[1]} ({', '.join(sorted({s for r in b['rows'] for s in r['suites']}))}) share "
+                         "no suite: nothing to compare")
+    pairs = shared
     out = [f"Benchmark: {benchmark_label(a['benchmark_version'])}. A = {names[0]}, B = {names[1]}; intervals: "
            "Wilson 95 %; \"separate\": the two intervals do not overlap."]
     for ra, rb in pairs:

@@ -60,6 +60,9 @@ class Entry:
     avg: Average | None  # over the leaderboard's Avg suites (None: no Avg column)
     short: bool = False  # a suite ran on fewer episodes than the protocol's
     off_seeds: bool = False  # a suite's episodes are not the protocol's seeds
+    differs: bool | None = None  # TSR differs significantly from the best row's (None: not tested, or the best)
+    p_best: float | None = None  # the p-value of that test ("intervals": None, the intervals do or do not separate)
+    test_best: str | None = None  # how it was tested: PAIRED or INTERVALS
 
     @property
     def random(self) -> bool:
@@ -278,6 +281,64 @@ def _sort_key(e: Entry) -> tuple:
     return (e.random, tsr is None, -(tsr or 0.0), e.label.lower())
 
 
+PAIRED, INTERVALS = "paired", "intervals"  # how a row was tested against the best
+ALPHA = 0.05
+
+
+def _records(entry: Entry, suites: Sequence[str]) -> list[Mapping[str, Any]] | None:
+    """The episode records of an entry's row (None when its run is a results.json alone)."""
+    from rsb_maniskill.evaluation.records import record_row
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_records
+
+    if entry.run is None or not (Path(entry.run.source) / RECORDS_FILE).exists():
+        return None
+    recs = read_records(Path(entry.run.source) / RECORDS_FILE)
+    return [r for r in recs if record_row(r) == entry.row["row"] and r["suite_id"] in suites]
+
+
+def _pooled_tsr(row: Mapping[str, Any], suites: Sequence[str]) -> Rate:
+    """TSR pooled over ``suites`` (successes over episodes) with its Wilson interval."""
+    from rsb_maniskill.evaluation.metrics import wilson_interval
+
+    ss = [row["suites"][s] for s in suites if s in row["suites"] and row["suites"][s]["tsr"]["value"] is not None]
+    n = sum(s["n"] for s in ss)
+    if not n:
+        return Rate(None, None, None)
+    k = sum(round(s["tsr"]["value"] * s["n"]) for s in ss)
+    return Rate(k / n, *wilson_interval(k, n))
+
+
+def mark_differences(entries: list[Entry], suites: Sequence[str]) -> list[Entry]:
+    """Each model row tested against the best (the first, by Avg TSR) on TSR over the suites both ran:
+    exact McNemar over the paired episodes where both runs' records share seeds (``PAIRED``), else
+    whether their pooled Wilson 95 % intervals separate (``INTERVALS``)."""
+    from dataclasses import replace
+
+    from rsb_maniskill.evaluation.stats import mcnemar
+    from rsb_maniskill.reporting.paired import pair_records
+
+    if len(entries) < 2 or entries[0].avg is None or entries[0].avg.tsr is None:
+        return entries
+    best = entries[0]
+    best_recs = _records(best, suites)
+    out = [best]
+    for e in entries[1:]:
+        shared = [s for s in suites if s in e.row["suites"] and s in best.row["suites"]]
+        recs = _records(e, shared) if best_recs is not None else None
+        pairs = pair_records(best_recs, recs)[0] if recs else []
+        pairs = [p for p in pairs if p[0]["suite_id"] in shared]
+        if pairs:
+            t = mcnemar([bool(a.get("success")) for a, _ in pairs], [bool(b.get("success")) for _, b in pairs])
+            out.append(replace(e, differs=t.p < ALPHA, p_best=t.p, test_best=PAIRED))
+            continue
+        a, b = _pooled_tsr(best.row, shared), _pooled_tsr(e.row, shared)
+        if a.value is None or b.value is None:
+            out.append(e)
+            continue
+        out.append(replace(e, differs=a.high < b.low or b.high < a.low, test_best=INTERVALS))
+    return out
+
+
 def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, perturb: str | None = None
                       ) -> Leaderboard:
     """The leaderboard of ``runs``' rows of one protocol (``instruction_mode`` / ``perturb`` pick
@@ -295,5 +356,6 @@ def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, 
             short=any(v["n"] < EPISODES_PER_SUITE for v in row["suites"].values()),
             off_seeds=any(not v["protocol_seeds"] or v["n"] > EPISODES_PER_SUITE for v in row["suites"].values())))
     entries.sort(key=_sort_key)
+    entries = mark_differences(entries, suites)
     entries.append(Entry(RANDOM, random_row(suites), None, random_average(suites, over) if over else None))
     return Leaderboard(version, protocol, suites, over, entries)

@@ -60,6 +60,7 @@ class Entry:
     avg: Average | None  # over the leaderboard's Avg suites (None: no Avg column)
     short: bool = False  # a suite ran on fewer episodes than the protocol's
     off_seeds: bool = False  # a suite's episodes are not the protocol's seeds
+    provenance: str = "unverified"  # its episodes: pinned / differ / unverified (evaluation/provenance.py)
     differs: bool | None = None  # TSR differs significantly from the best row's (None: not tested, or the best)
     p_best: float | None = None  # the p-value of that test ("intervals": None, the intervals do or do not separate)
     test_best: str | None = None  # how it was tested: PAIRED or INTERVALS
@@ -339,12 +340,26 @@ def mark_differences(entries: list[Entry], suites: Sequence[str]) -> list[Entry]
     return out
 
 
-def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, perturb: str | None = None
-                      ) -> Leaderboard:
+def check_episodes(pairs: Sequence[tuple[Run, Mapping[str, Any]]], version: str, allow_other: bool) -> None:
+    """LeaderboardError for a row whose episodes are not the version's (unless ``allow_other``)."""
+    from rsb_maniskill.evaluation.provenance import DIFFER
+    from rsb_maniskill.version import benchmark_label
+
+    for run, row in pairs:
+        if row.get("episodes") == DIFFER and not allow_other:
+            raise LeaderboardError(f"{run.source}: {row['row']}: episodes differ from {benchmark_label(version)} "
+                                   "(other question data?): not ranked beside the version's; give "
+                                   "--allow-other-episodes to show it, marked")
+
+
+def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, perturb: str | None = None,
+                      allow_other_episodes: bool = False) -> Leaderboard:
     """The leaderboard of ``runs``' rows of one protocol (``instruction_mode`` / ``perturb`` pick
-    one), by Avg TSR, the Random line last. LeaderboardError for two versions or protocols."""
+    one), by Avg TSR, the Random line last. LeaderboardError for two versions or protocols, or a
+    row whose episodes differ from the version's (unless ``allow_other_episodes``: then marked)."""
     pairs = select_rows(runs, instruction_mode, perturb)
     version, protocol = check_one_protocol(pairs)
+    check_episodes(pairs, version, allow_other_episodes)
     suites = suite_order({s for _, row in pairs for s in row["suites"]})
     over = avg_suites(suites)
     labels = told_apart([(row["policy"], run.source, row.get("checkpoint")) for run, row in pairs])
@@ -354,7 +369,8 @@ def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, 
         entries.append(Entry(
             label, row, run, average(views, over) if over else None,
             short=any(v["n"] < EPISODES_PER_SUITE for v in row["suites"].values()),
-            off_seeds=any(not v["protocol_seeds"] or v["n"] > EPISODES_PER_SUITE for v in row["suites"].values())))
+            off_seeds=any(not v["protocol_seeds"] or v["n"] > EPISODES_PER_SUITE for v in row["suites"].values()),
+            provenance=row.get("episodes", "unverified")))
     entries.sort(key=_sort_key)
     entries = mark_differences(entries, suites)
     entries.append(Entry(RANDOM, random_row(suites), None, random_average(suites, over) if over else None))

@@ -31,13 +31,14 @@ METRICS = (  # key, short name, what it measures
 )
 SHORT, OFF_SEEDS, PARTIAL = "\u2020", "\u2021", "*"  # the marks: dagger, double dagger, star
 DIFFERS = "\u00a7"  # section sign: TSR differs significantly from the best row's
+OTHER_EPISODES, UNVERIFIED_MARK = "\u2260", "?"  # episodes not the version's; not checked (no digests)
 MISSING = "\u2014"  # a suite the row did not run
 UNDEFINED = "not defined"  # the Random line's GSR
 CSV_FIELDS = (
     "model", "suite_id", "n_choices", "n_episodes", "protocol_seeds", "gsr", "gsr_low", "gsr_high", "tsr", "tsr_low",
-    "tsr_high", "nsg", "nsg_low", "nsg_high", "avg_complete", "short", "off_seeds", "differs_from_best", "vs_best_test",
-    "vs_best_p", "checkpoint", "instruction_mode",
-    "perturb", "split", "instructions", "benchmark_version", "run",
+    "tsr_high", "nsg", "nsg_low", "nsg_high", "avg_complete", "short", "off_seeds", "episodes", "differs_from_best",
+    "vs_best_test", "vs_best_p", "checkpoint", "instruction_mode", "perturb", "split", "instructions",
+    "benchmark_version", "run",
 )
 
 
@@ -48,7 +49,8 @@ def short_suite(suite_id: str) -> str:
 def marks(e: Entry) -> str:
     """``" †‡§"``: fewer episodes than the protocol's, other seeds than the protocol's, TSR significantly
     different from the best row's."""
-    m = (SHORT if e.short else "") + (OFF_SEEDS if e.off_seeds else "") + (DIFFERS if e.differs else "")
+    m = (SHORT if e.short else "") + (OFF_SEEDS if e.off_seeds else "") + (DIFFERS if e.differs else "") + (
+        "" if e.random else {"differ": OTHER_EPISODES, "unverified": UNVERIFIED_MARK}.get(e.provenance, ""))
     return f" {m}" if m else ""
 
 
@@ -103,6 +105,7 @@ def _md_cell(value: str, interval: str) -> str:
 def notes(board: Leaderboard) -> list[str]:
     """What the marks and the Random line mean."""
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
+    from rsb_maniskill.version import benchmark_label
 
     out = [f"{SHORT} fewer episodes than the protocol's {EPISODES_PER_SUITE} in a suite: wider intervals, not a "
            f"full-protocol row. {OFF_SEEDS} a suite's episodes are not the protocol's seeds.",
@@ -110,6 +113,11 @@ def notes(board: Leaderboard) -> list[str]:
            f"({', '.join(map(short_suite, board.avg_suites))}), not all; nSG over those where it is defined.",
            f"{board.entries[-1].label}: random target selection among the N candidates: TSR = 1/N and nSG = 0 by "
            "definition; GSR is not defined for it."]
+    if any(not e.random and e.provenance != "pinned" for e in board.entries):
+        out.append(f"{OTHER_EPISODES} episodes differ from {benchmark_label(board.benchmark_version)}: its records "
+                   "asked other questions (other question data), not comparable with the others. "
+                   f"{UNVERIFIED_MARK} episodes unverified: its records carry no episode digest (written before "
+                   "digests, or by another version).")
     out += difference_notes(board)
     return out if board.avg_suites else [n for n in out if not n.startswith(PARTIAL)]
 
@@ -162,7 +170,8 @@ def csv_rows(board: Leaderboard) -> list[dict[str, Any]]:
     p, out = board.protocol, []
     for e in board.entries:
         common = {"model": e.label, "checkpoint": e.row.get("checkpoint"), "short": e.short, "off_seeds": e.off_seeds,
-                  "differs_from_best": e.differs, "vs_best_test": e.test_best, "vs_best_p": e.p_best,
+                  "episodes": None if e.random else e.provenance, "differs_from_best": e.differs,
+                  "vs_best_test": e.test_best, "vs_best_p": e.p_best,
                   "instruction_mode": p["instruction_mode"], "perturb": p["perturb"], "split": p["split"],
                   "instructions": p["instructions"], "benchmark_version": board.benchmark_version,
                   "run": e.run.source if e.run else None}

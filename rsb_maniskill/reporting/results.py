@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate, SuiteMetrics, average, summarize
+from rsb_maniskill.evaluation.provenance import check_records
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, one_version, perturb_label, row_label
 from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
 from rsb_maniskill.reporting.cells import NA, ci, delta, pct
@@ -71,6 +72,7 @@ def results_document(records: Iterable[Mapping[str, Any]], runs: Mapping[str, Ma
             "code_commit": run.get("code_commit"), "suites": suites,
             "average": {"suites": list(avg.present), "complete": avg.complete, "gsr": avg.gsr, "tsr": avg.tsr,
                         "nsg": avg.nsg},
+            "episodes": check_records(recs).verdict,  # pinned / differ / unverified (evaluation/provenance.py)
             "full_protocol": all(s in suites and suites[s]["n"] == EPISODES_PER_SUITE and suites[s]["protocol_seeds"]
                                  for s in PAPER_SUITES),
         })

@@ -45,6 +45,7 @@ def test_paired_where_seeds_match(tmp_path, capsys):
     assert avg["close"]["differs_from_best"] == "False" and float(avg["close"]["vs_best_p"]) == 1.0 / 2
     assert avg["good"]["differs_from_best"] == "" and avg["good"]["vs_best_test"] == ""
     assert "| poor †§ |" in md and "| close † |" in md and "poor §: paired, exact McNemar p = 0.00195" in md
+    assert "Episodes unverified (records without episode digests" in md  # these records carry none
     assert "poor §" in (out / "index.html").read_text()
 
 

@@ -31,7 +31,7 @@ METRICS = (  # key, short name, what it measures
 )
 SHORT, OFF_SEEDS, PARTIAL = "\u2020", "\u2021", "*"  # the marks: dagger, double dagger, star
 DIFFERS = "\u00a7"  # section sign: TSR differs significantly from the best row's
-OTHER_EPISODES, UNVERIFIED_MARK = "\u2260", "?"  # episodes not the version's; not checked (no digests)
+OTHER_EPISODES = "\u2260"  # the row's episodes are not the benchmark version's
 MISSING = "\u2014"  # a suite the row did not run
 UNDEFINED = "not defined"  # the Random line's GSR
 CSV_FIELDS = (
@@ -50,7 +50,7 @@ def marks(e: Entry) -> str:
     """``" †‡§"``: fewer episodes than the protocol's, other seeds than the protocol's, TSR significantly
     different from the best row's."""
     m = (SHORT if e.short else "") + (OFF_SEEDS if e.off_seeds else "") + (DIFFERS if e.differs else "") + (
-        "" if e.random else {"differ": OTHER_EPISODES, "unverified": UNVERIFIED_MARK}.get(e.provenance, ""))
+        OTHER_EPISODES if not e.random and e.provenance == "differ" else "")
     return f" {m}" if m else ""
 
 
@@ -113,11 +113,13 @@ def notes(board: Leaderboard) -> list[str]:
            f"({', '.join(map(short_suite, board.avg_suites))}), not all; nSG over those where it is defined.",
            f"{board.entries[-1].label}: random target selection among the N candidates: TSR = 1/N and nSG = 0 by "
            "definition; GSR is not defined for it."]
-    if any(not e.random and e.provenance != "pinned" for e in board.entries):
+    if any(not e.random and e.provenance == "differ" for e in board.entries):
         out.append(f"{OTHER_EPISODES} episodes differ from {benchmark_label(board.benchmark_version)}: its records "
-                   "asked other questions (other question data), not comparable with the others. "
-                   f"{UNVERIFIED_MARK} episodes unverified: its records carry no episode digest (written before "
-                   "digests, or by another version).")
+                   "asked other questions (other question data), not comparable with the others.")
+    unverified = [e.label for e in board.entries if not e.random and e.provenance == "unverified"]
+    if unverified:
+        out.append(f"Episodes unverified (records without episode digests, written before them): "
+                   f"{', '.join(unverified)}.")
     out += difference_notes(board)
     return out if board.avg_suites else [n for n in out if not n.startswith(PARTIAL)]
 

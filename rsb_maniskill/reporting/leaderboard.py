@@ -31,7 +31,14 @@ from rsb_maniskill.evaluation.metrics import (
     suite_order,
 )
 from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
-from rsb_maniskill.reporting.results import RESULTS_FILE, SCHEMA_ID, SCHEMA_VERSION, load_results, results_document
+from rsb_maniskill.reporting.results import (
+    RESULTS_FILE,
+    SCHEMA_ID,
+    SCHEMA_VERSION,
+    document_problem,
+    load_results,
+    results_document,
+)
 
 RANDOM = "Random (1/N)"  # the random-selection line of the paper's tables
 # Keys of a protocol, besides the benchmark version: rows that differ in one never share a column.
@@ -124,6 +131,9 @@ def load_run(path: str | os.PathLike) -> Run:
                                f"{SCHEMA_VERSION}: run the rsb_maniskill that wrote it")
     if not doc.get("rows"):
         raise LeaderboardError(f"{p}: holds no episode records yet")
+    problem = document_problem(doc)
+    if problem:
+        raise LeaderboardError(f"{p}: {problem}")
     return Run(str(path), doc)
 
 

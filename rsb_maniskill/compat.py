@@ -8,7 +8,7 @@ SAPIEN attribute (the test lists the attributes this module reads and looks for 
 from __future__ import annotations
 
 from contextlib import contextmanager
-from typing import Any, Iterator
+from typing import Any, Iterator, Mapping
 
 
 def physx_bodies(entity: Any) -> list[Any]:
@@ -52,6 +52,40 @@ def batched_episode_rng(env: Any) -> Any:
 def render_device(env: Any) -> Any:
     """The SAPIEN device the env renders with (``BaseEnv._render_device``)."""
     return env._render_device
+
+
+def hidden_objects(env: Any) -> list[Any]:
+    """The actors an env hides from its sensors while they render (``BaseEnv._hidden_objects``)."""
+    return env._hidden_objects
+
+
+@contextmanager
+def pictures_from(env: Any, pictures: Mapping[str, Mapping[str, Any]]) -> Iterator[None]:
+    """Inside the block the env's observation takes its camera pictures from ``pictures`` (camera
+    name -> texture name -> (1, H, W, C) tensor, rendered elsewhere: ``sim/camera_group.py``) rather
+    than rendering its own scene; the rest of ManiSkill's observation (texture transforms, the task's
+    own sensor-data hook, parameters, flattening) runs as usual.
+
+    ``BaseEnv._get_obs_sensor_data`` calls ``scene.update_render``, each sensor's ``capture``, then
+    ``Camera.get_obs`` reads ``RenderCamera.get_picture(names)``: these three are shadowed on the
+    instances for the block, and restored after it."""
+    scene = env.scene
+    patched: list[Any] = [scene]
+    scene.update_render = lambda *args, **kwargs: None
+    try:
+        for name, sensor in scene.sensors.items():
+            if name not in pictures:
+                continue
+            own = pictures[name]
+            sensor.capture = lambda: None
+            sensor.camera.get_picture = lambda names, own=own: [own[n] for n in ([names] if isinstance(names, str)
+                                                                                 else names)]
+            patched += [sensor, sensor.camera]
+        yield
+    finally:
+        for obj in patched:
+            for attr in ("update_render", "capture", "get_picture"):
+                obj.__dict__.pop(attr, None)
 
 
 @contextmanager

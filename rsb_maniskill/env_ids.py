@@ -1,10 +1,13 @@
-"""The RSB env ids and their fixed numbers: ids, groups, step limits, frequencies (a leaf: no simulator).
+"""The RSB env ids and their fixed numbers: ids, groups, step limits, frequencies (no simulator).
 
 Every module that needs one of these facts imports it from here: the registry entries
 (``registration.py``), the tasks, the expert, the evaluator, the audit, the dataset builder and the
 LeRobot env. :func:`resolve_env_ids` is the one reader of suite names (ids, groups such as
 ``paper``, the paper release's task names), and :func:`add_suites_argument` the one way a command
-takes a list of them. Nothing here imports torch, SAPIEN or ManiSkill.
+takes a list of them. Nothing here imports torch, SAPIEN or ManiSkill. Not a leaf: the ids are the
+suites of ``semantic/suites.py`` times the candidate families of ``objects/family.py``, so this module
+sits on the floor just above those two, and every floor from the simulator's plumbing (``sim/``) up
+may import it.
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ MODULE = "rsb_maniskill"
 SIM_FREQ, CONTROL_FREQ = 125, 25  # Hz: 5 physics steps per action, as ManiSkill's tabletop tasks
 # ManiSkill's sim_backend names of the two ways RSB runs: one env a process on the CPU (the expert's
 # demos, the golden digests, rendering demos) or parallel envs on the GPU. Here, beside the
-# frequencies, because every layer may import this leaf; sim/physx_gpu.py only reads a backend's name.
+# frequencies, which every floor from sim/ up reads; sim/physx_gpu.py only reads a backend's name.
 CPU_SIM_BACKEND, GPU_SIM_BACKEND = "physx_cpu", "physx_cuda"
 TASK_MAX_EPISODE_STEPS = 300  # 12 s at 25 Hz; the expert needs about 7 s (see docs/tasks.md)
 TABLETOP_ID = "RSB-TableTop-v1"

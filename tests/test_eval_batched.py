@@ -147,15 +147,15 @@ def test_one_policy_per_env_is_required():
 @pytest.mark.gpu
 @pytest.mark.usefixtures("gpu_physics")
 def test_rsb_eval_on_gpu_parallel_envs_matches_cpu_episodes(tmp_path):
-    """`rsb eval --num-envs 4` on physx_cuda: every episode is the CPU episode of the same seed."""
+    """`rsb eval -b physx_cuda --num-envs 4`: every episode is the CPU episode of the same seed."""
     import rsb_maniskill  # noqa: F401
     from rsb_maniskill.cli import main
     from rsb_maniskill.evaluation import EVAL_ENV_KWARGS, eval_seeds
     from rsb_maniskill.evaluation.store import read_records
 
     out = tmp_path / "gpu"
-    assert main(["eval", "random", "--suites", "RSB-Math-4", "-n", "6", "--num-envs", "4", "--max-steps", "20",
-                 "--out", str(out), "-q"]) == 0
+    assert main(["eval", "random", "--suites", "RSB-Math-4", "-n", "6", "-b", "physx_cuda", "--num-envs", "4",
+                 "--max-steps", "20", "--out", str(out), "-q"]) == 0
     records = read_records(out / "episodes.jsonl")
     assert sorted(r["seed"] for r in records) == eval_seeds("RSB-Math-4", 6)
     cpu = gym.make("RSB-Math-4", obs_mode="state", render_backend="none", **EVAL_ENV_KWARGS)
@@ -218,12 +218,12 @@ def test_render_on_demand_on_gpu_envs_same_records():
 @pytest.mark.gpu
 @pytest.mark.usefixtures("gpu_physics")
 def test_rsb_eval_num_envs_on_ray_gpu_task(tmp_path):
-    """`rsb eval --num-envs 2 --executor ray`: one GPU task running 2 envs; the CPU episodes."""
+    """`rsb eval -b physx_cuda --num-envs 2 --executor ray`: one GPU task running 2 envs; the CPU episodes."""
     from rsb_maniskill.cli import main
     from rsb_maniskill.evaluation import eval_seeds
     from rsb_maniskill.evaluation.store import read_records
 
     out = tmp_path / "ray-gpu"
-    assert main(["eval", "random", "--suites", "RSB-Math-4", "-n", "4", "--num-envs", "2", "--num-procs", "1",
-                 "--max-steps", "10", "--out", str(out), "-q", "--executor", "ray"]) == 0
+    assert main(["eval", "random", "--suites", "RSB-Math-4", "-n", "4", "-b", "physx_cuda", "--num-envs", "2",
+                 "--num-procs", "1", "--max-steps", "10", "--out", str(out), "-q", "--executor", "ray"]) == 0
     assert sorted(r["seed"] for r in read_records(out / "episodes.jsonl")) == eval_seeds("RSB-Math-4", 4)

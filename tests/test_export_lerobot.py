@@ -70,6 +70,26 @@ def _head_frame(demos: Path, episode: int, t: int) -> np.ndarray:
     raise IndexError(episode)
 
 
+def test_demos_rendered_together_on_a_vector_env_give_the_same_frames(demos):
+    """`render_episodes(num_envs=2)` (both demos set and rendered together, as on a GPU machine) gives
+    the episodes, states and frames of one env rendering them in turn."""
+    from rsb_maniskill.export.render_demos import close_render_env, render_episodes
+
+    try:
+        one = list(render_episodes(demos, ("head", "left_wrist"), 25, num_envs=1))
+        two = list(render_episodes(demos, ("head", "left_wrist"), 25, num_envs=2))
+    finally:
+        close_render_env()
+    assert len(one) == len(two) == 2
+    for a, b in zip(one, two):
+        assert a.meta == b.meta and a.task == b.task
+        np.testing.assert_array_equal(a.state, b.state)
+        np.testing.assert_array_equal(a.action, b.action)
+        for c in ("head", "left_wrist"):
+            assert a.frames[c].shape == b.frames[c].shape and a.frames[c].any()
+            np.testing.assert_array_equal(a.frames[c], b.frames[c])
+
+
 def test_v3_layout_and_contents(demos, exported):
     src = json.loads(demos.with_suffix(".json").read_text())
     info = json.loads((exported / "meta/info.json").read_text())

@@ -198,6 +198,11 @@ def test_doctor_reports_the_same_rule(home, cuda, monkeypatch):
     assert checks["GPU physics"].detail == physx_gpu.gpu_physics_unavailable()
     assert checks["PhysX GPU library"].detail == f"missing ({physx_gpu.library_path()})"
     assert checks["--num-procs auto"].detail.startswith("cameras: workers: ")
+    from rsb_maniskill.sim.camera_group import group_rendering_unavailable
+
+    why_not = group_rendering_unavailable()  # the rule the vector env's renderer="auto" picks by
+    assert "envs a process" in checks["--num-envs auto"].detail
+    assert ("available" if why_not is None else why_not) in checks["--num-envs auto"].detail
     lib = physx_gpu.library_path()
     lib.parent.mkdir(parents=True)
     lib.write_bytes(b"")
@@ -241,13 +246,13 @@ def test_doctor_exit_1_when_the_renderer_is_missing(capsys, monkeypatch):
 
 
 def test_rsb_eval_num_envs_reports_the_missing_library_up_front(home, monkeypatch, capsys, tmp_path):
-    """`rsb eval --num-envs B` on a (faked) CUDA machine without the library: exit 2 with the
+    """`rsb eval -b physx_cuda --num-envs B` on a (faked) CUDA machine without the library: exit 2 with the
     clear error before any env or worker starts."""
     import torch
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     monkeypatch.setenv("RSB_OFFLINE", "1")
-    rc = main(["eval", "random", "--suites", "RSB-Math-4", "-n", "2", "--num-envs", "2",
+    rc = main(["eval", "random", "--suites", "RSB-Math-4", "-n", "2", "-b", "physx_cuda", "--num-envs", "2",
                "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert rc == 2 and "rsb eval: error: GPU physics" in err and "libPhysXGpu_64.so" in err

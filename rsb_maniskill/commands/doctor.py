@@ -38,8 +38,8 @@ _RENDER_PROBE = r"""
 import importlib.util, json, sys, time, numpy as np
 t0 = time.time()
 spec = importlib.util.spec_from_file_location("_rsb_render", sys.argv[1])  # not the package: no torch
-_render = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(_render)
+render = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(render)
 import sapien
 out = {"icd": render.select_vulkan_driver(), "summary": sapien.render.get_device_summary()}
 try:
@@ -122,7 +122,7 @@ def _mesa_version() -> str | None:
 def start_render_probe() -> subprocess.Popen:
     """The render probe runs in a subprocess (a broken Vulkan stack can crash, not raise),
     started first so that it overlaps the other checks."""
-    return subprocess.Popen([sys.executable, "-c", _RENDER_PROBE, str(Path(__file__).with_name("render.py"))],
+    return subprocess.Popen([sys.executable, "-c", _RENDER_PROBE, str(Path(__file__).parents[1] / "sim" / "render.py")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -183,13 +183,19 @@ def check_gpu() -> list[Check]:
     # the rule the GPU-physics tests skip by; no network here: a missing library is reported as such
     reason = physx_gpu.gpu_physics_unavailable(probe_network=False)
     status = "ok" if reason is None else "warn" if torch.cuda.is_available() else "info"
-    out.append(Check("gpu", "GPU physics", status, reason or "physx_cuda, num_envs > 1 and `rsb eval --num-envs` "
-                                                            "can run here"))
-    from rsb_maniskill.parallel.plan import nvidia_gpus, plan_workers, usable_cpus
+    out.append(Check("gpu", "GPU physics", status, reason or "physx_cuda, num_envs > 1 and `rsb eval -b physx_cuda "
+                                                            "--num-envs` can run here"))
+    from rsb_maniskill.parallel.plan import nvidia_gpus, plan_num_envs, plan_workers, usable_cpus
+    from rsb_maniskill.sim.camera_group import group_rendering_unavailable
 
     cpus, n_gpus = usable_cpus(), len(nvidia_gpus())
     rgb, state = (plan_workers(cpus, n_gpus, renders) for renders in (True, False))
     out.append(Check("gpu", "--num-procs auto", "info", f"cameras: {rgb.line()}; state: {state.line()}"))
+    why_not = group_rendering_unavailable()
+    k, why = plan_num_envs(n_gpus, True)
+    out.append(Check("gpu", "--num-envs auto", "info",
+                     f"cameras: {k} envs a process ({why}); one render call for K envs: "
+                     + ("available" if why_not is None else f"not here ({why_not}): each scene renders its own")))
     return out
 
 

@@ -40,7 +40,7 @@ SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS, add_suites_argument
+    from rsb_maniskill.env_ids import CPU_SIM_BACKEND, GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS, add_suites_argument
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS
     from rsb_maniskill.evaluation.records import EVAL_INSTRUCTION_MODES
     from rsb_maniskill.parallel.plan import add_worker_args
@@ -85,10 +85,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="extra gym.make keyword, e.g. camera_size=[224,224] (VALUE as JSON, else a string)")
     p.add_argument("--data-dir", default=None,
                    help="GSM8K / MMLU-Pro directory (else $RSB_DATA_DIR, else the hub cache)")
-    p.add_argument("--num-envs", type=int, default=1,
-                   help=f"parallel envs on the GPU backend ({GPU_SIM_BACKEND}), driven by one batched policy "
-                        "(reset_batch / act_batch; e.g. remote: one request per step) or one policy "
-                        "instance each (default 1)")
+    p.add_argument("--num-envs", type=_num_envs, default=1, metavar="auto|K",
+                   help=f"envs a process, driven by one batched policy (reset_batch / act_batch; e.g. remote: "
+                        "one request per step) or one policy instance each (default 1). On the CPU backend, a "
+                        "vector of K CPU envs whose cameras render in one call where CUDA rendering exists "
+                        "(the same episodes and records as K = 1); auto: 4 on NVIDIA GPUs when cameras render, "
+                        f"else 1, printed with why. With -b {GPU_SIM_BACKEND}: ManiSkill's parallel envs on GPU "
+                        "physics, in one process")
+    p.add_argument("-b", "--sim-backend", default=CPU_SIM_BACKEND, choices=(CPU_SIM_BACKEND, GPU_SIM_BACKEND),
+                   help=f"physics: {CPU_SIM_BACKEND} (default; the paper's) or {GPU_SIM_BACKEND} (GPU-parallel envs, "
+                        "with --num-envs K > 1)")
     p.add_argument("--max-steps", type=int, default=None,
                    help=f"step cap per episode (default: the task's {TASK_MAX_EPISODE_STEPS})")
     p.add_argument("--videos", type=int, default=0, metavar="K", help="mp4 of the first K episodes of each suite")
@@ -141,13 +147,23 @@ def check_policy_spec(spec: str, num_envs: int = 1) -> None:
     from rsb_maniskill.policies.registry import policy_spec, resolve_factory
 
     if num_envs > 1 and policy_spec(spec).single_env:
-        raise EvalError(f"policy {spec!r} drives one env at a time: use --num-procs, not --num-envs")
+        raise EvalError(f"policy {spec!r} drives one env at a time: with -b physx_cuda use --num-procs, not --num-envs")
     try:
         resolve_factory(spec)
     except ImportError as err:
         raise EvalError(f"{err}; is the module installed or on PYTHONPATH?") from err
     except (ValueError, AttributeError, TypeError) as err:
         raise EvalError(str(err)) from err
+
+
+def _num_envs(text: str) -> int | None:
+    """A ``--num-envs`` value: ``auto`` (None: decided from the machine) or a count >= 1."""
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be auto or a whole number of envs >= 1, got {text!r}") from None
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
@@ -175,7 +191,6 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
               max_steps: int, env_kwargs: dict, out: Path, records_path: Path, num_procs: int,
               executor: Any, perturbs: list[dict[str, int]]) -> None:
     """Every suite x instruction mode x perturbation, one after the other."""
-    from rsb_maniskill.env_ids import CPU_SIM_BACKEND, GPU_SIM_BACKEND
     from rsb_maniskill.evaluation.jobs import EvalJob, run_job
     from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, eval_seeds
 
@@ -185,8 +200,8 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
                 suite_id=suite, seeds=tuple(eval_seeds(suite, args.num_episodes)), policy=args.policy,
                 label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
                 variants=args.variants if mode == COUNTERFACTUAL else None,
-                control_mode=args.control_mode, num_envs=args.num_envs,
-                sim_backend=GPU_SIM_BACKEND if args.num_envs > 1 else CPU_SIM_BACKEND, max_steps=max_steps,
+                control_mode=args.control_mode, num_envs=args.num_envs, sim_backend=args.sim_backend,
+                max_steps=max_steps,
                 env_kwargs=env_kwargs, video_dir=str(out / "videos") if args.videos else None,
                 num_videos=args.videos)
             run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor)
@@ -208,24 +223,31 @@ def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.evaluation.protocol import eval_seeds
     from rsb_maniskill.evaluation.provenance import check_question_pool
     from rsb_maniskill.evaluation.store import RECORDS_FILE, RunStart, check_manifest, read_records
-    from rsb_maniskill.parallel.plan import executor_from_args, obs_mode_renders, resolve_workers
+    from rsb_maniskill.parallel.plan import executor_from_args, obs_mode_renders, resolve_num_envs, resolve_workers
     from rsb_maniskill.policies.registry import policy_spec
     from rsb_maniskill.version import BENCHMARK_VERSION
 
     suites = args.suites
+    gpu_physics = args.sim_backend == GPU_SIM_BACKEND
     for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-envs", args.num_envs, 1),
                              ("--videos", args.videos, 0)):
-        if value < low:
+        if value is not None and value < low:
             raise EvalError(f"{flag} must be >= {low}, got {value}")
     if args.max_steps is not None and args.max_steps < 1:
         raise EvalError(f"--max-steps must be >= 1, got {args.max_steps}")
-    if args.num_envs > 1 and (args.num_procs or 1) > 1 and args.executor == "local":
-        raise EvalError("use either --num-envs (GPU) or --num-procs (CPU), not both")
+    if gpu_physics and args.num_envs is None:
+        raise EvalError(f"--num-envs auto picks CPU envs a process; with -b {GPU_SIM_BACKEND} give --num-envs K")
+    if gpu_physics and (args.num_envs or 1) > 1 and (args.num_procs or 1) > 1 and args.executor == "local":
+        raise EvalError(f"use either --num-envs with -b {GPU_SIM_BACKEND} (one process) or --num-procs, not both")
+    obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
+    if args.num_envs is None:
+        args.num_envs = resolve_num_envs(None, obs_mode_renders(obs_mode))
     try:
-        executor = executor_from_args(args.executor, args.address, gpus_per_task=1 if args.num_envs > 1 else 0)
+        executor = executor_from_args(args.executor, args.address,
+                                      gpus_per_task=1 if args.num_envs > 1 and gpu_physics else 0)
     except (ValueError, ImportError) as err:
         raise EvalError(str(err)) from err
-    if args.num_envs > 1 and executor is None:
+    if args.num_envs > 1 and gpu_physics and executor is None:
         import torch
 
         from rsb_maniskill.sim.physx_gpu import PhysXGpuLibraryMissing, check_for_sim_backend
@@ -244,9 +266,8 @@ def _run_eval(args: argparse.Namespace) -> int:
     check_variants(args.variants, args.instruction, suites)
     if args.data_dir:
         env_kwargs["data_dir"] = args.data_dir
-    check_policy_spec(args.policy, args.num_envs)
+    check_policy_spec(args.policy, args.num_envs if gpu_physics else 1)  # CPU vector envs: one instance each
     check_policy_args(args.policy, policy_kwargs)
-    obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
     check_env_settings(suites, env_kwargs, obs_mode, args.control_mode)
     check_data(suites, env_kwargs.get("data_dir"), env_kwargs.get("color_map"))
     if args.policy == "remote":
@@ -278,7 +299,8 @@ def _run_eval(args: argparse.Namespace) -> int:
         if executor is not None:
             stack.enter_context(executor)  # a local Ray cluster lives for the whole run
         executor, num_procs = resolve_workers(args.num_procs, executor, obs_mode_renders(obs_mode) or args.videos > 0,
-                                              num_envs=args.num_envs, episodes=args.num_episodes)
+                                              num_envs=args.num_envs, episodes=args.num_episodes,
+                                              gpu_physics=gpu_physics)
         try:
             _run_jobs(args, suites, label, policy_kwargs, obs_mode, max_steps, env_kwargs, out, records_path,
                       num_procs, executor, perturbs)

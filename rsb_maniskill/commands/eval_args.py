@@ -33,7 +33,7 @@ RESULTS_ROOT = Path("results")  # --out defaults to results/<name>
 # gym.make keywords that rsb eval sets from its own flags: an --env-arg would be ignored or fight them.
 EVAL_FLAG_KEYS: dict[str, str] = {
     "obs_mode": "use -o / --obs-mode", "control_mode": "use -c / --control-mode", "num_envs": "use --num-envs",
-    "sim_backend": "use --num-envs (1: the CPU backend, more: the GPU one)", "render_mode": "use --videos",
+    "sim_backend": "use -b / --sim-backend", "render_mode": "use --videos",
     "max_episode_steps": "use --max-steps",
 }
 JSON_EXAMPLES = {int: "3", float: "0.5", bool: "true", str: "text", tuple: "[224,224]", list: "[1,2]",

@@ -6,8 +6,9 @@ caller:
 
 - :func:`run_job` builds env and policy from an :class:`EvalJob` (a picklable description) in
   this process, in worker processes (one env each, records sent back over a queue), or on
-  ``num_envs`` parallel envs of the GPU backend (one policy object if it has the batched form,
-  else one per env);
+  ``num_envs`` parallel envs: of the GPU backend (in one process), or a vector of CPU envs in
+  each worker (``rsb_maniskill.vector``: every camera rendered in one call where CUDA rendering
+  exists); one policy object if it has the batched form, else one per env;
 - :func:`run_episodes` runs a policy object on an env you built.
 """
 from __future__ import annotations
@@ -53,8 +54,14 @@ class EvalJob(EpisodeSettings):
     obs_mode: str = "rgb"
     control_mode: str | None = None
     sim_backend: str = CPU_SIM_BACKEND
-    num_envs: int = 1
+    num_envs: int = 1  # > 1: ManiSkill's parallel envs on GPU physics, or on the CPU backend a vector env
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)  # e.g. data_dir, camera_size
+    renderer: str = "auto"  # CPU vector env: one render call for all envs (CUDA), or per scene
+
+    @property
+    def cpu_vector(self) -> bool:
+        """Several envs on the CPU backend: a :class:`~rsb_maniskill.vector.RSBVectorEnv` per worker."""
+        return self.num_envs > 1 and self.sim_backend == CPU_SIM_BACKEND
 
 
 def make_env(job: EvalJob) -> Any:
@@ -64,7 +71,7 @@ def make_env(job: EvalJob) -> Any:
     import rsb_maniskill  # noqa: F401  (registers the RSB-* envs, also in spawned workers)
 
     kwargs: dict[str, Any] = {**EVAL_ENV_KWARGS, **job.env_kwargs}
-    kwargs.update(obs_mode=job.obs_mode, sim_backend=job.sim_backend, num_envs=job.num_envs)
+    kwargs.update(obs_mode=job.obs_mode, sim_backend=job.sim_backend)
     if job.perturb:
         kwargs["perturb"] = dict(job.perturb)
     if job.control_mode:
@@ -73,7 +80,11 @@ def make_env(job: EvalJob) -> Any:
         kwargs["render_mode"] = "rgb_array"
     elif job.obs_mode in ("state", "state_dict", "none"):
         kwargs["render_backend"] = "none"  # nothing to render: skip the renderer entirely
-    return gym.make(job.suite_id, **kwargs)
+    if job.cpu_vector:
+        from rsb_maniskill.vector import RSBVectorEnv
+
+        return RSBVectorEnv(job.suite_id, job.num_envs, renderer=job.renderer, **kwargs)
+    return gym.make(job.suite_id, num_envs=job.num_envs, **kwargs)
 
 
 class ProgressBar:
@@ -198,12 +209,15 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
     kept either way. A signal stops the workers and raises
     :class:`~rsb_maniskill.parallel.pool.Interrupted`, a KeyboardInterrupt.
     """
-    if job.num_envs > 1 and policy_spec(job.policy).single_env:
-        raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs")
+    if job.num_envs > 1 and not job.cpu_vector and policy_spec(job.policy).single_env:
+        raise ValueError(f"policy {job.policy!r} drives one env at a time; use num_procs instead of num_envs, "
+                         "or the CPU backend's vector env")
 
     def run(todo: list[int], write: Write) -> None:
-        # parallel GPU envs run in this process, or one shard per GPU task of an executor
-        shards = deal(todo, 1 if job.num_envs > 1 and executor is None else num_procs)
+        # parallel GPU envs run in this process, or one shard per GPU task of an executor; CPU vector
+        # envs, num_envs to each of num_procs workers
+        gpu_envs = job.num_envs > 1 and not job.cpu_vector
+        shards = deal(todo, 1 if gpu_envs and executor is None else num_procs)
         chosen = executor or (ProcessPool() if len(shards) > 1 else InProcess())
         outcome = chosen.run(run_shard, [(job, shard) for shard in shards], write)
         if outcome.interrupted:
@@ -218,6 +232,20 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
                            f"{first}: {first_line(errors[first])}", detail=errors[first])
 
     return drive(job, out_path, run, progress)
+
+
+def _load_policies(job: EvalJob, env: Any) -> Any:
+    """The policy of a job's worker: one object, or for parallel envs a batched one or one instance
+    per env. On a CPU vector env each instance is built with its own env (``env.envs[i]``), so that
+    a policy that reads the simulator of one env (the scripted expert's) drives each env."""
+    sub_envs = getattr(env.unwrapped, "envs", None) if job.cpu_vector else None
+    if sub_envs is not None and policy_spec(job.policy).single_env:
+        return [load_policy(job.policy, env=sub, **job.policy_kwargs) for sub in sub_envs]
+    policy = load_policy(job.policy, env=env, **job.policy_kwargs)
+    if job.num_envs > 1 and not is_batched(policy):  # one instance per env
+        policy = [policy] + [load_policy(job.policy, env=env, **job.policy_kwargs)
+                             for _ in range(env.unwrapped.num_envs - 1)]
+    return policy
 
 
 def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> BaseException | None:
@@ -235,10 +263,7 @@ def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> BaseException | 
                         f"{first_line(str(err))}", detail=traceback.format_exc())
     try:
         with blame_policy("building it", policy=job.label, where=job.suite_id):
-            policy = load_policy(job.policy, env=env, **job.policy_kwargs)
-            if job.num_envs > 1 and not is_batched(policy):  # one instance per env
-                policy = [policy] + [load_policy(job.policy, env=env, **job.policy_kwargs)
-                                     for _ in range(env.unwrapped.num_envs - 1)]
+            policy = _load_policies(job, env)
         if job.num_envs > 1:
             batched_loop(env, policy, job, seeds, write)
         else:

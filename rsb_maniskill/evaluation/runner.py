@@ -206,7 +206,9 @@ class Observations:
     def step(self, action: Any) -> tuple[Any, Any, Any, Any]:
         """``env.step(action)`` without its observation: (reward, terminated, truncated, info)."""
         if self.lazy:
-            with compat.obs_mode(self.base, self.SKIP_MODE):
+            # a vector of CPU envs (rsb_maniskill.vector) has its own switch; a ManiSkill env, its obs mode
+            own = getattr(self.base, "skip_observations", None)
+            with own() if callable(own) else compat.obs_mode(self.base, self.SKIP_MODE):
                 out = self.env.step(action)
         else:
             out = self.env.step(action)
@@ -302,7 +304,8 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
     ``policy`` is a :class:`~rsb_maniskill.policies.interface.BatchedPolicy` (one ``act_batch`` call
     per step for every env that needs a chunk), or a list of single-env policies, one per env.
     All envs of a wave are reset together with their seeds (a list); each env's record is taken at
-    the step it terminates or truncates, and it then holds its last action until the wave ends. The
+    the step it terminates or truncates, and it then holds its last action until the wave ends
+    (a vector of CPU envs, ``rsb_maniskill.vector``, stops stepping it: ``env.unwrapped.hold(i)``). The
     last wave is padded with repeats of its last seed whose outcome is discarded. Records equal
     those of :func:`episode_loop`, episode for episode.
     """
@@ -316,6 +319,7 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         policy = PerEnvPolicies(policy)
     episodes = _Episodes(env, settings, resets_allowed=False)
     observations = Observations(env, settings.render_every_step)
+    hold = getattr(base, "hold", None)
 
     for start in range(0, len(todo), b):
         wave_items = [episode_of(e) for e in todo[start:start + b]]
@@ -342,6 +346,9 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         last = np.zeros((b, episodes.action_dim), dtype=np.float32)
         steps = [0] * b
         active = [i < n for i in range(b)]
+        if callable(hold):
+            for i in range(n, b):  # the padding of the last wave
+                hold(i)
         while any(active):
             need = [i for i in range(b) if active[i] and not pending[i]]
             if need:  # one call for all envs whose chunk ran out (in step when chunks are of equal length)
@@ -365,6 +372,8 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                 if (bool(first_value(terminated[i:i + 1])) or bool(first_value(truncated[i:i + 1]))
                         or steps[i] >= settings.max_steps):
                     active[i] = False
+                    if callable(hold):  # a vector of CPU envs stops stepping it (no physics for nothing)
+                        hold(i)
                     write(episodes.record(seed=wave[i], spec=specs[i], given=given[i], info=_row_info(info, i),
                                           steps=steps[i], extra=extras[i], frames=frames.pop(i, None), said=said[i]))
 

@@ -61,7 +61,7 @@ def dataset_card(dataset: str | Path, settings: dict[str, Any]) -> str:
     """The card of the dataset at ``dataset`` (its meta/ is read), built with ``settings``."""
     from rsb_maniskill.export.lerobot import INFO_FILE
     from rsb_maniskill.export.naming import camera_key
-    from rsb_maniskill.objects.family import split_env_id
+    from rsb_maniskill.objects.family import FAMILIES, split_env_id
     from rsb_maniskill.robot import CAMERAS
     from rsb_maniskill.semantic.suites import parse_suite_id, suite_source
     from rsb_maniskill.version import benchmark_label
@@ -93,7 +93,7 @@ Expert demonstrations of the RoboSemanticBench (RSB) task **{env_id}** as a LeRo
 {info['codebase_version']}), made with `rsb_maniskill` {settings['rsb_version']} on ManiSkill 3: the episodes
 of benchmark version **{benchmark_label(settings['benchmark_version'])}** (a result is comparable with results
 of the same version only).
-A dual-arm Aloha-AgileX robot sees {n_choices} candidate {"everyday objects" if targets == "objects" else "blocks"}
+A dual-arm Aloha-AgileX robot sees {n_choices} candidate {FAMILIES[targets].described}
 and a gray answer zone; the instruction holds a multiple-choice question whose options are bound to
 the candidates, and the robot places the candidate of the correct answer in the zone. Each
 episode's instruction is its task string.
@@ -143,7 +143,7 @@ lerobot-train --dataset.repo_id={repo} --policy.type=act --output_dir=outputs/ac
 openpi: a LeRobot data config (`LeRobotAlohaDataConfig`) with `repo_id="{repo}"`; the camera keys are
 openpi's Aloha names when built with `--naming rsb` ({', '.join(f"`{camera_key(c, 'rsb')}`" for c in CAMERAS)}).
 
-Evaluate with the benchmark's protocol (500 held-out episodes per suite): `rsb eval` or, from
+Evaluate with the benchmark's protocol (its held-out evaluation episodes of each suite): `rsb eval` or, from
 LeRobot, `lerobot-eval --env.type=rsb --env.task={env_id}`.
 
 ## Features

@@ -66,6 +66,7 @@ class BlockFamily:
     name, suffix = "blocks", ""
     builder = "rsb_maniskill.objects.blocks:build_block"
     noun, nouns = "block", "blocks"
+    described = "blocks"  # the candidates in prose (dataset cards, reports)
     # 7.4 cm or more between neighbouring centres; letters stay upright enough to read.
     layout = Layout(pitch=(0.10, 0.09), pos_jitter=0.008, yaw_jitter=0.2, yaw_choices=(0.0,))
 
@@ -104,6 +105,7 @@ class ObjectFamily:
     name, suffix = "objects", "-Objects"
     builder = "rsb_maniskill.objects.everyday:build_object"
     noun, nouns = "object", "objects"
+    described = "everyday objects"
     # Long sides roughly along x (either way round): the grasp across them keeps the wrist within
     # reach at the edges of the layout.
     layout = Layout(pitch=(0.12, 0.105), pos_jitter=0.010, yaw_jitter=0.5, yaw_choices=(0.0, np.pi))
@@ -138,7 +140,7 @@ def register_family(family: Any) -> Any:
     """Adds ``family`` to the registry and returns it. A family has ``name`` (the ``targets``
     string), ``suffix`` (of its env ids; ``""`` only for the default family), ``builder``
     (``"module:function"`` building one actor: ``(scene, key, name, pose[, scene_idxs])``),
-    ``noun``/``nouns``, ``layout`` and the methods of :class:`BlockFamily`. A name or a suffix
+    ``noun``/``nouns``/``described``, ``layout`` and the methods of :class:`BlockFamily`. A name or a suffix
     already taken raises ValueError."""
     for other in FAMILIES.values():
         if other.name == family.name or other.suffix == family.suffix:

@@ -37,6 +37,12 @@ RENDER_PROCS_PER_GPU = 8
 MIN_STATE_EPISODES_PER_WORKER = 16
 MIN_RENDERED_EPISODES_PER_WORKER = 4
 NO_RENDER_OBS_MODES = ("none", "state", "state_dict")  # ManiSkill obs modes that read no camera
+# --num-envs auto: K CPU envs a process, every camera of the K rendered in one call (rsb_maniskill.vector).
+# On an H100 (16 cores, 2026-11-26) with rendering every step, 16 processes x K = 4 / 8 / 16 ran 3,210 /
+# 2,236 / 2,369 rgb env-steps/s, against 253-425 for one env a process: the CPU physics is then the
+# bound, so one process a CPU and K = 4 (docs/gpu.md). Without an NVIDIA GPU (lavapipe) or without
+# cameras there is nothing to batch: K = 1.
+RENDER_ENVS_PER_PROC = 4
 CGROUP_ROOT = Path("/sys/fs/cgroup")
 
 
@@ -128,14 +134,32 @@ def _plural(n: int, word: str) -> str:
     return f"{n} {word}{'' if n == 1 else 's'}"
 
 
+def plan_num_envs(gpus: int, renders: bool, requested: int | None = None) -> tuple[int, str]:
+    """``--num-envs auto|K`` on the CPU backend: (K, why). K envs a process render all their cameras
+    in one call where an NVIDIA GPU renders (:data:`RENDER_ENVS_PER_PROC`); with lavapipe, or with no
+    camera to render, batching gains nothing: one env a process."""
+    if requested is not None:
+        return requested, f"--num-envs {requested}"
+    if not renders:
+        return 1, "auto: no camera to render, one env a process"
+    if not gpus:
+        return 1, "auto: rendering on the CPU (lavapipe), batching gains nothing; one env a process"
+    return RENDER_ENVS_PER_PROC, (f"auto: {_plural(gpus, 'NVIDIA GPU')} render the cameras of {RENDER_ENVS_PER_PROC} "
+                                  "envs a process in one call (H100: 16 processes x 4 envs, 3,210 rgb env-steps/s)")
+
+
 def plan_workers(cpus: int, gpus: int, renders: bool, executor: str = "local", *,
-                 requested: int | None = None, num_envs: int = 1, episodes: int | None = None) -> WorkerPlan:
+                 requested: int | None = None, num_envs: int = 1, episodes: int | None = None,
+                 gpu_physics: bool = True) -> WorkerPlan:
     """The workers of a run, from ``cpus`` usable CPUs and ``gpus`` NVIDIA GPUs (of this machine,
     or with ``executor="ray"`` of the cluster), whether its obs mode ``renders`` and, when known,
     how many ``episodes`` a job has. Pure: the caller counts (:func:`resolve_workers`).
 
     - ``requested`` (an explicit ``--num-procs N``) wins; the GPUs are still shared out.
     - ``num_envs > 1`` (batched envs on GPU physics): one process, or on Ray one task per GPU.
+    - ``num_envs > 1`` on CPU physics (``gpu_physics=False``, a vector env a worker): one worker per
+      CPU, with no cap per GPU (one render call a batch leaves the CPU physics as the bound); a small
+      job gets one worker per ``num_envs`` episodes at most.
     - rendering on NVIDIA GPUs: one worker per CPU, at most :data:`RENDER_PROCS_PER_GPU` per GPU
       (the GPU, not the cores, is the limit); locally dealt round-robin over the GPUs, on Ray each
       task asks for its share of a GPU, so that Ray spreads them over the GPUs and nodes.
@@ -151,6 +175,18 @@ def plan_workers(cpus: int, gpus: int, renders: bool, executor: str = "local", *
     if renders or (ray and num_envs > 1):
         where += ", " + (_plural(gpus, "GPU") if ray else
                          _plural(gpus, "NVIDIA GPU") if gpus else "no NVIDIA GPU")
+    if num_envs > 1 and not gpu_physics:  # K CPU envs a worker, rendered in one call
+        n = requested or cpus
+        why = (f"--num-procs {requested}" if requested else f"auto: {where}, {num_envs} envs a process "
+               "rendered in one call: the CPU physics is the bound")
+        if requested is None and episodes is not None and -(-max(1, episodes) // num_envs) < n:
+            n = -(-max(1, episodes) // num_envs)
+            why += f"; {_plural(episodes, 'episode')}, at least {num_envs} a worker"
+        if not (renders and gpus):
+            return WorkerPlan(n, executor, why=why)
+        if ray:
+            return WorkerPlan(n, executor, gpus_per_task=math.floor(min(1.0, gpus / n) * 1e4) / 1e4, why=why)
+        return WorkerPlan(n, executor, gpus=gpus, why=why)
     if num_envs > 1:  # GPU physics: one batched worker drives a whole GPU
         if ray:
             return WorkerPlan(requested or max(1, gpus), executor, gpus_per_task=1.0,
@@ -176,9 +212,18 @@ def plan_workers(cpus: int, gpus: int, renders: bool, executor: str = "local", *
     return WorkerPlan(n, executor, gpus=gpus, why=why)
 
 
+def resolve_num_envs(requested: int | None, renders: bool, log: Callable[[str], None] | None = None) -> int:
+    """``--num-envs auto|K`` on the CPU backend: :func:`plan_num_envs` on this machine's NVIDIA GPUs;
+    prints the choice and why in one line (``log``, default stderr) when it was auto."""
+    k, why = plan_num_envs(len(nvidia_gpus()) if renders and requested is None else 0, renders, requested)
+    if requested is None:
+        (log or _stderr)(f"envs: {k} a process ({why})")
+    return k
+
+
 def resolve_workers(requested: int | None, executor: RayExecutor | None, renders: bool, *, num_envs: int = 1,
                     episodes: int | None = None, log: Callable[[str], None] | None = None,
-                    ) -> tuple[Executor | None, int]:
+                    gpu_physics: bool = True) -> tuple[Executor | None, int]:
     """The executor and worker count of a run: ``--num-procs`` (``requested``; None is auto) and
     :func:`plan_workers` on this machine's usable CPUs and NVIDIA GPUs, or on the Ray cluster's.
     Prints the plan in one line (``log``, default stderr).
@@ -189,12 +234,12 @@ def resolve_workers(requested: int | None, executor: RayExecutor | None, renders
     if executor is not None:
         res = executor.start().cluster_resources()
         plan = plan_workers(int(res.get("CPU", 1) // executor.cpus_per_task), int(res.get("GPU", 0)), renders,
-                            "ray", requested=requested, num_envs=num_envs, episodes=episodes)
+                            "ray", requested=requested, num_envs=num_envs, episodes=episodes, gpu_physics=gpu_physics)
         executor.gpus_per_task = plan.gpus_per_task
     else:
-        gpus = nvidia_gpus() if renders and num_envs == 1 else []
+        gpus = nvidia_gpus() if renders and (num_envs == 1 or not gpu_physics) else []
         plan = plan_workers(usable_cpus(), len(gpus), renders, requested=requested, num_envs=num_envs,
-                            episodes=episodes)
+                            episodes=episodes, gpu_physics=gpu_physics)
         if plan.gpus > 1 and plan.num_procs > 1:
             executor = ProcessPool(devices=gpus)
     (log or _stderr)(plan.line())

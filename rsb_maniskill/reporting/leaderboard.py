@@ -6,7 +6,7 @@ from a results directory's records (an ``rsb eval --out``, a ``lerobot-eval`` re
 x instruction mode x perturbation; a leaderboard holds the rows of **one protocol** (instruction
 mode, perturbation, split, seeds) and **one benchmark version**, so that a column never pools two
 of either (vla-eval's rule: no aggregation across protocols), and each row becomes a model. Rows
-run on fewer episodes than the protocol's 500, or on other seeds, are marked rather than hidden;
+run on fewer episodes than the protocol's (``EPISODES_PER_SUITE``), or on other seeds, are marked rather than hidden;
 two runs of the same policy label are told apart by checkpoint, else by run.
 
 ``leaderboard_files.py`` writes its Markdown, CSV and page; ``vla_eval_leaderboard.py`` exports

@@ -17,7 +17,7 @@ How RSB maps onto it (docs/evaluation.md, "Leaderboard from several runs"):
 - ``suite_scores["math_4_normal"]``: TSR (%) on RSB-Math-4 with normal instructions;
   ``task_scores["math_4_gsr_normal"]``: GSR (%); nSG, which may be negative, goes into ``notes``;
 - ``overall_score``: the paper's Avg TSR over its six suites, only for the standard protocol
-  (normal instructions, no perturbation, each suite's 500 protocol episodes); else null;
+  (normal instructions, no perturbation, each suite's protocol episodes); else null;
 - ``notes``: the protocol, the checkpoint, the episodes per suite and the per-suite nSG.
 
 :func:`benchmark_entry` is the registry entry (``benchmarks.json``) these records assume.
@@ -30,6 +30,7 @@ from datetime import datetime, timezone
 from typing import Any, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import PAPER_SUITES
+from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
 from rsb_maniskill.evaluation.records import INSTRUCTION_MODES, row_label
 from rsb_maniskill.reporting.cells import pct
 from rsb_maniskill.reporting.leaderboard import LeaderboardError, Run, told_apart
@@ -68,7 +69,6 @@ def _score(x: float | None) -> float | None:
 
 def _notes(run: Run, rows: Mapping[str, Mapping[str, Any]], perturb: str, overall: float | None) -> str:
     """What a reader of the entry needs to know: the protocol, how the keys read, episodes, nSG."""
-    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
     from rsb_maniskill.version import benchmark_label
 
     doc, proto = run.doc, run.doc["protocol"]
@@ -166,6 +166,7 @@ def benchmark_entry(version: str) -> dict[str, dict[str, Any]]:
         "score_key_suffixes": list(INSTRUCTION_MODES),
         "aggregation": {"container": "suite_scores", "keys": [f"{suite_key(s)}_{STANDARD_MODE}" for s in PAPER_SUITES]},
         "detail_notes": "TSR per suite; key suffix = instruction mode (normal / blank / shuffled), never averaged "
-                        "across modes. overall_score: Avg TSR of the six paper suites with normal instructions, 500 "
-                        "protocol episodes each. GSR in task_scores (<suite>_gsr_<mode>), nSG in notes.",
+                        "across modes. overall_score: Avg TSR of the six paper suites with normal instructions, "
+                        f"{EPISODES_PER_SUITE} protocol episodes each. GSR in task_scores (<suite>_gsr_<mode>), nSG "
+                        "in notes.",
     }}

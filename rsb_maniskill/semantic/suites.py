@@ -6,11 +6,14 @@ counts, how it builds a split's question pool (``"module:function"``, imported a
 ``(split, data_dir) -> pools.Pool``) or that it is a Direct control (the instruction names the
 target: no questions), whether it reads GSM8K / MMLU-Pro, and what ``rsb stats`` and the dataset
 card say about it. A new suite is one module with its pool builder and one :func:`register_suite`
-line below (docs/tasks.md).
+call: a line below, or a plugin module (``plugins.py``: an installed distribution's entry point,
+imported here before the suite ids are fixed; docs/tasks.md).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from rsb_maniskill.plugins import load_plugins
 
 LETTERS_4: tuple[str, ...] = ("A", "B", "C", "D")
 # J is skipped: on a lettered block it is too easily confused with I (paper section 3.3).
@@ -76,6 +79,8 @@ register_suite(SuiteSource(
     pool="rsb_maniskill.semantic.general:pool", reads_data=True))
 register_suite(SuiteSource("Direct", "target named in the instruction", "none: the instruction names the target",
                            "MIT"))
+
+load_plugins()  # a plugin's register_suite / register_family calls land before the ids below are fixed
 
 SUITES: tuple[str, ...] = tuple(SOURCES)
 SUITE_IDS: tuple[str, ...] = tuple(f"RSB-{s.name}-{n}" for s in SOURCES.values() for n in s.choices)

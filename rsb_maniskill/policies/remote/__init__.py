@@ -10,7 +10,9 @@
 
 A protocol is a client module and one row of :data:`PROTOCOLS`: the client's factory and the check
 that runs before any env is built. Both are named, not imported: naming the ``remote`` policy
-imports no client.
+imports no client. A new protocol is one file: its module calls :func:`register_protocol` (from a
+plugin, ``plugins.py``), or is named directly, ``-a protocol=package.module:Client`` (its optional
+``check_remote_args(policy_kwargs, obs_mode)`` beside it is the check).
 """
 from __future__ import annotations
 
@@ -33,14 +35,34 @@ PROTOCOLS: dict[str, Protocol] = {
                          "rsb_maniskill.policies.remote.vla_eval:probe_server"),
 }
 DEFAULT_PROTOCOL = "openpi"
+_NO_CHECK = "rsb_maniskill.policies.remote:no_check"
+
+
+def register_protocol(name: str, client: str, check: str | None = None) -> None:
+    """Add a protocol row: ``client`` and ``check`` as :class:`Protocol` takes them (no check: none)."""
+    if ":" in name:
+        raise ValueError(f"protocol names cannot contain ':', got {name!r}")
+    PROTOCOLS[name] = Protocol(client, check or _NO_CHECK)
 
 
 def get_protocol(name: str) -> Protocol:
-    """The row of ``name``; ValueError naming the known protocols."""
-    try:
+    """The row of ``name``, or the row a ``"module:Client"`` name makes; ValueError naming the known ones."""
+    if name in PROTOCOLS:
         return PROTOCOLS[name]
-    except KeyError:
-        raise ValueError(f"-a protocol={name}: unknown protocol; known: {', '.join(PROTOCOLS)}") from None
+    if ":" in name:
+        module = name.partition(":")[0]
+        check = f"{module}:check_remote_args"
+        try:
+            resolve(check, "protocol check")
+        except (ImportError, AttributeError, TypeError, ValueError):
+            check = _NO_CHECK
+        return Protocol(name, check)
+    raise ValueError(f"-a protocol={name}: unknown protocol; known: {', '.join(PROTOCOLS)} "
+                     "(or name a client as package.module:Client)")
+
+
+def no_check(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:
+    """The check of a protocol that has none."""
 
 
 def remote_policy(protocol: str = DEFAULT_PROTOCOL, **kwargs: Any) -> Any:

@@ -1,0 +1,137 @@
+"""Every camera of K CPU envs in one render call (rsb_maniskill.vector) against each scene's own render,
+over a grid of processes x K, and `rsb eval` end to end.
+
+    python benchmarks/batched_render.py [--procs 1 2] [--envs 1 4] [--steps 20] [--suite RSB-Math-4]
+                                        [--camera-size 320 240] [--eval-episodes 0]
+
+For each (P processes, K envs a process) it starts P spawned workers, each with a vector env of K envs
+of SUITE (rgb, three cameras), and prints per batch of K: the physics (a step of every env without
+rendering), the render of every camera per scene (ManiSkill's path, the one lavapipe has) and in one
+group call (a SAPIEN RenderSystemGroup; only where CUDA rendering exists: "n/a" and why otherwise),
+the group's rebuild after a reset (a CPU reset makes fresh scenes) and the aggregate rgb env-steps/s
+of all P workers stepping and rendering every step with the renderer auto picks. With
+``--eval-episodes N`` it then times ``rsb eval random -o rgb`` (chunks of one action: a render every
+step) with each (P, K) on N episodes of 20 steps, start-up included. Nothing asserts a speed.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+
+def _worker(args: tuple) -> dict:
+    suite, k, steps, size, start_at = args
+    import torch
+
+    from rsb_maniskill.sim.camera_group import group_rendering_unavailable
+    from rsb_maniskill.vector import RSBVectorEnv
+    from rsb_maniskill.vector.env import GroupRenderer, PerSceneRenderer
+
+    env = RSBVectorEnv(suite, k, obs_mode="rgb", camera_size=tuple(size), renderer="per_scene")
+    out: dict = {"group_unavailable": group_rendering_unavailable()}
+    try:
+        env.reset(seed=list(range(k)))
+        action = torch.zeros(env.action_space.shape)
+        sync = torch.cuda.synchronize if torch.cuda.is_available() else (lambda: None)
+
+        def timed(fn, n):
+            fn()  # warm
+            sync()
+            t = time.perf_counter()
+            for _ in range(n):
+                fn()
+            sync()
+            return (time.perf_counter() - t) / n
+
+        with env.skip_observations():
+            out["physics_s"] = timed(lambda: env.step(action), steps)
+        out["per_scene_s"] = timed(env.get_obs, steps)
+        if out["group_unavailable"] is None:
+            group = env.renderer = GroupRenderer()
+            out["group_s"] = timed(env.get_obs, steps)
+            t = time.perf_counter()
+            env.reset(seed=list(range(k, 2 * k)))  # rebuilds the scenes, the group at its render
+            sync()
+            out["reset_and_group_s"] = time.perf_counter() - t
+            out["group_rebuilds"] = group.rebuilds
+        else:
+            env.renderer = PerSceneRenderer()
+        while time.time() < start_at:  # all workers start the throughput run together
+            time.sleep(0.01)
+        t0 = time.time()
+        for _ in range(steps):
+            env.step(action)
+        sync()
+        out["t0"], out["t1"] = t0, time.time()
+        out["renderer"] = env.renderer.name
+    finally:
+        env.close()
+    return out
+
+
+def grid(suite: str, procs: list[int], envs: list[int], steps: int, size: list[int]) -> None:
+    ctx = mp.get_context("spawn")
+    print(f"{suite}, rgb, 3 cameras {size[0]}x{size[1]}, {steps} steps; times per batch of K envs (ms)")
+    print("| procs x K | physics | render per scene | render group | reset + group rebuild | "
+          "aggregate rgb env-steps/s (renderer) |")
+    print("|---|---:|---:|---:|---:|---:|")
+    why = None
+    for p in procs:
+        for k in envs:
+            with ctx.Pool(p) as pool:
+                start_at = time.time() + 30 + 10 * p  # after every worker's imports and envs
+                res = pool.map(_worker, [(suite, k, steps, size, start_at)] * p)
+            wall = max(r["t1"] for r in res) - min(r["t0"] for r in res)
+            rate = p * k * steps / wall
+
+            def ms(key):
+                vals = [r[key] for r in res if key in r]
+                return f"{1000 * sum(vals) / len(vals):.1f}" if vals else "n/a"
+
+            why = res[0]["group_unavailable"]
+            print(f"| {p} x {k} | {ms('physics_s')} | {ms('per_scene_s')} | {ms('group_s')} | "
+                  f"{ms('reset_and_group_s')} | {rate:.1f} ({res[0]['renderer']}) |", flush=True)
+    if why:
+        print(f"group: n/a: {why}")
+
+
+def eval_end_to_end(suite: str, procs: list[int], envs: list[int], episodes: int) -> None:
+    print(f"\nrsb eval random -o rgb, {suite}, {episodes} episodes x 20 steps (start-up included)")
+    print("| procs x K | wall s | env-steps/s |")
+    print("|---|---:|---:|")
+    for p in procs:
+        for k in envs:
+            with tempfile.TemporaryDirectory() as out:
+                cmd = [sys.executable, "-m", "rsb_maniskill.cli", "eval", "random", "-o", "rgb", "--suites", suite,
+                       "-n", str(episodes), "--max-steps", "20", "--num-envs", str(k), "--num-procs", str(p),
+                       "--out", out, "-q"]
+                t = time.perf_counter()
+                rc = subprocess.run(cmd, capture_output=True, text=True).returncode
+                wall = time.perf_counter() - t
+            print(f"| {p} x {k} | {wall:.1f} | {episodes * 20 / wall:.1f}{'' if rc == 0 else f' (exit {rc})'} |",
+                  flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--suite", default="RSB-Math-4")
+    ap.add_argument("--procs", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--envs", type=int, nargs="+", default=[1, 4])
+    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--camera-size", type=int, nargs=2, default=[320, 240])
+    ap.add_argument("--eval-episodes", type=int, default=0)
+    args = ap.parse_args()
+    print(json.dumps({"cpus": len(os.sched_getaffinity(0))}))
+    grid(args.suite, args.procs, args.envs, args.steps, args.camera_size)
+    if args.eval_episodes:
+        eval_end_to_end(args.suite, args.procs, args.envs, args.eval_episodes)
+
+
+if __name__ == "__main__":
+    main()

@@ -74,3 +74,13 @@ def test_no_pairs_is_a_value_error():
         assert isinstance(err, ValueError) and "share no episode" in str(err)
     else:
         raise AssertionError("no pairs must be refused")
+
+
+def test_same_seed_other_question_is_not_a_pair():
+    a = [rec("p", "RSB-Math-4", s, True, True) | {"episode_digest": f"q{s}"} for s in range(4)]
+    b = [rec("q", "RSB-Math-4", s, True, False) | {"episode_digest": f"q{s}" if s < 2 else "other"}
+         for s in range(4)]
+    pairs, only_a, only_b = pair_records(a, b)
+    assert [p[0]["seed"] for p in pairs] == [0, 1] and (only_a, only_b) == (2, 2)
+    old = [{k: v for k, v in r.items() if k != "episode_digest"} for r in b]  # no digest: paired by seed
+    assert len(pair_records(a, old)[0]) == 4

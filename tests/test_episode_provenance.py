@@ -61,9 +61,18 @@ def test_report_and_compare_mark_the_other_pool(runs, capsys):
     assert row["episodes"] == DIFFER
     assert main(["report", str(runs["full"])]) == 0
     assert "episodes: 2 of RSB-MS 1.1, each checked" in capsys.readouterr().out
-    assert main(["report", "--compare", str(runs["full"]), str(runs["cut"])]) == 0
-    out = capsys.readouterr().out
-    assert f"{runs['cut']}: episodes differ from RSB-MS 1.1" in out and f"{runs['full']}: episodes: 2 of" in out
+    # same seeds, other questions: not pairs; refused with the reason
+    assert main(["report", "--compare", str(runs["full"]), str(runs["cut"])]) == 2
+    err = capsys.readouterr().err
+    assert "same seeds but not the same episodes" in err and len(err.strip().splitlines()) == 1
+    assert main(["report", "--compare", str(runs["full"]), str(runs["full"])]) == 0
+    assert f"{runs['full']}: episodes: 2 of RSB-MS 1.1" in capsys.readouterr().out
+    # a results.json shared alone: its rows' verdict
+    alone = runs["root"] / "cut-results"
+    alone.mkdir()
+    (alone / "results.json").write_bytes((runs["cut"] / "results.json").read_bytes())
+    assert main(["report", "--compare", str(alone), str(runs["full"])]) == 0
+    assert f"{alone}: episodes differ (its results.json)" in capsys.readouterr().out
 
 
 def test_the_leaderboard_refuses_the_other_pool_unless_allowed(runs, tmp_path, capsys):

@@ -17,7 +17,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from rsb_maniskill.evaluation.metrics import nsg, num_choices, suite_order
-from rsb_maniskill.evaluation.records import COUNTERFACTUAL, KEY_DEFAULTS, dedupe, perturb_label
+from rsb_maniskill.evaluation.records import COUNTERFACTUAL, DIGEST_FIELD, KEY_DEFAULTS, dedupe, perturb_label
 from rsb_maniskill.evaluation.stats import mcnemar, paired_bootstrap
 from rsb_maniskill.reporting.cells import NA, delta, markdown_table, pct
 
@@ -41,10 +41,12 @@ def _followed(r: Mapping[str, Any]) -> bool:
 def pair_records(a: Iterable[Mapping[str, Any]], b: Iterable[Mapping[str, Any]],
                  ) -> tuple[list[tuple[Mapping[str, Any], Mapping[str, Any]]], int, int]:
     """The (A, B) record pairs of the same episode, and how many records of A and of B found none.
-    Each run must hold one policy per episode (the first record of an episode is kept)."""
+    Each run must hold one policy per episode (the first record of an episode is kept). Records of
+    the same seed whose episode digests differ (one run on other question data) are not paired."""
     ia = {pair_key(r): r for r in reversed(dedupe(a))}
     ib = {pair_key(r): r for r in reversed(dedupe(b))}
-    common = [k for k in ia if k in ib]
+    common = [k for k in ia if k in ib and ia[k].get(DIGEST_FIELD, ib[k].get(DIGEST_FIELD)) ==
+              ib[k].get(DIGEST_FIELD, ia[k].get(DIGEST_FIELD))]
     return [(ia[k], ib[k]) for k in sorted(common, key=repr)], len(ia) - len(common), len(ib) - len(common)
 
 
@@ -99,9 +101,14 @@ def compare_paired(a: Iterable[Mapping[str, Any]], b: Iterable[Mapping[str, Any]
         raise NoPairs(f"{names[0]} ({', '.join(suite_order(suites_a)) or 'no records'}) and {names[1]} "
                       f"({', '.join(suite_order(suites_b)) or 'no records'}) share no suite: nothing to compare")
     pairs, only_a, only_b = pair_records(a, b)
+    if not pairs and {pair_key(r) for r in a} & {pair_key(r) for r in b}:
+        raise NoPairs(f"{names[0]} and {names[1]} ran the same seeds but not the same episodes (their episode "
+                      "digests differ: one ran on other question data): nothing to pair; `rsb report` on each "
+                      "says whose episodes are the benchmark version's")
     if not pairs:
         raise NoPairs(f"{names[0]} and {names[1]} share no episode (suite, seed, instruction mode, "
-                      "perturbation, variant): evaluate both on the same seeds")
+                      "perturbation, variant, and the same question: episode digest): evaluate both on the same "
+                      "seeds and question data")
     groups: dict[tuple, list] = defaultdict(list)
     for pa, pb in pairs:
         groups[(pa["suite_id"], pa.get("instruction_mode", "normal"), perturb_label(pa))].append((pa, pb))

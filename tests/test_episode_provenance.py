@@ -84,6 +84,7 @@ def test_the_leaderboard_refuses_the_other_pool_unless_allowed(runs, tmp_path, c
                  "--allow-other-episodes"]) == 0
     md = (tmp_path / "b" / "leaderboard.md").read_text()
     assert "random-cut †\u2260" in md and "episodes differ from RSB-MS 1.1" in md
+    assert "from the best row's (random)" in md  # a row of other episodes is never the yardstick
     rows = list(csv.DictReader(io.StringIO((tmp_path / "b" / "leaderboard.csv").read_text())))
     assert {r["model"]: r["episodes"] for r in rows if r["suite_id"] == SUITE} == \
         {"random": PINNED, "random-cut": DIFFER, "Random (1/N)": ""}

@@ -320,7 +320,8 @@ def _pooled_tsr(row: Mapping[str, Any], suites: Sequence[str]) -> Rate:
 
 
 def mark_differences(entries: list[Entry], suites: Sequence[str]) -> list[Entry]:
-    """Each model row tested against the best (the first, by Avg TSR) on TSR over the suites both ran:
+    """Each model row tested against the best (the first by Avg TSR whose episodes are not known to
+    differ from the version's) on TSR over the suites both ran:
     exact McNemar over the paired episodes where both runs' records share seeds (``PAIRED``), else
     whether their pooled Wilson 95 % intervals separate (``INTERVALS``)."""
     from dataclasses import replace
@@ -328,12 +329,16 @@ def mark_differences(entries: list[Entry], suites: Sequence[str]) -> list[Entry]
     from rsb_maniskill.evaluation.stats import mcnemar
     from rsb_maniskill.reporting.paired import pair_records
 
-    if len(entries) < 2 or entries[0].avg is None or entries[0].avg.tsr is None:
+    ranked = [e for e in entries if e.provenance != "differ" and e.avg is not None and e.avg.tsr is not None]
+    if len(entries) < 2 or not ranked:
         return entries
-    best = entries[0]
+    best = ranked[0]  # the best row of the version's episodes (a row of other episodes is never the yardstick)
     best_recs = _records(best, suites)
-    out = [best]
-    for e in entries[1:]:
+    out = []
+    for e in entries:
+        if e is best:
+            out.append(e)
+            continue
         shared = [s for s in suites if s in e.row["suites"] and s in best.row["suites"]]
         recs = _records(e, shared) if best_recs is not None else None
         pairs = pair_records(best_recs, recs)[0] if recs else []

@@ -131,13 +131,14 @@ def difference_notes(board: Leaderboard) -> list[str]:
     tested = [e for e in board.entries if e.test_best]
     if not tested:
         return []
+    best = next(e for e in board.entries if not e.random and not e.test_best and e.provenance != "differ")
     words = []
     for e in tested:
         how = (f"paired, exact McNemar p = {e.p_best:.3g}" if e.test_best == PAIRED
-               else "intervals (no shared episode records): pooled TSR intervals " +
+               else "intervals (no shared episodes to pair): pooled TSR intervals " +
                ("separate" if e.differs else "overlap"))
         words.append(f"{e.label}{' ' + DIFFERS if e.differs else ''}: {how}")
-    return [f"{DIFFERS} TSR differs significantly from the best row's ({board.entries[0].label}): paired (an exact "
+    return [f"{DIFFERS} TSR differs significantly from the best row's ({best.label}): paired (an exact "
             f"McNemar test over the episodes both ran, p < {ALPHA}) where their records share seeds, else from "
             f"their pooled Wilson 95 % intervals over the suites both ran. " + "; ".join(words) + "."]
 

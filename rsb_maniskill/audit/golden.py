@@ -30,6 +30,8 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
+from rsb_maniskill.semantic.digest import canonical_line, semantics  # the canonical form's one owner
+
 GOLDEN_FILE = Path(__file__).with_name("golden_episodes.json")
 COUNTERFACTUAL = "counterfactual"  # the digest of the counterfactual variants of the evaluation scenes
 TRAIN_EPISODES = 500
@@ -49,16 +51,6 @@ def episode_sets() -> dict[str, dict[str, Any]]:
                   "episodes": TRAIN_EPISODES},
         COUNTERFACTUAL: {**EVAL_ENV_KWARGS, "color_map": "fixed", "first_seed": EVAL_SEED_BASE,
                          "episodes": EPISODES_PER_SUITE, "variants": f"min(N, {MAX_VARIANTS})"},
-    }
-
-
-def semantics(spec: Any) -> dict[str, Any]:
-    """The ``EpisodeSpec`` fields a policy or a grader meets."""
-    return {
-        "seed": spec.seed, "question_id": spec.question_id, "question": spec.question,
-        "options": list(spec.options), "letters": list(spec.letters), "block_of_option": list(spec.block_of_option),
-        "answer_slot": spec.answer_slot, "correct_letter": spec.correct_letter, "template_id": spec.template_id,
-        "instruction": spec.instruction, "candidates": list(spec.candidates),
     }
 
 
@@ -110,7 +102,7 @@ def suite_digests(env_id: str, data_dir: str | os.PathLike | None = None) -> dic
     for which in episode_sets():
         h = hashlib.sha256()
         for ep in iter_episodes(env_id, which, data_dir):
-            h.update(json.dumps(ep, sort_keys=True, ensure_ascii=False, separators=(",", ":")).encode() + b"\n")
+            h.update(canonical_line(ep))
         out[which] = h.hexdigest()
     return out
 

@@ -228,6 +228,7 @@ def _run_eval(args: argparse.Namespace) -> int:
     from rsb_maniskill.env_ids import GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS
     from rsb_maniskill.evaluation.jobs import JobError
     from rsb_maniskill.evaluation.protocol import eval_seeds
+    from rsb_maniskill.evaluation.provenance import check_question_pool
     from rsb_maniskill.evaluation.store import (
         RECORDS_FILE,
         SETTINGS_FIELD,
@@ -300,6 +301,10 @@ def _run_eval(args: argparse.Namespace) -> int:
     settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
                     control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs,
                     benchmark_version=BENCHMARK_VERSION, checkpoint=args.checkpoint)
+    pool = check_question_pool(read_records(out / RECORDS_FILE), label, env_kwargs.get("data_dir"),
+                               env_kwargs.get("color_map", "fixed"))
+    if pool:  # a resume on other question data would pool two question pools in one summary
+        raise EvalError(pool)
     start = RunStart(out)  # taken back if the run fails before its first episode
     note = check_manifest(out, label, settings, keys=MANIFEST_KEYS)
     if note:

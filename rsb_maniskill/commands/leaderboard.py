@@ -42,6 +42,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "several)")
     p.add_argument("--perturb", metavar="AXES", default=None,
                    help="keep the rows of this perturbation: none, or as the rows name it (camera=2)")
+    p.add_argument("--allow-other-episodes", action="store_true",
+                   help="show rows whose episodes differ from the benchmark version's (other question data), "
+                        "marked; refused by default")
     p.add_argument("--title", default=DEFAULT_TITLE, help=f"page and Markdown title (default: {DEFAULT_TITLE})")
     p.add_argument("--vla-eval", metavar="FILE", default=None, dest="vla_eval",
                    help="write the runs as vla-eval leaderboard entries (a leaderboard.json) to FILE")
@@ -78,7 +81,7 @@ def run_leaderboard(args: argparse.Namespace) -> int:
         runs = [load_run(r) for r in args.runs]
         board = contents = export = None
         if args.out:
-            board = build_leaderboard(runs, args.protocol, args.perturb)
+            board = build_leaderboard(runs, args.protocol, args.perturb, args.allow_other_episodes)
             contents = render_leaderboard(board, args.title)
         if args.vla_eval:
             doc = vla_eval_document(select_rows(runs, args.protocol, args.perturb), args.weight_type,

@@ -64,7 +64,16 @@ def run_report(args: argparse.Namespace) -> int:
     try:
         if args.compare:
             a, b = args.compare
-            print(compare(load_results(a), load_results(b), (a, b)), end="")
+            side = compare(load_results(a), load_results(b), (a, b))
+            if all((Path(d) / RECORDS_FILE).exists() for d in (a, b)):
+                from rsb_maniskill.reporting.paired import compare_paired
+
+                paired = compare_paired(read_records(Path(a) / RECORDS_FILE), read_records(Path(b) / RECORDS_FILE),
+                                        (a, b))
+            else:
+                paired = ("Not paired: episode records (episodes.jsonl) are needed in both directories; only the "
+                          "intervals were compared.\n")
+            print(side + "\n" + paired + "\n" + episodes_lines(a, b), end="")
             return 0
         if not args.results_dir:
             raise ReportError("give RESULTS_DIR, or --compare DIR_A DIR_B")
@@ -93,4 +102,25 @@ def run_report(args: argparse.Namespace) -> int:
         print(f"rsb report: error: {err}", file=sys.stderr)
         return 2
     print(f"results: {results}\nreport: {path}")
+    if not args.compare and not is_vla_eval_results(args.results_dir):
+        from rsb_maniskill.evaluation.provenance import check_records
+
+        print(check_records(records).text())
     return 0
+
+
+def episodes_lines(*dirs: str) -> str:
+    """Per run: whether its episodes are the benchmark version's (``evaluation/provenance.py``), from
+    its records, else its results.json's rows."""
+    from rsb_maniskill.evaluation.provenance import UNVERIFIED, check_records
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_records
+    from rsb_maniskill.reporting.results import load_results
+
+    out = []
+    for d in dirs:
+        if (Path(d) / RECORDS_FILE).exists():
+            out.append(f"{d}: {check_records(read_records(Path(d) / RECORDS_FILE)).text()}")
+        else:
+            verdicts = sorted({r.get("episodes", UNVERIFIED) for r in load_results(d)["rows"]})
+            out.append(f"{d}: episodes {'/'.join(verdicts)} (its results.json)")
+    return "\n".join(out) + "\n"

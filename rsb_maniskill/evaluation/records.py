@@ -13,6 +13,7 @@ from typing import Any, Iterable, Mapping, Sequence
 from rsb_maniskill.batch import first_value
 from rsb_maniskill.perturb import label as axes_label
 from rsb_maniskill.semantic.counterfactual import MODE as COUNTERFACTUAL
+from rsb_maniskill.semantic.digest import episode_digest
 from rsb_maniskill.version import BENCHMARK_VERSION
 
 # Fields every record carries (the runner fills them; extra fields are free).
@@ -43,6 +44,10 @@ EXTRA_FLAGS = ("grasped_wrong", "fail")
 # stand (rank of each from the left in the head camera, positions.py): the per-category and bias
 # tables read them; records written before they existed lack them (the tables say so).
 CATEGORIES_FIELD = "categories"
+# Which episode it was: the digest of its question, options, option -> candidate binding, instruction
+# and candidates (semantic/digest.py); evaluation/provenance.py checks it against the episode the
+# benchmark version makes. Records written before it existed lack it ("unverified").
+DIGEST_FIELD = "episode_digest"
 LEFT_RANK_FIELD = "left_rank"
 # The ``runner`` field of records written by another harness than ``rsb eval`` (which writes none):
 # LeRobot's ``lerobot-eval`` (integrations/lerobot_env.py) and vla-eval (integrations/vla_eval.py,
@@ -171,6 +176,8 @@ def build_record(
         "policy": policy,
         VERSION_FIELD: BENCHMARK_VERSION,
     }
+    if hasattr(spec, "block_of_option"):  # an EpisodeSpec (tests may pass a bare stand-in)
+        record[DIGEST_FIELD] = episode_digest(spec)
     record.update({k: bool(info_flag(info, k)) for k in EXTRA_FLAGS if k in info})
     if categories:
         record[CATEGORIES_FIELD] = {str(k): str(v) for k, v in categories.items()}

@@ -31,7 +31,14 @@ from rsb_maniskill.evaluation.metrics import (
     suite_order,
 )
 from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
-from rsb_maniskill.reporting.results import RESULTS_FILE, SCHEMA_ID, SCHEMA_VERSION, load_results, results_document
+from rsb_maniskill.reporting.results import (
+    RESULTS_FILE,
+    SCHEMA_ID,
+    SCHEMA_VERSION,
+    document_problem,
+    load_results,
+    results_document,
+)
 
 RANDOM = "Random (1/N)"  # the random-selection line of the paper's tables
 # Keys of a protocol, besides the benchmark version: rows that differ in one never share a column.
@@ -60,6 +67,10 @@ class Entry:
     avg: Average | None  # over the leaderboard's Avg suites (None: no Avg column)
     short: bool = False  # a suite ran on fewer episodes than the protocol's
     off_seeds: bool = False  # a suite's episodes are not the protocol's seeds
+    provenance: str = "unverified"  # its episodes: pinned / differ / unverified (evaluation/provenance.py)
+    differs: bool | None = None  # TSR differs significantly from the best row's (None: not tested, or the best)
+    p_best: float | None = None  # the p-value of that test ("intervals": None, the intervals do or do not separate)
+    test_best: str | None = None  # how it was tested: PAIRED or INTERVALS
 
     @property
     def random(self) -> bool:
@@ -120,6 +131,9 @@ def load_run(path: str | os.PathLike) -> Run:
                                f"{SCHEMA_VERSION}: run the rsb_maniskill that wrote it")
     if not doc.get("rows"):
         raise LeaderboardError(f"{p}: holds no episode records yet")
+    problem = document_problem(doc)
+    if problem:
+        raise LeaderboardError(f"{p}: {problem}")
     return Run(str(path), doc)
 
 
@@ -278,12 +292,89 @@ def _sort_key(e: Entry) -> tuple:
     return (e.random, tsr is None, -(tsr or 0.0), e.label.lower())
 
 
-def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, perturb: str | None = None
-                      ) -> Leaderboard:
+PAIRED, INTERVALS = "paired", "intervals"  # how a row was tested against the best
+ALPHA = 0.05
+
+
+def _records(entry: Entry, suites: Sequence[str]) -> list[Mapping[str, Any]] | None:
+    """The episode records of an entry's row (None when its run is a results.json alone)."""
+    from rsb_maniskill.evaluation.records import record_row
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_records
+
+    if entry.run is None or not (Path(entry.run.source) / RECORDS_FILE).exists():
+        return None
+    recs = read_records(Path(entry.run.source) / RECORDS_FILE)
+    return [r for r in recs if record_row(r) == entry.row["row"] and r["suite_id"] in suites]
+
+
+def _pooled_tsr(row: Mapping[str, Any], suites: Sequence[str]) -> Rate:
+    """TSR pooled over ``suites`` (successes over episodes) with its Wilson interval."""
+    from rsb_maniskill.evaluation.metrics import wilson_interval
+
+    ss = [row["suites"][s] for s in suites if s in row["suites"] and row["suites"][s]["tsr"]["value"] is not None]
+    n = sum(s["n"] for s in ss)
+    if not n:
+        return Rate(None, None, None)
+    k = sum(round(s["tsr"]["value"] * s["n"]) for s in ss)
+    return Rate(k / n, *wilson_interval(k, n))
+
+
+def mark_differences(entries: list[Entry], suites: Sequence[str]) -> list[Entry]:
+    """Each model row tested against the best (the first by Avg TSR whose episodes are not known to
+    differ from the version's) on TSR over the suites both ran:
+    exact McNemar over the paired episodes where both runs' records share seeds (``PAIRED``), else
+    whether their pooled Wilson 95 % intervals separate (``INTERVALS``)."""
+    from dataclasses import replace
+
+    from rsb_maniskill.evaluation.stats import mcnemar
+    from rsb_maniskill.reporting.paired import pair_records
+
+    ranked = [e for e in entries if e.provenance != "differ" and e.avg is not None and e.avg.tsr is not None]
+    if len(entries) < 2 or not ranked:
+        return entries
+    best = ranked[0]  # the best row of the version's episodes (a row of other episodes is never the yardstick)
+    best_recs = _records(best, suites)
+    out = []
+    for e in entries:
+        if e is best:
+            out.append(e)
+            continue
+        shared = [s for s in suites if s in e.row["suites"] and s in best.row["suites"]]
+        recs = _records(e, shared) if best_recs is not None else None
+        pairs = pair_records(best_recs, recs)[0] if recs else []
+        pairs = [p for p in pairs if p[0]["suite_id"] in shared]
+        if pairs:
+            t = mcnemar([bool(a.get("success")) for a, _ in pairs], [bool(b.get("success")) for _, b in pairs])
+            out.append(replace(e, differs=t.p < ALPHA, p_best=t.p, test_best=PAIRED))
+            continue
+        a, b = _pooled_tsr(best.row, shared), _pooled_tsr(e.row, shared)
+        if a.value is None or b.value is None:
+            out.append(e)
+            continue
+        out.append(replace(e, differs=a.high < b.low or b.high < a.low, test_best=INTERVALS))
+    return out
+
+
+def check_episodes(pairs: Sequence[tuple[Run, Mapping[str, Any]]], version: str, allow_other: bool) -> None:
+    """LeaderboardError for a row whose episodes are not the version's (unless ``allow_other``)."""
+    from rsb_maniskill.evaluation.provenance import DIFFER
+    from rsb_maniskill.version import benchmark_label
+
+    for run, row in pairs:
+        if row.get("episodes") == DIFFER and not allow_other:
+            raise LeaderboardError(f"{run.source}: {row['row']}: episodes differ from {benchmark_label(version)} "
+                                   "(other question data?): not ranked beside the version's; give "
+                                   "--allow-other-episodes to show it, marked")
+
+
+def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, perturb: str | None = None,
+                      allow_other_episodes: bool = False) -> Leaderboard:
     """The leaderboard of ``runs``' rows of one protocol (``instruction_mode`` / ``perturb`` pick
-    one), by Avg TSR, the Random line last. LeaderboardError for two versions or protocols."""
+    one), by Avg TSR, the Random line last. LeaderboardError for two versions or protocols, or a
+    row whose episodes differ from the version's (unless ``allow_other_episodes``: then marked)."""
     pairs = select_rows(runs, instruction_mode, perturb)
     version, protocol = check_one_protocol(pairs)
+    check_episodes(pairs, version, allow_other_episodes)
     suites = suite_order({s for _, row in pairs for s in row["suites"]})
     over = avg_suites(suites)
     labels = told_apart([(row["policy"], run.source, row.get("checkpoint")) for run, row in pairs])
@@ -293,7 +384,9 @@ def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, 
         entries.append(Entry(
             label, row, run, average(views, over) if over else None,
             short=any(v["n"] < EPISODES_PER_SUITE for v in row["suites"].values()),
-            off_seeds=any(not v["protocol_seeds"] or v["n"] > EPISODES_PER_SUITE for v in row["suites"].values())))
+            off_seeds=any(not v["protocol_seeds"] or v["n"] > EPISODES_PER_SUITE for v in row["suites"].values()),
+            provenance=row.get("episodes", "unverified")))
     entries.sort(key=_sort_key)
+    entries = mark_differences(entries, suites)
     entries.append(Entry(RANDOM, random_row(suites), None, random_average(suites, over) if over else None))
     return Leaderboard(version, protocol, suites, over, entries)

@@ -30,12 +30,15 @@ METRICS = (  # key, short name, what it measures
                    "right one"),
 )
 SHORT, OFF_SEEDS, PARTIAL = "\u2020", "\u2021", "*"  # the marks: dagger, double dagger, star
+DIFFERS = "\u00a7"  # section sign: TSR differs significantly from the best row's
+OTHER_EPISODES = "\u2260"  # the row's episodes are not the benchmark version's
 MISSING = "\u2014"  # a suite the row did not run
 UNDEFINED = "not defined"  # the Random line's GSR
 CSV_FIELDS = (
     "model", "suite_id", "n_choices", "n_episodes", "protocol_seeds", "gsr", "gsr_low", "gsr_high", "tsr", "tsr_low",
-    "tsr_high", "nsg", "nsg_low", "nsg_high", "avg_complete", "short", "off_seeds", "checkpoint", "instruction_mode",
-    "perturb", "split", "instructions", "benchmark_version", "run",
+    "tsr_high", "nsg", "nsg_low", "nsg_high", "avg_complete", "short", "off_seeds", "episodes", "differs_from_best",
+    "vs_best_test", "vs_best_p", "checkpoint", "instruction_mode", "perturb", "split", "instructions",
+    "benchmark_version", "run",
 )
 
 
@@ -44,8 +47,10 @@ def short_suite(suite_id: str) -> str:
 
 
 def marks(e: Entry) -> str:
-    """``" †‡"``: fewer episodes than the protocol's, other seeds than the protocol's."""
-    m = (SHORT if e.short else "") + (OFF_SEEDS if e.off_seeds else "")
+    """``" †‡§"``: fewer episodes than the protocol's, other seeds than the protocol's, TSR significantly
+    different from the best row's."""
+    m = (SHORT if e.short else "") + (OFF_SEEDS if e.off_seeds else "") + (DIFFERS if e.differs else "") + (
+        OTHER_EPISODES if not e.random and e.provenance == "differ" else "")
     return f" {m}" if m else ""
 
 
@@ -100,6 +105,7 @@ def _md_cell(value: str, interval: str) -> str:
 def notes(board: Leaderboard) -> list[str]:
     """What the marks and the Random line mean."""
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
+    from rsb_maniskill.version import benchmark_label
 
     out = [f"{SHORT} fewer episodes than the protocol's {EPISODES_PER_SUITE} in a suite: wider intervals, not a "
            f"full-protocol row. {OFF_SEEDS} a suite's episodes are not the protocol's seeds.",
@@ -107,7 +113,34 @@ def notes(board: Leaderboard) -> list[str]:
            f"({', '.join(map(short_suite, board.avg_suites))}), not all; nSG over those where it is defined.",
            f"{board.entries[-1].label}: random target selection among the N candidates: TSR = 1/N and nSG = 0 by "
            "definition; GSR is not defined for it."]
+    if any(not e.random and e.provenance == "differ" for e in board.entries):
+        out.append(f"{OTHER_EPISODES} episodes differ from {benchmark_label(board.benchmark_version)}: its records "
+                   "asked other questions (other question data), not comparable with the others.")
+    unverified = [e.label for e in board.entries if not e.random and e.provenance == "unverified"]
+    if unverified:
+        out.append(f"Episodes unverified (records without episode digests, written before them): "
+                   f"{', '.join(unverified)}.")
+    out += difference_notes(board)
     return out if board.avg_suites else [n for n in out if not n.startswith(PARTIAL)]
+
+
+def difference_notes(board: Leaderboard) -> list[str]:
+    """How each row was tested against the best row, and what the test said."""
+    from rsb_maniskill.reporting.leaderboard import ALPHA, PAIRED
+
+    tested = [e for e in board.entries if e.test_best]
+    if not tested:
+        return []
+    best = next(e for e in board.entries if not e.random and not e.test_best and e.provenance != "differ")
+    words = []
+    for e in tested:
+        how = (f"paired, exact McNemar p = {e.p_best:.3g}" if e.test_best == PAIRED
+               else "intervals (no shared episodes to pair): pooled TSR intervals " +
+               ("separate" if e.differs else "overlap"))
+        words.append(f"{e.label}{' ' + DIFFERS if e.differs else ''}: {how}")
+    return [f"{DIFFERS} TSR differs significantly from the best row's ({best.label}): paired (an exact "
+            f"McNemar test over the episodes both ran, p < {ALPHA}) where their records share seeds, else from "
+            f"their pooled Wilson 95 % intervals over the suites both ran. " + "; ".join(words) + "."]
 
 
 def leaderboard_markdown(board: Leaderboard, title: str) -> str:
@@ -140,6 +173,8 @@ def csv_rows(board: Leaderboard) -> list[dict[str, Any]]:
     p, out = board.protocol, []
     for e in board.entries:
         common = {"model": e.label, "checkpoint": e.row.get("checkpoint"), "short": e.short, "off_seeds": e.off_seeds,
+                  "episodes": None if e.random else e.provenance, "differs_from_best": e.differs,
+                  "vs_best_test": e.test_best, "vs_best_p": e.p_best,
                   "instruction_mode": p["instruction_mode"], "perturb": p["perturb"], "split": p["split"],
                   "instructions": p["instructions"], "benchmark_version": board.benchmark_version,
                   "run": e.run.source if e.run else None}

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate, SuiteMetrics, average, summarize
+from rsb_maniskill.evaluation.provenance import check_records
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, one_version, perturb_label, row_label
 from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
 from rsb_maniskill.reporting.cells import NA, ci, delta, pct
@@ -71,6 +72,7 @@ def results_document(records: Iterable[Mapping[str, Any]], runs: Mapping[str, Ma
             "code_commit": run.get("code_commit"), "suites": suites,
             "average": {"suites": list(avg.present), "complete": avg.complete, "gsr": avg.gsr, "tsr": avg.tsr,
                         "nsg": avg.nsg},
+            "episodes": check_records(recs).verdict,  # pinned / differ / unverified (evaluation/provenance.py)
             "full_protocol": all(s in suites and suites[s]["n"] == EPISODES_PER_SUITE and suites[s]["protocol_seeds"]
                                  for s in PAPER_SUITES),
         })
@@ -138,6 +140,12 @@ def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] =
     if not pairs:
         raise ValueError(f"no row to compare: {names[0]} has {[r['row'] for r in a['rows']]}, "
                          f"{names[1]} has {[r['row'] for r in b['rows']]} (rows pair by label, or one row each)")
+    shared = [(ra, rb) for ra, rb in pairs if set(ra["suites"]) & set(rb["suites"])]
+    if not shared:
+        raise ValueError(f"{names[0]} ({', '.join(sorted({s for r in a['rows'] for s in r['suites']}))}) and "
+                         f"{names[1]} ({', '.join(sorted({s for r in b['rows'] for s in r['suites']}))}) share "
+                         "no suite: nothing to compare")
+    pairs = shared
     out = [f"Benchmark: {benchmark_label(a['benchmark_version'])}. A = {names[0]}, B = {names[1]}; intervals: "
            "Wilson 95 %; \"separate\": the two intervals do not overlap."]
     for ra, rb in pairs:
@@ -157,3 +165,59 @@ def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] =
         note = f"\n\nIn one run only: {', '.join(only)}." if only else ""
         out.append(f"### {ra['row']} (A) vs {rb['row']} (B), %\n\n" + "\n".join(lines) + note)
     return "\n\n".join(out) + "\n"
+
+
+# ---------------------------------------------------------------------------------- checking one
+RATE_RANGES = {"gsr": (0.0, 1.0), "tsr": (0.0, 1.0), "nsg": (-1.0, 1.0)}  # nSG >= -1/(N-1) >= -1
+
+
+def _number_problem(x: Any, low: float, high: float) -> str | None:
+    if x is None:
+        return None
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return f"{x!r} is not a number"
+    if x != x or x in (float("inf"), float("-inf")):
+        return f"{x} is not a finite number"
+    if not low <= x <= high:
+        return f"{100 * x:g} % is outside [{100 * low:g}, {100 * high:g}] %"
+    return None
+
+
+def document_problem(doc: Mapping[str, Any]) -> str | None:
+    """The first thing wrong with a results document, as ``"field: what"`` (None if none): episode
+    counts and the rates' types and ranges (finite, within [0, 1], nSG within [-1, 1], low <= value
+    <= high), checked in code; then the shipped schema, where jsonschema is installed."""
+    for i, row in enumerate(doc.get("rows") or []):
+        if not isinstance(row, Mapping):
+            continue
+        for suite, s in (row.get("suites") or {}).items():
+            where = f"rows[{i}].suites.{suite}"
+            n = s.get("n") if isinstance(s, Mapping) else None
+            if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+                return f"{where}.n: {n!r} is not an episode count (a whole number >= 1)"
+            for key, (low, high) in RATE_RANGES.items():
+                rate = s.get(key)
+                if not isinstance(rate, Mapping):
+                    return f"{where}.{key}: not a rate object (value, low, high)"
+                for part in ("value", "low", "high"):
+                    bad = _number_problem(rate.get(part), low, high)
+                    if bad:
+                        return f"{where}.{key}.{part}: {bad}"
+                v, lo, hi = rate.get("value"), rate.get("low"), rate.get("high")
+                if v is not None and lo is not None and hi is not None and not lo <= v <= hi:
+                    return f"{where}.{key}: its interval [{lo}, {hi}] does not hold its value {v}"
+        avg = row.get("average")
+        for key, (low, high) in RATE_RANGES.items():
+            bad = _number_problem(avg.get(key), low, high) if isinstance(avg, Mapping) else None
+            if bad:
+                return f"rows[{i}].average.{key}: {bad}"
+    try:
+        import jsonschema
+    except ImportError:  # a runtime install without the dev extra: the checks above stand
+        return None
+    schema = json.loads(SCHEMA_FILE.read_text())
+    error = jsonschema.exceptions.best_match(jsonschema.Draft202012Validator(schema).iter_errors(doc))
+    if error is None:
+        return None
+    field = ".".join(str(p) if isinstance(p, str) else f"[{p}]" for p in error.absolute_path).replace(".[", "[")
+    return f"{field or 'document'}: {error.message}"

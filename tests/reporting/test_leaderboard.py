@@ -204,7 +204,8 @@ def test_marks_and_labels(runs, tmp_path, capsys):
     c = write_dir(tmp_path / "c", records("pi05", "RSB-Math-4", 5, 5, 0, first=0), {"pi05": "step-2000"})
     assert leaderboard(capsys, a, b, "--out", tmp_path / "ab")[0] == 0
     md = (tmp_path / "ab" / "leaderboard.md").read_text()
-    assert md_row(md, "pi05 @ step-1000 †")[1].startswith("90.0") and md_row(md, "pi05 @ step-2000 †")
+    assert md_row(md, "pi05 @ step-1000 †")[1].startswith("90.0")
+    assert md_row(md, "pi05 @ step-2000 †§")  # same seeds: paired, 6 of 6 discordant pairs for a (p = 0.031)
     assert leaderboard(capsys, b, c, "--out", tmp_path / "bc")[0] == 0  # same checkpoint: told apart by run
     md = (tmp_path / "bc" / "leaderboard.md").read_text()
     assert md_row(md, f"pi05 ({b}) †") and md_row(md, f"pi05 ({c}) †‡")  # c: not the protocol's seeds

@@ -123,8 +123,11 @@ def test_compare_two_runs(tmp_path, capsys):
     (b / "episodes.jsonl").unlink()
     assert main(["report", "--compare", str(c), str(b)]) == 0
     assert main(["report", "--compare", str(a), str(c)]) == 0
-    row = next(ln for ln in capsys.readouterr().out.splitlines()[::-1] if ln.startswith("| RSB-Math-4 | TSR |"))
-    assert row.endswith("| overlap |")
+    out = capsys.readouterr().out
+    row = next(ln for ln in out.splitlines()[::-1] if ln.startswith("| RSB-Math-4 | TSR |") and "[" in ln)
+    assert row.endswith("| overlap |")  # the intervals overlap, yet the paired test sees 5 of 5 discordant pairs
+    paired = next(ln for ln in out.splitlines()[::-1] if ln.startswith("| RSB-Math-4 | TSR | 500 |"))
+    assert "| 0 / 5 |" in paired and "McNemar" in paired
     old = write_dir(tmp_path / "old", records("pi0", "RSB-Math-4", 5, 5, 0, version="0.9"))
     assert main(["report", "--compare", str(a), str(old)]) == 2
     err = capsys.readouterr().err

@@ -1,0 +1,126 @@
+"""Whether a run's records are of this benchmark version's episodes, from their episode digests.
+
+Every record carries ``episode_digest`` (``records.DIGEST_FIELD``, ``semantic/digest.py``): the
+digest of its question, options, option -> candidate binding, instruction and candidates. Here each
+is compared with the digest of the episode this install's sampler makes for the same suite, seed,
+perturbation and counterfactual variant on the evaluation split, without the simulator (``rsb
+verify`` proves the install's episodes are the version's pinned ones). A run on other question data
+(a GSM8K cut to 100 rows, another ``RSB_DATA_DIR``) asked other questions: its records differ and
+every report says so. Records without a digest (written before it existed, or by another version)
+are *unverified*.
+"""
+from __future__ import annotations
+
+import os
+from collections import Counter
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Any, Iterable, Mapping
+
+from rsb_maniskill.evaluation.records import COUNTERFACTUAL, DIGEST_FIELD, VERSION_FIELD, perturb_label
+
+PINNED, DIFFER, UNVERIFIED = "pinned", "differ", "unverified"  # a record's or a run's verdict
+
+
+@lru_cache(maxsize=64)
+def _sampler(suite_id: str, perturb: str, data_dir: str | None, color_map: str, env_data_dir: str | None):
+    from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
+    from rsb_maniskill.objects.family import split_env_id
+    from rsb_maniskill.semantic import EpisodeSampler
+
+    suite, targets = split_env_id(suite_id)
+    return EpisodeSampler(suite, **EVAL_ENV_KWARGS, color_map=color_map, targets=targets, data_dir=data_dir,
+                          perturb=None if perturb == "none" else perturb)
+
+
+def expected_digest(record: Mapping[str, Any], data_dir: str | os.PathLike | None = None,
+                    color_map: str = "fixed") -> str:
+    """The digest of the episode this install makes (on ``data_dir``: default, RSB_DATA_DIR or the
+    package's) for ``record``'s suite, seed, perturbation and variant."""
+    from rsb_maniskill.semantic.counterfactual import variant
+    from rsb_maniskill.semantic.digest import episode_digest
+
+    sampler = _sampler(str(record["suite_id"]), perturb_label(record), None if data_dir is None else str(data_dir),
+                       color_map, os.environ.get("RSB_DATA_DIR"))
+    seed = int(record["seed"])
+    if record.get("instruction_mode") == COUNTERFACTUAL:
+        return episode_digest(variant(sampler, seed, int(record.get("variant", 0))).spec)
+    return episode_digest(sampler.episode(seed))
+
+
+def check_question_pool(records: Iterable[Mapping[str, Any]], label: str, data_dir: str | os.PathLike | None,
+                        color_map: str = "fixed") -> str | None:
+    """None if ``label``'s recorded episodes are the ones the data at hand makes (a resume adds to
+    the same question pool), else one line saying which differs: the first record of each suite,
+    mode and perturbation is checked (a pool differs in every episode or in few; both show there)."""
+    seen: set[tuple] = set()
+    for r in records:
+        key = (r.get("suite_id"), r.get("instruction_mode"), perturb_label(r))
+        if r.get("policy") != label or DIGEST_FIELD not in r or key in seen:
+            continue
+        seen.add(key)
+        try:
+            same = expected_digest(r, data_dir, color_map) == r[DIGEST_FIELD]
+        except (KeyError, ValueError, IndexError):
+            same = False
+        if not same:
+            data = data_dir or os.environ.get("RSB_DATA_DIR") or "the package's data"
+            return (f"the recorded episodes of {label!r} ({r['suite_id']}, seed {r['seed']}) asked other questions "
+                    f"than the data at hand makes ({data}): a resume would pool two question pools; resume with "
+                    "the data they were run on (RSB_DATA_DIR / --data-dir), or use another --out")
+    return None
+
+
+def record_verdict(record: Mapping[str, Any]) -> str:
+    """:data:`PINNED`, :data:`DIFFER` or :data:`UNVERIFIED` (no digest, or another version's record)."""
+    from rsb_maniskill.version import BENCHMARK_VERSION
+
+    if DIGEST_FIELD not in record or record.get(VERSION_FIELD) != BENCHMARK_VERSION:
+        return UNVERIFIED
+    try:
+        return PINNED if expected_digest(record) == record[DIGEST_FIELD] else DIFFER
+    except (KeyError, ValueError, IndexError):  # a seed or suite this install cannot make: not this version's
+        return DIFFER
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Counts of records per verdict, and the suites holding a record that differs."""
+
+    counts: Mapping[str, int] = field(default_factory=dict)
+    differ_suites: tuple[str, ...] = ()
+
+    @property
+    def verdict(self) -> str:
+        """:data:`DIFFER` if any record differs, else :data:`UNVERIFIED` if any is, else :data:`PINNED`."""
+        for v in (DIFFER, UNVERIFIED):
+            if self.counts.get(v):
+                return v
+        return PINNED
+
+    def text(self, version: str | None = None) -> str:
+        """One line: ``"episodes differ from RSB-MS 1.1 (RSB-HardMath-4: 3 of 3 episodes)"``."""
+        from rsb_maniskill.version import benchmark_label
+
+        label = benchmark_label(version) if version else benchmark_label()
+        n = sum(self.counts.values())
+        if self.verdict == DIFFER:
+            return (f"episodes differ from {label} ({', '.join(self.differ_suites)}: {self.counts[DIFFER]} of {n} "
+                    "episodes are not the version's: other question data? check RSB_DATA_DIR and `rsb verify`)")
+        if self.verdict == UNVERIFIED:
+            return f"episodes unverified ({self.counts[UNVERIFIED]} of {n} records carry no episode digest of {label})"
+        return f"episodes: {n} of {label}, each checked against its digest"
+
+
+def check_records(records: Iterable[Mapping[str, Any]]) -> Provenance:
+    """The :class:`Provenance` of ``records``."""
+    counts: Counter[str] = Counter()
+    differ: set[str] = set()
+    for r in records:
+        v = record_verdict(r)
+        counts[v] += 1
+        if v == DIFFER:
+            differ.add(str(r.get("suite_id")))
+    from rsb_maniskill.evaluation.metrics import suite_order
+
+    return Provenance(dict(counts), tuple(suite_order(differ)))

@@ -1,4 +1,4 @@
-"""RSB suites as LeRobot evaluation envs: one RSB env per sub-env of LeRobot's vector envs.
+"""RSB suites as LeRobot evaluation envs: one RSB env per sub-env, or n_envs in one RSB vector env.
 
 LeRobot's rollout (``lerobot-eval``) wants a plain ``gym.Env`` per sub-env with numpy observations
 (``pixels/<camera>`` HWC uint8 and ``agent_pos``), the attributes ``task_description``, ``task``

@@ -373,3 +373,12 @@ def test_vector_env_matches_the_sync_vector_env_of_one_env_envs(tmp_path):
     assert "final_info" in {k.split(".")[0] for k in a[3][1]}
     assert [r["seed"] for r in recs_a] == [EVAL_SEED_BASE + i for i in (0, 1, 2, 3)]
     assert recs_a == recs_b
+
+
+def test_the_vector_env_is_chosen_where_one_render_call_exists():
+    from rsb_maniskill.integrations.lerobot_env import use_vector_env
+    from rsb_maniskill.sim.camera_group import group_rendering_unavailable
+
+    assert use_vector_env("auto", "auto") is (group_rendering_unavailable() is None)  # False under lavapipe
+    assert use_vector_env("auto", "per_scene") is False and use_vector_env("auto", "group") is True
+    assert use_vector_env(True, "per_scene") is True and use_vector_env(False, "group") is False

@@ -331,20 +331,37 @@ def make_env_fns(env_id: str, n_envs: int, **kwargs: Any) -> list:
     return [partial(RSBLeRobotEnv, env_id, **kwargs) for _ in range(n_envs)]
 
 
-def create_rsb_envs(task: str, n_envs: int, use_async_envs: bool = False, vector: bool = True,
+def use_vector_env(vector: bool | str = "auto", renderer: str = "auto") -> bool:
+    """Whether ``n_envs`` run as one :class:`RSBLeRobotVectorEnv`: ``vector="auto"`` where it pays,
+    i.e. where every camera of the envs renders in one call (CUDA rendering, ``renderer`` not
+    ``per_scene``). Under lavapipe each scene renders its own either way and the batched
+    observations cost more than they save (``benchmarks/lerobot_vector_env.py``)."""
+    if vector != "auto":
+        return bool(vector)
+    if renderer == "per_scene":
+        return False
+    if renderer == "group":
+        return True
+    from rsb_maniskill.sim.camera_group import group_rendering_unavailable
+
+    return group_rendering_unavailable() is None
+
+
+def create_rsb_envs(task: str, n_envs: int, use_async_envs: bool = False, vector: bool | str = "auto",
                     renderer: str = "auto", **kwargs: Any) -> dict[str, dict[int, Any]]:
     """``{suite: {0: VectorEnv}}`` for the suites ``task`` names (ids, comma list, ``paper``, ...),
-    as LeRobot's ``EnvConfig.create_envs`` returns them. By default the ``n_envs`` run in this process
-    as one :class:`RSBLeRobotVectorEnv` (one render call for all cameras where CUDA renders);
-    ``use_async_envs`` (one process per env) or ``vector=False`` give gymnasium's Async / Sync vector
-    env of one-env :class:`RSBLeRobotEnv` (each renders its own), with the same episodes."""
+    as LeRobot's ``EnvConfig.create_envs`` returns them. Where CUDA renders (:func:`use_vector_env`)
+    the ``n_envs`` run in this process as one :class:`RSBLeRobotVectorEnv` (one render call for all
+    cameras); otherwise, with ``use_async_envs`` (one process per env) or ``vector=False``,
+    gymnasium's Sync / Async vector env of one-env :class:`RSBLeRobotEnv` (each renders its own). The
+    episodes, instructions, success and records are the same either way."""
     from functools import partial
 
     from rsb_maniskill.env_ids import resolve_env_ids
 
     if use_async_envs and n_envs > 1:
         env_cls: Any = gym.vector.AsyncVectorEnv
-    elif vector:
+    elif use_vector_env(vector, renderer):
         env_cls = partial(RSBLeRobotVectorEnv, renderer=renderer)
     else:
         env_cls = gym.vector.SyncVectorEnv

@@ -1,4 +1,4 @@
-"""RSB suites as LeRobot evaluation envs: one RSB env per sub-env of LeRobot's vector envs.
+"""RSB suites as LeRobot evaluation envs: one RSB env per sub-env, or n_envs in one RSB vector env.
 
 LeRobot's rollout (``lerobot-eval``) wants a plain ``gym.Env`` per sub-env with numpy observations
 (``pixels/<camera>`` HWC uint8 and ``agent_pos``), the attributes ``task_description``, ``task``
@@ -105,17 +105,22 @@ class RSBLeRobotEnv(gym.Env):
         self._last: tuple | None = None  # the finished episode's last transition, replayed until a seeded reset
 
     # ------------------------------------------------------------------ the RSB env
-    def _ensure_env(self) -> None:
-        if self._env is not None:
-            return
-        import rsb_maniskill  # noqa: F401  (registers the ids)
+    def make_kwargs(self) -> dict[str, Any]:
+        """``gym.make`` keyword arguments of the RSB env (one, or each of a vector env's)."""
         from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS
 
         kwargs = dict(EVAL_ENV_KWARGS, obs_mode="rgb", control_mode=CONTROL_MODE, camera_size=self.camera_size,
                       sim_backend=CPU_SIM_BACKEND)
         if self.data_dir:
             kwargs["data_dir"] = self.data_dir
-        self._env = gym.make(self.env_id, **kwargs)
+        return kwargs
+
+    def _ensure_env(self) -> None:
+        if self._env is not None:
+            return
+        import rsb_maniskill  # noqa: F401  (registers the ids)
+
+        self._env = gym.make(self.env_id, **self.make_kwargs())
 
     def _obs(self, raw: dict) -> dict[str, Any]:
         base = self._env.unwrapped
@@ -139,24 +144,31 @@ class RSBLeRobotEnv(gym.Env):
         return apply_instruction_mode(own, self.instruction_mode, donor)
 
     # ------------------------------------------------------------------ gym.Env
+    def holds_on_reset(self, seed: int | None) -> bool:
+        """Whether ``reset(seed=seed)`` only replays the finished episode's last transition."""
+        return seed is None and self._last is not None
+
+    def next_episode(self, seed: int | None) -> int:
+        """The protocol episode ``reset(seed=seed)`` runs (seed ``seed_base`` + i: episode i; None: the next)."""
+        if seed is None:
+            return self._episode + 1
+        episode = int(seed) - self.seed_base
+        if not 0 <= episode < self.episodes:
+            raise ValueError(f"seed {seed} is not episode 0..{self.episodes - 1} of the protocol: lerobot-eval "
+                             f"--seed must equal --env.seed_base ({self.seed_base}) and --eval.n_episodes "
+                             f"<= --env.episodes ({self.episodes})")
+        return episode
+
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
 
         super().reset(seed=seed)
         self._ensure_env()
-        if seed is None and self._last is not None:
+        if self.holds_on_reset(seed):
             # the vector env's autoreset of a finished sub-env: LeRobot's rollout ignores it until the
             # next batch resets with seeds, so no episode is run (nor recorded) in between
             return self._last[0], self._last[4]
-        if seed is not None:
-            episode = int(seed) - self.seed_base
-            if not 0 <= episode < self.episodes:
-                raise ValueError(f"seed {seed} is not episode 0..{self.episodes - 1} of the protocol: lerobot-eval "
-                                 f"--seed must equal --env.seed_base ({self.seed_base}) and --eval.n_episodes "
-                                 f"<= --env.episodes ({self.episodes})")
-            self._episode = episode
-        else:
-            self._episode += 1
+        self._episode = self.next_episode(seed)
         self._last = None
         self._seed = EVAL_SEED_BASE + self._episode
         raw, _ = self._env.reset(seed=self._seed)
@@ -209,6 +221,109 @@ class RSBLeRobotEnv(gym.Env):
             self._env = None
 
 
+class _VectorRow:
+    """Env ``i`` of an :class:`RSBVectorEnv` as the one-env env :class:`RSBLeRobotEnv` steps: its
+    ``reset`` / ``step`` hand back row i of the batched call :class:`RSBLeRobotVectorEnv` made first."""
+
+    def __init__(self, vector: Any, i: int) -> None:
+        self.vector, self.i = vector, i
+        self.pending: Any = None
+
+    @property
+    def unwrapped(self) -> Any:
+        return self.vector.envs[self.i].unwrapped
+
+    def take(self) -> Any:
+        out, self.pending = self.pending, None
+        if out is None:
+            raise RuntimeError("RSBLeRobotVectorEnv: a sub-env was stepped outside the vector env's step / reset")
+        return out
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple:
+        got_seed, out = self.take()
+        assert got_seed == seed, (got_seed, seed)
+        return out
+
+    def step(self, action: Any) -> tuple:
+        return self.take()
+
+    def close(self) -> None:
+        pass  # the vector env closes the K envs
+
+
+class RSBLeRobotVectorEnv(gym.vector.SyncVectorEnv):
+    """LeRobot's ``n_envs`` as one process holding one :class:`~rsb_maniskill.vector.RSBVectorEnv`:
+    every camera of the K envs renders in one call where CUDA rendering exists.
+
+    It is gymnasium's ``SyncVectorEnv`` of K :class:`RSBLeRobotEnv` (the same autoreset, info
+    layout, ``call``, seeds ``seed`` + i, episodes, records), whose sub-envs do not simulate: each
+    ``reset`` / ``step`` first runs the physics of all K (one batched reset of the envs that start an
+    episode, one batched step of those still running; a finished one is held), then lets
+    ``SyncVectorEnv`` step the sub-envs, which take their row of that batch.
+    """
+
+    def __init__(self, env_fns: list, renderer: str = "auto", **kwargs: Any) -> None:
+        super().__init__(env_fns, **kwargs)
+        self.renderer = renderer
+        self.vector: Any = None
+
+    def _ensure_vector(self) -> None:
+        if self.vector is not None:
+            return
+        from rsb_maniskill.vector import RSBVectorEnv
+
+        first = self.envs[0]
+        self.vector = RSBVectorEnv(first.env_id, self.num_envs, renderer=self.renderer, **first.make_kwargs())
+        for i, env in enumerate(self.envs):
+            env._env = _VectorRow(self.vector, i)
+
+    def reset(self, *, seed: int | list | None = None, options: dict | None = None) -> tuple:
+        from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+        from rsb_maniskill.vector.env import _row
+
+        self._ensure_vector()
+        if seed is None:
+            seeds: list = [None] * self.num_envs
+        elif isinstance(seed, int):
+            seeds = [seed + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+        mask = (options or {}).get("reset_mask")  # gymnasium >= 1.1: reset only these
+        idx = [i for i, env in enumerate(self.envs)
+               if (mask is None or mask[i]) and not env.holds_on_reset(seeds[i])]
+        physics = [EVAL_SEED_BASE + self.envs[i].next_episode(seeds[i]) for i in idx]
+        if idx:
+            obs, info = self.vector.reset(seed=physics, options={"env_idx": idx})
+            for i, s in zip(idx, physics):
+                self.envs[i]._env.pending = (s, (_row(obs, i), _row(info, i)))
+        return super().reset(seed=seed, options=options)
+
+    def step(self, actions: Any) -> tuple:
+        from rsb_maniskill.vector.env import _row
+
+        self._ensure_vector()
+        a = np.asarray(actions, dtype=np.float32)
+        if a.shape != (self.num_envs, ACTION_DIM):
+            raise ValueError(f"{self.envs[0].env_id}: expected Aloha 14-number actions of shape "
+                             f"({self.num_envs}, {ACTION_DIM}), got {a.shape}")
+        obs, rew, term, trunc, info = self.vector.step(from_aloha14(a))
+        for i, env in enumerate(self.envs):
+            if env._last is None:
+                env._env.pending = tuple(_row(x, i) for x in (obs, rew, term, trunc, info))
+        out = super().step(actions)
+        for i, env in enumerate(self.envs):
+            env._env.pending = None
+            if env._last is not None:
+                self.vector.hold(i)
+        return out
+
+    def close_extras(self, **kwargs: Any) -> None:
+        super().close_extras(**kwargs)
+        if self.vector is not None:
+            self.vector.close()
+            self.vector = None
+
+
 def make_env_fns(env_id: str, n_envs: int, **kwargs: Any) -> list:
     """``n_envs`` factories of :class:`RSBLeRobotEnv` for LeRobot's Sync / Async vector envs."""
     from functools import partial
@@ -216,12 +331,40 @@ def make_env_fns(env_id: str, n_envs: int, **kwargs: Any) -> list:
     return [partial(RSBLeRobotEnv, env_id, **kwargs) for _ in range(n_envs)]
 
 
-def create_rsb_envs(task: str, n_envs: int, use_async_envs: bool = False, **kwargs: Any) -> dict[str, dict[int, Any]]:
+def use_vector_env(vector: bool | str = "auto", renderer: str = "auto") -> bool:
+    """Whether ``n_envs`` run as one :class:`RSBLeRobotVectorEnv`: ``vector="auto"`` where it pays,
+    i.e. where every camera of the envs renders in one call (CUDA rendering, ``renderer`` not
+    ``per_scene``). Under lavapipe each scene renders its own either way and the batched
+    observations cost more than they save (``benchmarks/lerobot_vector_env.py``)."""
+    if vector != "auto":
+        return bool(vector)
+    if renderer == "per_scene":
+        return False
+    if renderer == "group":
+        return True
+    from rsb_maniskill.sim.camera_group import group_rendering_unavailable
+
+    return group_rendering_unavailable() is None
+
+
+def create_rsb_envs(task: str, n_envs: int, use_async_envs: bool = False, vector: bool | str = "auto",
+                    renderer: str = "auto", **kwargs: Any) -> dict[str, dict[int, Any]]:
     """``{suite: {0: VectorEnv}}`` for the suites ``task`` names (ids, comma list, ``paper``, ...),
-    as LeRobot's ``EnvConfig.create_envs`` returns them."""
+    as LeRobot's ``EnvConfig.create_envs`` returns them. Where CUDA renders (:func:`use_vector_env`)
+    the ``n_envs`` run in this process as one :class:`RSBLeRobotVectorEnv` (one render call for all
+    cameras); otherwise, with ``use_async_envs`` (one process per env) or ``vector=False``,
+    gymnasium's Sync / Async vector env of one-env :class:`RSBLeRobotEnv` (each renders its own). The
+    episodes, instructions, success and records are the same either way."""
+    from functools import partial
+
     from rsb_maniskill.env_ids import resolve_env_ids
 
-    env_cls = gym.vector.AsyncVectorEnv if (use_async_envs and n_envs > 1) else gym.vector.SyncVectorEnv
+    if use_async_envs and n_envs > 1:
+        env_cls: Any = gym.vector.AsyncVectorEnv
+    elif use_vector_env(vector, renderer):
+        env_cls = partial(RSBLeRobotVectorEnv, renderer=renderer)
+    else:
+        env_cls = gym.vector.SyncVectorEnv
     extra = {"context": "forkserver"} if env_cls is gym.vector.AsyncVectorEnv else {}
     out: dict[str, dict[int, Any]] = {}
     for env_id in resolve_env_ids(task):

@@ -326,3 +326,59 @@ def test_instruction_reaches_a_language_policys_tokenizer(tmp_path):
                                  "observation.images.cam_right_wrist"]
     print(f"instruction tokens (WordPiece): {got['lengths']}; SmolVLA's default tokenizer_max_length "
           f"{got['default_max']}")
+
+
+def _flat(tree, prefix=""):
+    """A nested info / observation dict as {dotted key: numpy array}, for comparing two vector envs."""
+    if isinstance(tree, dict):
+        return {k: v for key, sub in tree.items() for k, v in _flat(sub, f"{prefix}{key}.").items()}
+    if isinstance(tree, np.ndarray) and tree.dtype == object:  # final_obs / final_info: one entry per env
+        return {k: v for i, sub in enumerate(tree) for k, v in _flat(sub, f"{prefix}{i}.").items()}
+    return {prefix.rstrip("."): np.asarray(tree)}
+
+
+def test_vector_env_matches_the_sync_vector_env_of_one_env_envs(tmp_path):
+    """n_envs in one RSBVectorEnv (the default) against gymnasium's SyncVectorEnv of one-env envs: the same
+    observations, instructions, rewards, ends, infos (SAME_STEP autoreset, final_info) and records,
+    through an episode end, the held finished env, and a second seeded reset."""
+    runs = {}
+    for vector in (True, False):
+        out = tmp_path / str(vector)
+        vec = create_rsb_envs(SUITE, n_envs=2, vector=vector, camera_size=SMALL, episodes=4, records_dir=str(out),
+                              episode_length=3, instruction_mode="shuffled")[SUITE][0]
+        assert type(vec).__name__ == ("RSBLeRobotVectorEnv" if vector else "SyncVectorEnv")
+        trace = []
+        for seed in (1000, 1002):
+            obs, info = vec.reset(seed=seed)
+            trace.append((_flat(obs), _flat(info), list(vec.call("task_description"))))
+            hold = obs["agent_pos"].copy()
+            for t in range(4):  # past the 3-step cap: the finished envs replay their last transition
+                obs, reward, terminated, truncated, info = vec.step(hold + 0.01 * t)
+                trace.append((_flat(obs), _flat(info), reward.tolist(), terminated.tolist(), truncated.tolist()))
+        vec.close()
+        recs = [{k: v for k, v in r.items() if k not in ("time", "timestamp")}
+                for r in read_records(out / "episodes.jsonl")]
+        runs[vector] = (trace, sorted(recs, key=lambda r: r["seed"]))
+    (a, recs_a), (b, recs_b) = runs[True], runs[False]
+    assert len(a) == len(b) == 10
+    for step_a, step_b in zip(a, b):
+        for part_a, part_b in zip(step_a, step_b):
+            if isinstance(part_a, dict):
+                assert part_a.keys() == part_b.keys()
+                for k in part_a:
+                    np.testing.assert_array_equal(part_a[k], part_b[k], err_msg=k)
+            else:
+                assert part_a == part_b
+    assert a[4][3:] == ([False, False], [True, True])  # the cap ended both at step 3
+    assert "final_info" in {k.split(".")[0] for k in a[3][1]}
+    assert [r["seed"] for r in recs_a] == [EVAL_SEED_BASE + i for i in (0, 1, 2, 3)]
+    assert recs_a == recs_b
+
+
+def test_the_vector_env_is_chosen_where_one_render_call_exists():
+    from rsb_maniskill.integrations.lerobot_env import use_vector_env
+    from rsb_maniskill.sim.camera_group import group_rendering_unavailable
+
+    assert use_vector_env("auto", "auto") is (group_rendering_unavailable() is None)  # False under lavapipe
+    assert use_vector_env("auto", "per_scene") is False and use_vector_env("auto", "group") is True
+    assert use_vector_env(True, "per_scene") is True and use_vector_env(False, "group") is False

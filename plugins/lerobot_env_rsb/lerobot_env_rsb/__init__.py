@@ -29,7 +29,8 @@ class RSBEnvConfig(EnvConfig):
     ``robotwin`` (``head_camera``, ...: LeRobot's RoboTwin env). ``instruction_mode``: ``normal``,
     ``blank`` or ``shuffled``. ``seed_base`` must equal ``--seed`` (LeRobot's default, 1000).
     ``records_dir``: where ``episodes.jsonl`` goes (records with the benchmark version), for
-    ``rsb report``.
+    ``rsb report``. ``renderer``: ``auto`` / ``group`` / ``per_scene``, how the sub-envs of
+    ``--eval.batch_size`` render (one call for all cameras where CUDA renders; see docs/lerobot.md).
     """
 
     task: str = "RSB-Math-4"
@@ -45,6 +46,7 @@ class RSBEnvConfig(EnvConfig):
     records_dir: str | None = "outputs/rsb_eval"
     policy_name: str = "lerobot"
     data_dir: str | None = None
+    renderer: str = "auto"
     features: dict[str, PolicyFeature] = field(
         default_factory=lambda: {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))})
     features_map: dict[str, str] = field(default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE})
@@ -71,7 +73,7 @@ class RSBEnvConfig(EnvConfig):
         from rsb_maniskill.integrations.lerobot_env import create_rsb_envs
 
         self.check_policy()
-        return create_rsb_envs(self.task, n_envs, use_async_envs, **self.gym_kwargs)
+        return create_rsb_envs(self.task, n_envs, use_async_envs, renderer=self.renderer, **self.gym_kwargs)
 
     def check_policy(self, policy_path: str | None = None) -> None:
         """Under ``lerobot-eval --policy.path=P`` (no ``--rename_map``): fails at once, naming the expected keys and

@@ -12,15 +12,7 @@ from rsb_maniskill.reporting.cells import ci, delta, markdown_table, pct, rate_c
 from rsb_maniskill.reporting.summary import markdown_tables, plot_summary, results_from_records
 from rsb_maniskill.reporting.writer import write_report
 
-
-def records(policy, suite, n_success, n_wrong, n_none, mode="normal"):
-    out = []
-    for i in range(n_success + n_wrong + n_none):
-        ok, grasped = i < n_success, i < n_success + n_wrong
-        out.append({"policy": policy, "suite_id": suite, "seed": i, "instruction_mode": mode,
-                    "grasped_any": grasped, "grasped_correct": ok, "placed_correct": ok, "placed_wrong": False,
-                    "success": ok})
-    return out
+from fake_records import records
 
 
 @pytest.fixture

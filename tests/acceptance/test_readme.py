@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = Path(__file__).resolve().parents[2] / "README.md"
 DATA_FREE = ("RSB-Math-", "RSB-Direct-")  # procedural / diagnostic questions: nothing to download
 
 

@@ -15,11 +15,11 @@ from rsb_maniskill.reporting.sections.base import Section
 from rsb_maniskill.reporting.summary import results_from_records
 from rsb_maniskill.reporting.writer import write_report
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _records() -> list[dict]:
-    from test_eval_report import records
+    from fake_records import records
 
     out = records("oracle", "RSB-Math-4", 3, 1, 1) + records("blind", "RSB-Math-4", 1, 2, 2)
     for i, r in enumerate(out):

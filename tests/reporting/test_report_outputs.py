@@ -14,7 +14,7 @@ from rsb_maniskill.reporting import writer
 from rsb_maniskill.reporting.page import build_html, default_title
 from rsb_maniskill.reporting.sections.bias import ALPHA, p_text
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _results(tmp_path: Path, policy: str = "pi0-ft") -> Path:

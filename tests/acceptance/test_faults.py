@@ -26,7 +26,7 @@ import h5py
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TESTS = REPO / "tests"
 SUITE = "RSB-Math-4"
 EVAL = ["--suites", SUITE, "-o", "state", "-q"]
@@ -362,7 +362,7 @@ def test_dataset_build_killed_then_rerun(tmp_path):
     stop(proc, signal.SIGKILL)
     res = rsb(*build, "--out", str(cut), timeout=900)
     assert res.returncode == 0, res.stderr[-2000:]
-    from test_export_lerobot import fingerprint
+    from lerobot_venv import fingerprint
 
     assert fingerprint(cut / SUITE) == fingerprint(ref / SUITE) and stray_files(cut / SUITE) == []
 

@@ -47,6 +47,6 @@ def test_summary_json_csv_and_page_carry_the_matrices(tmp_path):
     assert letter["A"]["B"] == 2 and letter["A"]["A"] == 0
     assert (tmp_path / "summary_confusion.csv").read_text().count("\n") == 1 + 2 * 4 * 5
     page = SECTION.page(recs, tmp_path)  # what report.html.j2 renders of the section
-    assert page["anchor"] == "confusion" and str(page["body"]).count('<td class="hit">0</td>') == 4  # empty diagonal
+    assert page["anchor"] == "confusion" and str(page["body"]).count('<td class="hit">0</td>') == 8  # 2 empty diagonals
     body = str(SECTION.html(confusion_table(recs)))
     assert "<th>correct \\ chosen</th>" in body and "|" not in body  # built from rows, not from Markdown

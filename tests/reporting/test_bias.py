@@ -106,7 +106,10 @@ def test_a_favourite_position_shows_even_at_chance_tsr():
     md = bias_markdown(table)
     assert "| favourite-left | RSB-Math-4 | 200 | prefers the leftmost block: 100 % of grasps" in md
     assert "option A is the red block in every 4-choice episode" in md
-    assert "| expected (blind choice) |  | 25.0 | 25.0 | 25.0 | 25.0 |  |" in md
+    # the test among wrong first grasps: each of the 3 wrong candidates expected 1/3
+    assert "| favourite-left, wrong grasps only | RSB-Math-4 | 147 | prefers the leftmost block: 100 % of grasps, " \
+           "expected 33 %, p < 0.001" in md
+    assert "| uniform, wrong grasps only | RSB-Math-4 | 144 | no preference detected" in md
 
 
 def test_ten_candidates_and_few_grasps_are_still_tested():
@@ -162,8 +165,9 @@ def test_write_report_and_plot_data(tmp_path):
     pos = summary["bias"]["rows"]["favourite-left"]["RSB-Math-10"]["axes"]["position"]
     assert pos["significant"] and pos["observed"][0] == 60 and pos["verdict"].startswith("prefers the leftmost block")
     rows = list(csv.DictReader(open(paths["csv:bias"])))
-    assert {r["axis"] for r in rows} == {"position", "candidate"} and len(rows) == 20
-    (fig,) = bias_plots(bias_table(recs))
+    assert {r["axis"] for r in rows} == {"position", "candidate"} and len(rows) == 40
+    assert {r["row"] for r in rows} == {"favourite-left", "favourite-left, wrong grasps only"}
+    fig = bias_plots(bias_table(recs))[0]
     chart = fig["charts"][0]
     assert chart["axis"] == "position" and [b["short"] for b in chart["bars"]] == [str(k) for k in range(1, 11)]
     first = chart["bars"][0]

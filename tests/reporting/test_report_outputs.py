@@ -38,7 +38,7 @@ def _tree(folder: Path) -> dict[str, bytes]:
 def test_out_an_existing_folder_puts_the_page_in_it_and_leaves_no_temp_file(tmp_path, capsys):
     src = _results(tmp_path)
     (src / "pages").mkdir()
-    assert main(["report", str(src), "-o", str(src / "pages")]) == 0
+    assert main(["report", str(src), "--out", str(src / "pages")]) == 0
     assert (src / "pages" / "report.html").read_text().startswith("<!DOCTYPE html>")
     assert not [p for p in src.rglob(".*tmp*")]
 
@@ -47,7 +47,7 @@ def test_a_page_that_cannot_be_written_fails_before_anything_is_written(tmp_path
     src = _results(tmp_path)
     assert main(["report", str(src)]) == 0
     before = _tree(src)
-    assert main(["report", str(src), "-o", str(tmp_path / "no" / "such" / "page.html")]) == 2
+    assert main(["report", str(src), "--out", str(tmp_path / "no" / "such" / "page.html")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("rsb report: error: cannot write the page") and "not a folder" in err
     assert _tree(src) == before  # results.json and the summaries not rewritten, no stray file
@@ -71,7 +71,7 @@ def test_a_read_only_results_folder_reports_to_a_writable_page(tmp_path, monkeyp
     else:
         src.chmod(0o555)
     try:
-        assert main(["report", str(src), "-o", str(page)]) == 0
+        assert main(["report", str(src), "--out", str(page)]) == 0
     finally:
         src.chmod(0o755)
     out = capsys.readouterr().out

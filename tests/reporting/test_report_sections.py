@@ -29,7 +29,8 @@ def _records() -> list[dict]:
 
 def test_the_registry_holds_every_section_once():
     keys = [s.key for s in sections.SECTIONS]
-    assert keys == ["robustness", "reasoning_following", "backbone", "categories", "bias", "counterfactual"]
+    assert keys == ["robustness", "reasoning_following", "backbone", "categories", "bias", "confusion",
+                    "counterfactual"]
     assert len({s.anchor for s in sections.SECTIONS}) == len(keys)
     assert all(isinstance(s, Section) for s in sections.SECTIONS)
 

@@ -37,6 +37,7 @@ from rsb_maniskill.reporting.sections.base import SMALL_MARK, Section, markdown_
 POSITION, CANDIDATE, LETTER = "position", "candidate", "letter"
 AXES: dict[str, str] = {POSITION: "position", CANDIDATE: "candidate", LETTER: "option letter"}
 MIN_GRASPS = 20  # fewer first grasps: shown, not tested
+WRONG_SUFFIX = ", wrong grasps only"  # the row of the test among wrong first grasps (bias_table)
 # A verdict calls a preference below this p-value. A report makes up to 3 tests per policy row and
 # suite (18 on the six paper suites): at 0.05 a policy without any preference would be called
 # biased somewhere in most reports.
@@ -208,10 +209,29 @@ def _position_phrase(rank: int, n: int, noun: str) -> str:
     return f"the {label} {noun}" if rank in (0, n - 1) else f"the {noun} {label}"
 
 
-def suite_bias(records: Sequence[Mapping[str, Any]], suite_id: str) -> SuiteBias:
-    """The bias of the records of one policy row on one suite."""
+def one_per_scene(records: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """The first variant of each scene (lowest ``variant``): a counterfactual scene's variants share
+    one layout and candidates, so a policy that sticks to a candidate per scene would be counted K
+    times; one episode a scene keeps the test's episodes independent (records without variants:
+    unchanged)."""
+    first: dict[Any, Mapping[str, Any]] = {}
+    for r in records:
+        key = (r.get("seed"), r.get("perturb", "none"))
+        if key not in first or int(r.get("variant", 0)) < int(first[key].get("variant", 0)):
+            first[key] = r
+    return list(first.values()) if any("variant" in r for r in records) else list(records)
+
+
+def suite_bias(records: Sequence[Mapping[str, Any]], suite_id: str, wrong_only: bool = False) -> SuiteBias:
+    """The bias of the records of one policy row on one suite. ``wrong_only``: over the episodes whose
+    first grasp was a wrong candidate, each of the N - 1 wrong candidates expected 1/(N - 1): a
+    preference among the wrong ones (a policy with a favourite that is right half the time hides it
+    in the all-grasps test, not here)."""
     n = num_choices(suite_id)
+    records = one_per_scene(records)
     grasped = [r for r in records if int(r.get("first_grasped", -1)) >= 0]
+    if wrong_only:
+        grasped = [r for r in grasped if "target_block" in r and int(r["first_grasped"]) != int(r["target_block"])]
     counts: dict[str, Counter] = {a: Counter() for a in AXES}
     expect: dict[str, Counter] = {a: Counter() for a in AXES}
     phrases: dict[str, dict[str, str]] = {a: {} for a in AXES}
@@ -225,18 +245,22 @@ def suite_bias(records: Sequence[Mapping[str, Any]], suite_id: str) -> SuiteBias
         spec = r.get("episode") or {}
         noun = _noun(spec)
         ranks = r.get(LEFT_RANK_FIELD)
+        wrong = int(r["target_block"]) if wrong_only else -1  # the candidate a wrong grasp cannot be
+        share = 1 / (n - 1) if wrong_only else 1 / n
         if ranks and n_ranked == len(grasped):
             counts[POSITION][position_column(int(ranks[g]), n)] += 1
             for k in range(n):
-                expect[POSITION][position_column(k, n)] += 1 / n
+                expect[POSITION][position_column(k, n)] += share
                 phrases[POSITION][position_column(k, n)] = _position_phrase(k, n, noun)
+            if wrong_only:  # the correct candidate's place is no wrong grasp's
+                expect[POSITION][position_column(int(ranks[wrong]), n)] -= share
         if spec and n_spec == len(grasped):
             names, letters, boo = spec["block_names"], spec["letters"], list(spec["block_of_option"])
             counts[CANDIDATE][names[g]] += 1
             counts[LETTER][letters[boo.index(g)]] += 1
             for slot, b in enumerate(boo):
-                expect[CANDIDATE][names[b]] += 1 / n
-                expect[LETTER][letters[slot]] += 1 / n
+                expect[CANDIDATE][names[b]] += 0.0 if b == wrong else share
+                expect[LETTER][letters[slot]] += 0.0 if b == wrong else share
                 phrases[CANDIDATE][names[b]] = _name_phrase(names[b])
                 phrases[LETTER][letters[slot]] = f"option {letters[slot]}"
                 first_index[names[b]] = min(first_index.get(names[b], b), b)
@@ -264,6 +288,9 @@ def bias_table(records: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, Suit
     for label, recs in rows.items():
         groups = group_by_suite(recs)
         out[label] = {s: suite_bias(groups[s], s) for s in suite_order(groups)}
+        wrong = {s: suite_bias(groups[s], s, wrong_only=True) for s in suite_order(groups)}
+        if any(b.n_grasped >= MIN_GRASPS for b in wrong.values()):  # enough wrong grasps to test
+            out[f"{label}{WRONG_SUFFIX}"] = wrong
     return out
 
 

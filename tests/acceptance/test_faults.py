@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-TESTS = REPO / "tests"
+TESTS = REPO / "tests" / "helpers"  # the helper modules policies are named from (bad_policies)
 SUITE = "RSB-Math-4"
 EVAL = ["--suites", SUITE, "-o", "state", "-q"]
 DEMO_DIR = Path(SUITE) / "motionplanning"

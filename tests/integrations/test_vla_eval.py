@@ -299,8 +299,10 @@ def env_capture(monkeypatch):
     """The envs `rsb eval` and RSBBenchmark build (jobs.make_env), for the oracle server to plan on."""
     from rsb_maniskill.evaluation import jobs
 
-    made, make = [], jobs.make_env
+    made, make, run = [], jobs.make_env, jobs.run_job
     monkeypatch.setattr(jobs, "make_env", lambda job: made.append(make(job)) or made[-1])
+    # in this process, where the oracle server reads them (rsb eval isolates even one worker)
+    monkeypatch.setattr(jobs, "run_job", lambda *a, **kw: run(*a, **{**kw, "isolate": False}))
     return made
 
 

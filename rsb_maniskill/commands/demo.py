@@ -114,5 +114,6 @@ def run(args: argparse.Namespace) -> int:
     page = write_html_report(out / "eval", records=recs)
     print(markdown_tables(results, BENCHMARK_VERSION))
     print(f"wrote {', '.join(str(p) for p in paths.values())}")
-    print(f"report: {page} (open it in a browser: tables, bars and every episode with its video)")
+    print(f"report: {page} (open it in a browser: tables, bars and every episode; each baseline's first "
+          "one with its video)")
     return 0 if summary.completed == args.demos else 1

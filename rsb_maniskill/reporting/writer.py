@@ -16,6 +16,7 @@ from typing import Any, Iterable, Mapping, Sequence
 from rsb_maniskill.evaluation.records import one_version
 from rsb_maniskill.evaluation.store import RECORDS_FILE, read_records, safe_name
 from rsb_maniskill.reporting import sections
+from rsb_maniskill.reporting.leaderboard_files import write_text
 from rsb_maniskill.reporting.results import write_results
 from rsb_maniskill.reporting.summary import Results, plot_summary, write_csv, write_json, write_markdown
 
@@ -103,7 +104,7 @@ def write_html_report(results_dir: str | os.PathLike, out: str | os.PathLike | N
     page = build_html(records, results_dir, title)
     if partial:  # under the title, before the page's own line
         page = page.replace("</h1>", f'</h1><p class="meta"><b>{html.escape(partial)}</b></p>', 1)
-    write_atomic(path, page)
+    write_text(path, page)  # through a temporary file beside it, removed on every path
     return path
 
 
@@ -125,14 +126,3 @@ def page_path(results_dir: str | os.PathLike, out: str | os.PathLike | None = No
 def writable(folder: str | os.PathLike) -> bool:
     """Whether files can be created in ``folder``."""
     return os.access(folder, os.W_OK | os.X_OK)
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """``text`` into ``path`` through a temporary file beside it, removed on every path: a reader never
-    sees half a file, and a failed write leaves nothing behind."""
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)

@@ -57,7 +57,7 @@ def test_a_failed_page_write_leaves_no_temp_file(tmp_path, monkeypatch):
     path = tmp_path / "report.html"
     monkeypatch.setattr(os, "replace", lambda *a: (_ for _ in ()).throw(OSError("disk full")))
     with pytest.raises(OSError):
-        writer.write_atomic(path, "page")
+        writer.write_text(path, "page")
     assert list(tmp_path.iterdir()) == []
 
 

@@ -34,9 +34,9 @@ from rsb_maniskill.evaluation.metrics import OUTCOMES, SuiteMetrics, average, ou
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, EVAL_INSTRUCTION_MODES, dedupe, one_version, record_row
 from rsb_maniskill.evaluation.store import read_manifest
 from rsb_maniskill.reporting import sections
+from rsb_maniskill.reporting.blocks import to_html
 from rsb_maniskill.reporting.cells import pct
-from rsb_maniskill.reporting.sections.base import markdown_to_html
-from rsb_maniskill.reporting.summary import ERRORS_HEADING, markdown_tables, results_from_records, suite_columns
+from rsb_maniskill.reporting.summary import ERRORS_HEADING, results_from_records, suite_columns, summary_blocks
 
 TEMPLATES = "reporting/templates"  # package data of rsb_maniskill
 PAGE_TEMPLATE = "report.html.j2"
@@ -254,8 +254,8 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
     modes = [m for m in EVAL_INSTRUCTION_MODES if any(c["mode"] == m for c in cards)]
     filters = [("policy", "Policy", policies, {}), ("suite", "Suite", suites, {}),
                ("mode", "Instruction", modes, {}), ("outcome", "Outcome", list(OUTCOMES), OUTCOME_LABELS)]
-    paper, _, pooled_errors = markdown_tables(results).partition(ERRORS_HEADING)  # Table 7 joins #errors
-    pooled_errors = ERRORS_HEADING + pooled_errors
+    paper = summary_blocks(results)
+    errors_at = paper.index(ERRORS_HEADING)  # Table 7 joins #errors
     shown = sorted(sections.SECTIONS, key=lambda s: s.page_order)
     pages = [(s, s.page(records, results_dir)) for s in shown]
     upper = [page for s, page in pages if page and s.page_order < ERRORS_ORDER]
@@ -267,7 +267,7 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
         n_suites=len(suites), n_videos=sum(1 for c in cards if c["video"]), code=code_label(),
         stamp=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         rows=_summary_rows(results, {c["row"]: c["policy"] for c in cards}, read_manifest(results_dir)),
-        tables=markdown_to_html(paper), pooled_errors=markdown_to_html(pooled_errors), errors=_error_rows(results),
+        tables=to_html(paper[:errors_at]), pooled_errors=to_html(paper[errors_at:]), errors=_error_rows(results),
         upper=upper, lower=lower, nav=nav,
         outcomes=OUTCOMES, colors=OUTCOME_COLORS, bar_colors=BAR_COLORS, labels=OUTCOME_LABELS,
         filters=[{"key": key, "name": name, "options": options, "labels": labels}

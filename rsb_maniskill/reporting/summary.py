@@ -25,11 +25,12 @@ from rsb_maniskill.evaluation.metrics import (
 )
 from rsb_maniskill.evaluation.records import dedupe, one_version, record_row
 from rsb_maniskill.objects.family import OBJECTS_SUFFIX
-from rsb_maniskill.reporting.cells import ci, markdown_table, pct
+from rsb_maniskill.reporting.blocks import Block, Grid, Heading, Inline, Note, Strong, to_markdown
+from rsb_maniskill.reporting.cells import ci, pct
 
 Results = Mapping[str, Mapping[str, SuiteMetrics]]
 # The heading of paper Table 7 (the last table): the page shows it in its error analysis section.
-ERRORS_HEADING = "### Error analysis, all suites pooled (%, paper Table 7)"
+ERRORS_HEADING = Heading("Error analysis, all suites pooled (%, paper Table 7)")
 
 
 def results_from_records(records: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, SuiteMetrics]]:
@@ -109,16 +110,19 @@ def write_csv(results: Results, path: str | os.PathLike, benchmark_version: str 
 
 
 # ---------------------------------------------------------------- Markdown
-def _avg_label(avgs: Sequence[Average]) -> tuple[str, str]:
+AVG_NOTE = Note("* Avg over the paper's suites that were run, not all six.")
+
+
+def _avg_label(avgs: Sequence[Average]) -> tuple[Strong, list[Block]]:
     # The paper reports Avg only over all six suites; mark a partial Avg instead of hiding it.
     if all(a.complete for a in avgs):
-        return "**Avg**", ""
-    return "**Avg\\***", "\n\n\\* Avg over the paper's suites that were run, not all six."
+        return Strong("Avg"), []
+    return Strong("Avg", mark="*"), [AVG_NOTE]
 
 
-def markdown_tables(results: Results, benchmark_version: str | None = None) -> str:
-    """Paper Tables 3, 4, 6 and 7 (plus per-suite intervals) as one Markdown document, under a line
-    naming the benchmark version when given."""
+def summary_blocks(results: Results, benchmark_version: str | None = None) -> list[Block]:
+    """Paper Tables 3, 4, 6 and 7 (plus per-suite intervals), under a line naming the benchmark
+    version when given: summary.md's first part and the page's tables."""
     suites = suite_columns(results)
     labels = list(results)
     avgs = {label: average(results[label]) for label in labels}
@@ -128,25 +132,26 @@ def markdown_tables(results: Results, benchmark_version: str | None = None) -> s
         m = results[label].get(s)
         return "" if m is None else pct(getattr(m, attr).value)
 
-    parts = []
+    out: list[Block] = []
     for title, attr in (("Task Success Rate (TSR, %) (paper Table 3)", "tsr"),
                         ("Normalized Semantic Grounding (nSG, %) (paper Table 4)", "nsg")):
-        rows = [[label] + [cell(label, s, attr) for s in suites] + [f"**{pct(getattr(avgs[label], attr))}**"]
+        rows = [[label] + [cell(label, s, attr) for s in suites] + [Strong(pct(getattr(avgs[label], attr)))]
                 for label in labels]
-        parts.append(f"### {title}\n\n" + markdown_table(["Policy"] + suites + [avg_head], rows) + avg_note)
+        out += [Heading(title), Grid(["Policy"] + suites + [avg_head], rows), *avg_note]
 
-    header = ["Policy"] + [f"{s} {k}" for s in suites for k in ("GSR", "TSR")] + [f"{avg_head} GSR", f"{avg_head} TSR"]
+    header: list[Inline] = ["Policy", *(f"{s} {k}" for s in suites for k in ("GSR", "TSR")),
+                            (avg_head, " GSR"), (avg_head, " TSR")]
     rows = [[label] + [cell(label, s, k) for s in suites for k in ("gsr", "tsr")]
-            + [f"**{pct(avgs[label].gsr)}**", f"**{pct(avgs[label].tsr)}**"] for label in labels]
-    parts.append("### Full GSR/TSR decomposition (%) (paper Table 6)\n\n" + markdown_table(header, rows) + avg_note)
+            + [Strong(pct(avgs[label].gsr)), Strong(pct(avgs[label].tsr))] for label in labels]
+    out += [Heading("Full GSR/TSR decomposition (%) (paper Table 6)"), Grid(header, rows), *avg_note]
 
     for label in labels:
         row = results[label]
         detail = [[s, str(m.n_episodes), ci(m.gsr.value, m.gsr.low, m.gsr.high),
                    ci(m.tsr.value, m.tsr.low, m.tsr.high), ci(m.nsg.value, m.nsg.low, m.nsg.high),
                    f"{100 / m.n_choices:.1f}"] for s, m in row.items()]
-        parts.append(f"### {label}: per suite with Wilson 95% intervals (%)\n\n"
-                     + markdown_table(["Suite", "Episodes", "GSR", "TSR", "nSG", "Random TSR (1/N)"], detail))
+        out += [Heading(f"{label}: per suite with Wilson 95% intervals (%)"),
+                Grid(["Suite", "Episodes", "GSR", "TSR", "nSG", "Random TSR (1/N)"], detail)]
 
     err_rows = []
     for key, name in (("not_placed", "Grasped correct block but not placed"),
@@ -158,32 +163,38 @@ def markdown_tables(results: Results, benchmark_version: str | None = None) -> s
             pooled = _pool_errors(errs)
             vals.append(pct(pooled[key], 2))
         err_rows.append([name] + vals)
-    parts += _beyond_blocks_tables(results)
+    out += _beyond_blocks_tables(results)
     n_failed = [str(sum(m.errors.n_grasped_failed for m in results[label].values())) for label in labels]
     err_rows.append(["Grasped-but-failed episodes (count)"] + n_failed)
-    parts.append(f"{ERRORS_HEADING}\n\n"
-                 "Shares of the grasped-but-failed episodes, except no-grasp (share of all episodes).\n\n"
-                 + markdown_table(["Error type"] + labels, err_rows))
+    out += [ERRORS_HEADING,
+            Note("Shares of the grasped-but-failed episodes, except no-grasp (share of all episodes)."),
+            Grid(["Error type"] + labels, err_rows)]
     if benchmark_version:
         from rsb_maniskill.version import benchmark_label
 
-        parts.insert(0, f"Benchmark: {benchmark_label(benchmark_version)} (docs/versions.md)")
-    return "\n\n".join(parts) + "\n"
+        out.insert(0, Note(f"Benchmark: {benchmark_label(benchmark_version)} (docs/versions.md)"))
+    return out
 
 
-def _beyond_blocks_tables(results: Results) -> list[str]:
+def markdown_tables(results: Results, benchmark_version: str | None = None) -> str:
+    """:func:`summary_blocks` as one Markdown document (summary.md's first part, what ``rsb eval`` prints)."""
+    return to_markdown(summary_blocks(results, benchmark_version))
+
+
+def _beyond_blocks_tables(results: Results) -> list[Block]:
     """Paper appendix tables (Beyond Blocks): Scene | GSR | TSR over the objects suites, with Avg."""
-    out = []
+    out: list[Block] = []
     for label, row in results.items():
         suites = [s for s in PAPER_OBJECT_SUITES if s in row]
         if not suites:
             continue
         avg = average(row, PAPER_OBJECT_SUITES)
         head, note = _avg_label([avg])
-        rows = [[s.removesuffix(OBJECTS_SUFFIX), pct(row[s].gsr.value), pct(row[s].tsr.value)] for s in suites]
-        rows.append([head, f"**{pct(avg.gsr)}**", f"**{pct(avg.tsr)}**"])
-        out.append(f"### Beyond Blocks: {label} (everyday objects, paper appendix tables)\n\n"
-                   + markdown_table(["Scene", "GSR", "TSR"], rows) + note)
+        rows: list[list[Inline]] = [[s.removesuffix(OBJECTS_SUFFIX), pct(row[s].gsr.value), pct(row[s].tsr.value)]
+                                    for s in suites]
+        rows.append([head, Strong(pct(avg.gsr)), Strong(pct(avg.tsr))])
+        out += [Heading(f"Beyond Blocks: {label} (everyday objects, paper appendix tables)"),
+                Grid(["Scene", "GSR", "TSR"], rows), *note]
     return out
 
 

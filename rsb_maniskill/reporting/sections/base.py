@@ -9,21 +9,20 @@ loop over the registry, so adding a section is adding one module there.
 from __future__ import annotations
 
 import csv
-import html
 import os
-import re
 from pathlib import Path
 from typing import Any, ClassVar, Mapping, Sequence
 
 from markupsafe import Markup
 
-_PIPE = re.compile(r"(?<!\\)\|")  # a column's border, not an escaped pipe inside a cell (cells.cell)
-SMALL_MARK = "†"  # after the count of a cell too small to trust (the page greys its line)
+from rsb_maniskill.reporting.blocks import SMALL_MARK, Block, to_html, to_markdown
+
+__all__ = ["SMALL_MARK", "Section", "write_rows"]
 
 
 class Section:
-    """One report section. Subclasses set the class attributes and :meth:`compute`; the defaults
-    write nothing but the summary's JSON and Markdown, and the page's tables from the Markdown."""
+    """One report section. Subclasses set the class attributes, :meth:`compute`, :meth:`to_json` and
+    :meth:`blocks`; summary.md and the page's tables are both written from the blocks."""
 
     key: ClassVar[str]  # its key in summary.json
     anchor: ClassVar[str]  # the id of its <section> in report.html
@@ -44,17 +43,21 @@ class Section:
         """The value of :attr:`key` in summary.json."""
         raise NotImplementedError
 
+    def blocks(self, table: Any) -> list[Block]:
+        """Its headings, notes and tables (``reporting/blocks.py``), built once from the table's rows."""
+        raise NotImplementedError
+
     def markdown(self, table: Any) -> str:
         """Its block of summary.md."""
-        raise NotImplementedError
+        return to_markdown(self.blocks(table))
 
     def files(self, table: Any, out: Path, stem: str) -> dict[str, Path]:
         """Its own files beside the summary (``{"csv:NAME": path, "png:NAME": path}``)."""
         return {}
 
     def html(self, table: Any) -> Markup | None:
-        """Its tables on the page (None: heading and note only)."""
-        return markdown_to_html(self.markdown(table))
+        """Its tables on the page (None: heading and note only), from the same blocks as its Markdown."""
+        return to_html(self.blocks(table))
 
     def figure(self, table: Any) -> dict[str, str] | None:
         """An image above the tables: ``{"src": data URI, "alt": text}``."""
@@ -82,43 +85,3 @@ def write_rows(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> Pa
         for r in rows:
             w.writerow({k: "" if v is None else v for k, v in r.items()})
     return path
-
-
-# ---------------------------------------------------------------- Markdown tables -> HTML
-def _inline(text: str) -> str:
-    text = html.escape(text.strip()).replace("\\*", "*").replace("\\|", "|")
-    return re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", text)
-
-
-def _body_row(cells: Sequence[str]) -> str:
-    # a cell marked with the small-cell dagger is greyed: shown, never hidden; each by its own count
-    return "<tr>" + "".join(f'<td class="small">{_inline(c)}</td>' if SMALL_MARK in c else f"<td>{_inline(c)}</td>"
-                            for c in cells) + "</tr>"
-
-
-def markdown_to_html(md: str) -> Markup:
-    """The subset ``summary.markdown_tables`` writes: ``###`` headings, pipe tables, paragraphs."""
-    out, table = [], []
-
-    def flush() -> None:
-        if not table:
-            return
-        rows = [_PIPE.split(line.strip().removeprefix("|").removesuffix("|")) for line in table]
-        head, body = rows[0], [r for r in rows[2:]]
-        out.append('<div class="scroll"><table><thead><tr>' + "".join(f"<th>{_inline(c)}</th>" for c in head)
-                   + "</tr></thead><tbody>" + "".join(_body_row(r) for r in body) + "</tbody></table></div>")
-        table.clear()
-
-    for line in md.splitlines():
-        if line.startswith("|"):
-            table.append(line)
-            continue
-        flush()
-        if line.startswith("### "):
-            out.append(f"<h3>{_inline(line[4:])}</h3>")
-        elif line.strip():
-            out.append(f"<p class=\"note\">{_inline(line)}</p>")
-    flush()
-    return Markup("\n".join(out))
-
-

@@ -26,13 +26,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from markupsafe import Markup
-
 from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, num_choices, suite_order
 from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD, dedupe, record_row
 from rsb_maniskill.objects.family import BLOCK_COLORS, split_env_id
-from rsb_maniskill.reporting.cells import NA, markdown_table, pct
-from rsb_maniskill.reporting.sections.base import SMALL_MARK, Section, markdown_to_html, write_rows
+from rsb_maniskill.reporting.blocks import Block, Cell, Grid, Heading, Inline, Note, to_markdown
+from rsb_maniskill.reporting.cells import NA, pct
+from rsb_maniskill.reporting.sections.base import SMALL_MARK, Section, write_rows
 
 POSITION, CANDIDATE, LETTER = "position", "candidate", "letter"
 AXES: dict[str, str] = {POSITION: "position", CANDIDATE: "candidate", LETTER: "option letter"}
@@ -321,15 +320,15 @@ def _share_cells(p: Preference, uniform: bool) -> list[str]:
     return obs if uniform else [f"{o} ({pct(e / p.n)})" for o, e in zip(obs, p.expected)]
 
 
-def bias_markdown(table: Table) -> str:
+def bias_blocks(table: Table) -> list[Block]:
     """The verdicts, then per suite and axis the shares of first grasps."""
     if not table:
-        return ""
+        return []
     axes = [a for a in AXES if any(a in b.axes or a in b.missing for row in table.values() for b in row.values())]
     verdicts = [[label, s, str(b.n_grasped)] + [_verdict_cell(b, a) for a in axes]
                 for label, row in table.items() for s, b in row.items()]
-    parts = ["### Position and candidate preferences: verdicts\n\n"
-             + markdown_table(["Policy", "Suite", "First grasps"] + [AXES[a].capitalize() for a in axes], verdicts)]
+    parts: list[Block] = [Heading("Position and candidate preferences: verdicts"),
+                          Grid(["Policy", "Suite", "First grasps"] + [AXES[a].capitalize() for a in axes], verdicts)]
     suites = suite_order({s for row in table.values() for s in row})
     for s in suites:
         for a in axes:
@@ -342,19 +341,22 @@ def bias_markdown(table: Table) -> str:
             if not same:  # object categories: each row its own columns' union
                 labels = tuple(dict.fromkeys(k for p in prefs.values() for k in p.labels))
                 prefs = {label: _widen(p, labels) for label, p in prefs.items()}
-            rows = []
+            rows: list[list[Inline | Cell]] = []
             if uniform:
                 rows.append(["expected (blind choice)", ""] + [pct(1 / len(labels))] * len(labels) + [""])
             for label, p in prefs.items():
-                mark = SMALL_MARK if p.n < MIN_GRASPS else ""
-                rows.append([label, f"{p.n}{mark}"] + _share_cells(p, uniform) + [p.verdict()])
+                rows.append([label, Cell(str(p.n), small=p.n < MIN_GRASPS)] + _share_cells(p, uniform) + [p.verdict()])
             how = "" if uniform else "; in brackets: expected"
-            parts.append(f"### First grasp by {axis_title(a, s)} on {s} (% of first grasps{how})\n\n"
-                         + markdown_table(["Policy", "First grasps", *labels, "Verdict"], rows))
+            parts += [Heading(f"First grasp by {axis_title(a, s)} on {s} (% of first grasps{how})"),
+                      Grid(["Policy", "First grasps", *labels, "Verdict"], rows)]
     notes = [NOTE]
     if any(b.letter_is_candidate for row in table.values() for b in row.values()):
         notes.append(COINCIDE)
-    return "\n\n".join(parts) + "\n\n" + "\n\n".join(notes) + "\n"
+    return parts + [Note(n) for n in notes]
+
+
+def bias_markdown(table: Table) -> str:
+    return to_markdown(bias_blocks(table))
 
 
 def _widen(p: Preference, labels: tuple[str, ...]) -> Preference:
@@ -437,14 +439,11 @@ class BiasSection(Section):
     def to_json(self, table: Table) -> Any:
         return bias_json(table)
 
-    def markdown(self, table: Table) -> str:
-        return bias_markdown(table)
+    def blocks(self, table: Table) -> list[Block]:
+        return bias_blocks(table)
 
     def files(self, table: Table, out: Path, stem: str) -> dict[str, Path]:
         return {"csv:bias": write_rows(bias_rows(table), out / f"{stem}_bias.csv")}
-
-    def html(self, table: Table) -> Markup | None:
-        return markdown_to_html(bias_markdown(table)) if table else None
 
     def charts(self, table: Table) -> list[dict[str, Any]]:
         return bias_plots(table)

@@ -18,7 +18,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, nsg, num_choices, outcome, suite_order
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, dedupe, record_row
-from rsb_maniskill.reporting.cells import markdown_table, rate_cell
+from rsb_maniskill.reporting.blocks import Block, Cell, Grid, Heading, Inline, Note, Strong, to_markdown
+from rsb_maniskill.reporting.cells import rate_cell
 from rsb_maniskill.reporting.sections.base import SMALL_MARK, Section, write_rows
 from rsb_maniskill.semantic.categories import DIMENSIONS, SUITE_KIND, value_label, value_order
 
@@ -214,14 +215,13 @@ def dimension_tests(tables: Tables) -> list[DimensionTest]:
     return [replace(t, p_holm=a) for t, a in zip(tests, holm([t.p for t in tests]))]
 
 
-def _cells(c: CategoryCell) -> list[str]:
+def _cells(c: CategoryCell) -> list[Inline | Cell]:
     small = c.small_rates()
 
-    def rate(key: str) -> str:
-        return rate_cell(getattr(c, key)) + (SMALL_MARK if small[key] else "")
+    def rate(key: str) -> Cell:
+        return Cell(rate_cell(getattr(c, key)), small=small[key])
 
-    return [f"{c.n_episodes}{SMALL_MARK if c.small else ''}", rate("tsr"), rate("nsg"), rate("first_right"),
-            str(c.n_first)]
+    return [Cell(str(c.n_episodes), small=c.small), rate("tsr"), rate("nsg"), rate("first_right"), str(c.n_first)]
 
 
 def _kind_label(kind: str, n: int) -> str:
@@ -232,28 +232,28 @@ def has_categories(tables: Tables) -> bool:
     return any(t.suites for t in tables.values())
 
 
-def categories_markdown(tables: Tables) -> str:
+def categories_blocks(tables: Tables) -> list[Block]:
     """Per row and suite the category table, then Direct vs question suites where a row ran both."""
-    parts = []
+    parts: list[Block] = []
     if not has_categories(tables):
-        return "### No per-category tables\n\n" + NONE_NOTE + "\n"
+        return [Heading("No per-category tables"), Note(NONE_NOTE)]
     tests: dict[tuple[str, str], list[DimensionTest]] = {}
     for x in dimension_tests(tables):
         tests.setdefault((x.row, x.suite), []).append(x)
     for label, t in tables.items():
         for s, dims in t.suites.items():
-            rows = []
+            rows: list[list[Inline | Cell]] = []
             for d, cells in dims.items():
-                rows.append([f"**{DIMENSIONS[d]}**"] + [""] * (len(HEADER) - 1))
+                rows.append([Strong(DIMENSIONS[d])] + [""] * (len(HEADER) - 1))
                 rows += [[value_label(d, v)] + _cells(c) for v, c in cells.items()]
             across = "; ".join(x.text() for x in tests.get((label, s), []))
-            parts.append(f"### {label} on {s}: by category (%)\n\n" + markdown_table(HEADER, rows)
-                         + (f"\n\nAcross each dimension's values: {across}." if across else ""))
+            parts += [Heading(f"{label} on {s}: by category (%)"), Grid(HEADER, rows)]
+            parts += [Note(f"Across each dimension's values: {across}.")] if across else []
         if len({k for k, _ in t.kinds}) > 1:
             rows = [[_kind_label(k, n)] + _cells(c) for (k, n), c in t.kinds.items()]
-            parts.append(f"### {label}: Direct vs question suites (%)\n\n"
-                         "Pooled over the suites of each kind and number of choices.\n\n"
-                         + markdown_table(["Suites"] + HEADER[1:], rows))
+            parts += [Heading(f"{label}: Direct vs question suites (%)"),
+                      Note("Pooled over the suites of each kind and number of choices."),
+                      Grid(["Suites"] + HEADER[1:], rows)]
     skipped = [f"{label} ({t.n_without})" for label, t in tables.items() if t.n_without]
     notes = ["TSR and nSG as in the paper tables, over the episodes of the category; first grasp right: the first "
              "candidate grasped was the target, of the episodes with a grasp (first grasps). In brackets: Wilson "
@@ -264,7 +264,11 @@ def categories_markdown(tables: Tables) -> str:
              "of the others with no difference shown is noise until more episodes say otherwise."]
     if skipped:
         notes.append("Records without categories, left out: " + ", ".join(skipped) + ". " + RERUN)
-    return "\n\n".join(parts) + "\n\n" + "\n\n".join(notes) + "\n"
+    return parts + [Note(n) for n in notes]
+
+
+def categories_markdown(tables: Tables) -> str:
+    return to_markdown(categories_blocks(tables))
 
 
 def categories_json(tables: Tables) -> dict[str, Any]:
@@ -310,8 +314,8 @@ class CategoriesSection(Section):
     def to_json(self, table: Tables) -> Any:
         return categories_json(table)
 
-    def markdown(self, table: Tables) -> str:
-        return categories_markdown(table)
+    def blocks(self, table: Tables) -> list[Block]:
+        return categories_blocks(table)
 
     def files(self, table: Tables, out: Path, stem: str) -> dict[str, Path]:
         rows = categories_rows(table)

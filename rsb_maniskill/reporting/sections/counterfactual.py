@@ -38,7 +38,8 @@ from typing import Any, Iterable, Mapping, Sequence
 from rsb_maniskill.evaluation.metrics import Rate, num_choices
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, record_row
 from rsb_maniskill.evaluation.stats import clustered_rate
-from rsb_maniskill.reporting.cells import NA, markdown_table, pct, rate_cell
+from rsb_maniskill.reporting.blocks import Block, Grid, Heading, Inline, Note, Strong, to_markdown
+from rsb_maniskill.reporting.cells import NA, pct, rate_cell
 from rsb_maniskill.reporting.figures import png_uri, png_with_legend_below, rate_bars
 from rsb_maniskill.reporting.sections.base import Section, write_rows
 
@@ -273,7 +274,7 @@ def _n(value: int | None) -> str:
     return NA if value is None else str(value)
 
 
-def _cells(suite: str, m: CounterfactualMetrics) -> list[str]:
+def _cells(suite: Inline, m: CounterfactualMetrics) -> list[Inline]:
     return [suite, _n(m.n_choices), _n(m.variants_per_scene), str(m.counts.scenes), rate_cell(m.follow),
             pct(m.chance_follow), rate_cell(m.follow_all), rate_cell(m.follow_by_kind["remap"]),
             rate_cell(m.follow_by_kind["requestion"]), rate_cell(m.switch), pct(m.chance_switch),
@@ -281,12 +282,17 @@ def _cells(suite: str, m: CounterfactualMetrics) -> list[str]:
             " / ".join(str(m.spread.get(k, 0)) for k in ("all", "some", "none"))]
 
 
-def counterfactual_markdown(table: Table) -> str:
+def counterfactual_blocks(table: Table) -> list[Block]:
     """One table per policy row: each suite, then the pooled line."""
-    parts = [f"### Counterfactual scenes: {row} (%)\n\n"
-             + markdown_table(HEADER, [_cells("**Pooled**" if s == POOLED else s, m) for s, m in suites.items()])
-             for row, suites in table.items()]
-    return "\n\n".join(parts) + (f"\n\n{NOTE}\n" if parts else "")
+    out: list[Block] = []
+    for row, suites in table.items():
+        out += [Heading(f"Counterfactual scenes: {row} (%)"),
+                Grid(HEADER, [_cells(Strong("Pooled") if s == POOLED else s, m) for s, m in suites.items()])]
+    return out + [Note(NOTE)] if out else []
+
+
+def counterfactual_markdown(table: Table) -> str:
+    return to_markdown(counterfactual_blocks(table))
 
 
 def counterfactual_rows(table: Table) -> list[dict[str, Any]]:
@@ -363,8 +369,8 @@ class CounterfactualSection(Section):
     def to_json(self, table: Table) -> Any:
         return counterfactual_json(table)
 
-    def markdown(self, table: Table) -> str:
-        return counterfactual_markdown(table)
+    def blocks(self, table: Table) -> list[Block]:
+        return counterfactual_blocks(table)
 
     def files(self, table: Table, out: Path, stem: str) -> dict[str, Path]:
         png = out / f"{stem}_counterfactual.png"

@@ -19,7 +19,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import Rate, outcome, suite_metrics, suite_order
 from rsb_maniskill.evaluation.records import dedupe, perturb_label, row_label
-from rsb_maniskill.reporting.cells import markdown_table, rate_cell
+from rsb_maniskill.reporting.blocks import Block, Bullets, Grid, Heading, Note, to_markdown
+from rsb_maniskill.reporting.cells import rate_cell
 from rsb_maniskill.reporting.figures import png_uri, png_with_legend_below, rate_bars
 from rsb_maniskill.reporting.sections.base import Section, write_rows
 
@@ -130,7 +131,7 @@ def _gap(backbone: str, policy: str, suite: str, episodes: Mapping[int, Mapping[
 
 
 # ---------------------------------------------------------------- tables
-def backbone_markdown(answers: Iterable[Mapping[str, Any]]) -> str:
+def backbone_blocks(answers: Iterable[Mapping[str, Any]]) -> list[Block]:
     """The backbone rows' accuracy per suite: right, and no option stated, with intervals."""
     rows = []
     for label, suites in _rows(answers, backbone_row).items():
@@ -139,29 +140,36 @@ def backbone_markdown(answers: Iterable[Mapping[str, Any]]) -> str:
             n = len(recs)
             rows.append([label, suite, str(n), rate_cell(Rate.of(sum(bool(r["correct"]) for r in recs), n)),
                          rate_cell(Rate.of(sum(r.get("stated_letter") is None for r in recs), n))])
-    return ("### Backbone accuracy (%, Wilson 95% intervals)\n\n"
-            "Right: the answer states the correct option; no option: it states none, or several.\n\n"
-            + markdown_table(["Backbone", "Suite", "Episodes", "Right", "No option"], rows) + "\n")
+    return [Heading("Backbone accuracy (%, Wilson 95% intervals)"),
+            Note("Right: the answer states the correct option; no option: it states none, or several."),
+            Grid(["Backbone", "Suite", "Episodes", "Right", "No option"], rows)]
 
 
-def gap_markdown(table: tuple[Sequence[Gap], Sequence[NotJoined]]) -> str:
+def backbone_markdown(answers: Iterable[Mapping[str, Any]]) -> str:
+    return to_markdown(backbone_blocks(answers))
+
+
+def gap_blocks(table: tuple[Sequence[Gap], Sequence[NotJoined]]) -> list[Block]:
     gaps, skipped = table
-    parts = []
+    out: list[Block] = []
     if gaps:
         rows = [[g.backbone, g.policy, g.suite_id, str(g.n_episodes)]
                 + [rate_cell(r) for r in (g.accuracy, g.tsr, g.tsr_gsr, g.nsg, g.gap, g.shortcut)] + [str(g.n_grasped)]
                 for g in gaps]
-        parts.append("### The semantic gap (%, Wilson 95% intervals)\n\n"
-                     "The backbone's answers beside the policy's actions on the same episodes. Over the grasped "
+        out += [Heading("The semantic gap (%, Wilson 95% intervals)"),
+                Note("The backbone's answers beside the policy's actions on the same episodes. Over the grasped "
                      "episodes: backbone right, arm wrong (a wrong block grasped) is the semantic gap; backbone "
-                     "wrong, arm right (the correct block grasped) is a shortcut or luck.\n\n"
-                     + markdown_table(["Backbone", "Policy", "Suite", "Episodes", "Backbone right", "TSR", "TSR/GSR",
-                                       "nSG", "Backbone right, arm wrong", "Backbone wrong, arm right", "Grasped"],
-                                      rows))
+                     "wrong, arm right (the correct block grasped) is a shortcut or luck."),
+                Grid(["Backbone", "Policy", "Suite", "Episodes", "Backbone right", "TSR", "TSR/GSR", "nSG",
+                      "Backbone right, arm wrong", "Backbone wrong, arm right", "Grasped"], rows)]
     if skipped:
-        parts.append("Not joined (their episodes differ):\n\n"
-                     + "\n".join(f"- {s.backbone} / {s.policy} / {s.suite_id}: {s.reason}" for s in skipped))
-    return "\n\n".join(parts) + ("\n" if parts else "")
+        out += [Note("Not joined (their episodes differ):"),
+                Bullets(tuple(f"{s.backbone} / {s.policy} / {s.suite_id}: {s.reason}" for s in skipped))]
+    return out
+
+
+def gap_markdown(table: tuple[Sequence[Gap], Sequence[NotJoined]]) -> str:
+    return to_markdown(gap_blocks(table))
 
 
 def gap_rows(gaps: Sequence[Gap]) -> list[dict[str, Any]]:
@@ -252,9 +260,13 @@ class GapSection(Section):
         answers, gap = table
         return gap_json(answers, gap)
 
-    def markdown(self, table: tuple) -> str:
+    def blocks(self, table: tuple) -> list[Block]:
         answers, gap = table
-        return backbone_markdown(answers) + "\n" + gap_markdown(gap)
+        return backbone_blocks(answers) + gap_blocks(gap)
+
+    def markdown(self, table: tuple) -> str:
+        # a blank line after the accuracy table even when nothing follows it, as summary.md always had
+        return super().markdown(table) + ("" if gap_blocks(table[1]) else "\n")
 
     def files(self, table: tuple, out: Path, stem: str) -> dict[str, Path]:
         gap = table[1]

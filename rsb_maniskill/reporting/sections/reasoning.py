@@ -21,7 +21,8 @@ from rsb_maniskill.evaluation.statements import (
     reasoning_following,
     talks,
 )
-from rsb_maniskill.reporting.cells import markdown_table, rate_cell
+from rsb_maniskill.reporting.blocks import Block, Grid, Heading, Note, to_markdown
+from rsb_maniskill.reporting.cells import rate_cell
 from rsb_maniskill.reporting.sections.base import Section, write_rows
 
 Table = Mapping[str, Mapping[str, ReasoningFollowing]]
@@ -42,32 +43,37 @@ def reasoning_table(records: Iterable[Mapping[str, Any]]) -> dict[str, dict[str,
     return out
 
 
-def reasoning_markdown(table: Table) -> str:
+def reasoning_blocks(table: Table) -> list[Block]:
     """Per suite, Table 5 (error types x policies), then the statement x grasp crossing."""
     if not table:
-        return ""
+        return []
     labels = list(table)
     suites = suite_order({s for row in table.values() for s in row})
-    parts = []
+    out: list[Block] = []
     for s in suites:
         present = [label for label in labels if s in table[label]]
         rows = [[FAILURE_LABELS[k]] + [rate_cell(table[label][s].failure_rates()[k]) for label in present]
                 for k in FAILURES]
         rows.append(["Grasped-but-failed episodes (count)"] + [str(table[label][s].n_grasped_failed)
                                                                  for label in present])
-        parts.append(f"### Reasoning following on {s} (%, paper Table 5)\n\n"
-                     "Shares of the grasped-but-failed episodes: what the policy's text stated against the "
-                     "block it grasped.\n\n" + markdown_table(["Error type"] + present, rows))
+        out += [Heading(f"Reasoning following on {s} (%, paper Table 5)"),
+                Note("Shares of the grasped-but-failed episodes: what the policy's text stated against the "
+                     "block it grasped."),
+                Grid(["Error type"] + present, rows)]
     cells = [(said, grasp) for said in STATEMENTS for grasp in ("right", "wrong")]
     header = ["Policy", "Suite"] + [f"{STATED[said]} · grasped {grasp}" for said, grasp in cells] + [
         "Grasped episodes", "Stated right (% of episodes)"]
     rows = [[label, s] + [rate_cell(t.crossing_rates()[f"{said}/{grasp}"]) for said, grasp in cells]
             + [str(t.n_grasped), rate_cell(t.stated_right_rate())]
             for label in labels for s, t in table[label].items()]
-    parts.append("### Statement and grasp (% of grasped episodes)\n\n"
-                 "Grasped right: the correct block was grasped (placed or not); grasped wrong: only wrong blocks.\n\n"
-                 + markdown_table(header, rows))
-    return "\n\n".join(parts) + "\n"
+    return out + [Heading("Statement and grasp (% of grasped episodes)"),
+                  Note("Grasped right: the correct block was grasped (placed or not); grasped wrong: only wrong "
+                       "blocks."),
+                  Grid(header, rows)]
+
+
+def reasoning_markdown(table: Table) -> str:
+    return to_markdown(reasoning_blocks(table))
 
 
 def reasoning_rows(table: Table) -> list[dict[str, Any]]:
@@ -103,8 +109,8 @@ class ReasoningSection(Section):
     def to_json(self, table: Table) -> Any:
         return reasoning_json(table)
 
-    def markdown(self, table: Table) -> str:
-        return reasoning_markdown(table)
+    def blocks(self, table: Table) -> list[Block]:
+        return reasoning_blocks(table)
 
     def files(self, table: Table, out: Path, stem: str) -> dict[str, Path]:
         return {"csv:reasoning": write_rows(reasoning_rows(table), out / f"{stem}_reasoning.csv")}

@@ -14,7 +14,8 @@ from typing import Any, Iterable, Mapping, Sequence
 from rsb_maniskill.evaluation.metrics import SuiteMetrics, summarize
 from rsb_maniskill.evaluation.records import dedupe, perturb_label, row_label
 from rsb_maniskill.perturb import AXES
-from rsb_maniskill.reporting.cells import NA, delta, markdown_table, rate_cell
+from rsb_maniskill.reporting.blocks import Block, Grid, Heading, to_markdown
+from rsb_maniskill.reporting.cells import NA, delta, rate_cell
 from rsb_maniskill.reporting.sections.base import Section
 
 Table = dict[str, dict[str, dict[str, dict[int, SuiteMetrics]]]]  # row -> suite -> axis -> level -> metrics
@@ -84,10 +85,10 @@ def robustness_rows(table: Table) -> list[dict[str, Any]]:
     return rows
 
 
-def robustness_markdown(table: Table) -> str:
+def robustness_blocks(table: Table) -> list[Block]:
     """One table per policy row and suite: axis, level, episodes, GSR / TSR / nSG with intervals,
     their change from level 0 (points) and what broke."""
-    parts = []
+    out: list[Block] = []
     head = ["Axis", "Level", "Episodes", "GSR", "TSR", "nSG", "ΔGSR", "ΔTSR", "ΔnSG", "Breaks"]
     for row, suites in table.items():
         for suite, axes in suites.items():
@@ -99,9 +100,13 @@ def robustness_markdown(table: Table) -> str:
                          for k in ("gsr", "tsr", "nsg")]
                     rows.append([axis, str(level), str(m.n_episodes), rate_cell(m.gsr), rate_cell(m.tsr),
                                  rate_cell(m.nsg), *d, "-" if base is None else breaks(m, base)])
-            parts.append(f"### Robustness: {row} on {suite} (%, Wilson 95% intervals; Δ in points from level 0)\n\n"
-                         + markdown_table(head, rows))
-    return "\n\n".join(parts) + ("\n" if parts else "")
+            out += [Heading(f"Robustness: {row} on {suite} (%, Wilson 95% intervals; Δ in points from level 0)"),
+                    Grid(head, rows)]
+    return out
+
+
+def robustness_markdown(table: Table) -> str:
+    return to_markdown(robustness_blocks(table))
 
 
 class RobustnessSection(Section):
@@ -116,8 +121,8 @@ class RobustnessSection(Section):
     def to_json(self, table: Table) -> Any:
         return robustness_rows(table)
 
-    def markdown(self, table: Table) -> str:
-        return robustness_markdown(table)
+    def blocks(self, table: Table) -> list[Block]:
+        return robustness_blocks(table)
 
 
 SECTION = RobustnessSection()

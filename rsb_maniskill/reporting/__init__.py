@@ -5,6 +5,7 @@ counterfactual tables: rows, JSON, Markdown, files and page; the registry ``sect
 ``results.json`` and ``rsb report --compare`` (``results.py``; the paired tests in ``paired.py``),
 ``rsb report``'s self-contained HTML page (``page.py`` and ``templates/``), the writer that puts them in a
 results directory
-(``writer.py``), the cell formats they share (``cells.py``), the plots' helpers (``figures.py``),
+(``writer.py``), the cell formats they share (``cells.py``), the headings, notes and tables that
+summary.md and the page are both rendered from (``blocks.py``), the plots' helpers (``figures.py``),
 the leaderboard (``leaderboard.py``, ``leaderboard_files.py``, ``vla_eval_leaderboard.py``) and
 vla-eval results read as records (``vla_eval_results.py``)."""

@@ -183,7 +183,8 @@ def test_small_cells_are_marked_not_hidden():
 def test_each_rate_is_greyed_by_its_own_denominator():
     """Issue 49: a 100-episode cell with 3 grasps has an nSG over 3 grasps: marked (and greyed on the
     page), while its TSR over 100 episodes is not."""
-    from rsb_maniskill.reporting.sections.base import markdown_to_html
+    from rsb_maniskill.reporting.blocks import to_html
+    from rsb_maniskill.reporting.sections.categories import categories_blocks
 
     recs = [_math(i, "plus", i < 2, 0 if i < 3 else -1) for i in range(100)]
     cell = category_tables(recs)["p"].suites["RSB-Math-4"]["operator"]["plus"]
@@ -194,7 +195,7 @@ def test_each_rate_is_greyed_by_its_own_denominator():
     cells = [c.strip() for c in line.strip("|").split("|")]
     assert not cells[1].endswith(SMALL_MARK) and not cells[2].endswith(SMALL_MARK)  # episodes, TSR
     assert cells[3].endswith(SMALL_MARK) and cells[4].endswith(SMALL_MARK)  # nSG, first grasp right
-    page = markdown_to_html(md)
+    page = to_html(categories_blocks(category_tables(recs)))
     row = re.search(r"<tr><td>plus</td>(.*?)</tr>", page)[1]
     assert re.findall(r"<td( class=\"small\")?>", row) == ["", "", ' class="small"', ' class="small"', ""]
     rows = categories_rows(category_tables(recs))

@@ -16,7 +16,9 @@ from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.metrics import OUTCOMES, suite_order
 from rsb_maniskill.evaluation.records import record_row
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
-from rsb_maniskill.reporting.page import episode_cards, markdown_to_html
+from rsb_maniskill.reporting.blocks import to_html
+from rsb_maniskill.reporting.page import build_html, episode_cards
+from rsb_maniskill.reporting.summary import ERRORS_HEADING, results_from_records, summary_blocks
 from rsb_maniskill.reporting.writer import write_html_report
 
 from cdp_browser import Browser, _chromium, checked_screenshot
@@ -114,11 +116,16 @@ def test_bad_results_dir(tmp_path, capsys):
     assert not (tmp_path / "report.html").exists()
 
 
-def test_markdown_tables_to_html():
-    got = markdown_to_html("### T\n\nnote \\*\n\n| a | **b** |\n|---|:---:|\n| 1 | <2> |\n")
-    assert got == ("<h3>T</h3>\n<p class=\"note\">note *</p>\n<div class=\"scroll\"><table><thead><tr><th>a</th>"
-                   "<th><strong>b</strong></th></tr></thead><tbody><tr><td>1</td><td>&lt;2&gt;</td></tr></tbody>"
-                   "</table></div>")
+def test_the_paper_tables_on_the_page_are_summary_mds_blocks(tmp_path):
+    """The page's tables and its pooled Table 7 are the blocks summary.md is written from, split at Table 7."""
+    from fake_records import records
+
+    recs = records("a|b", SUITE, 2, 1, 1) + records("blind", SUITE, 1, 2, 1)
+    blocks = summary_blocks(results_from_records(recs))
+    at = blocks.index(ERRORS_HEADING)
+    page = build_html(recs, tmp_path)
+    assert to_html(blocks[:at]) in page and to_html(blocks[at:]) in page
+    assert "<th><strong>Avg</strong>*</th>" in page and "<td>a|b</td>" in page  # a partial Avg; the pipe kept
 
 
 def test_page_escapes_plain_strings_and_keeps_its_fragments(results, tmp_path):

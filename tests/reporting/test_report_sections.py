@@ -51,11 +51,14 @@ def test_the_documented_example_adds_a_section_with_one_module(tmp_path, monkeyp
     paths = write_report(results_from_records(recs), tmp_path, records=recs)
     summary = json.loads(paths["json"].read_text())
     assert list(summary)[-1] == "steps" and summary["steps"]["oracle"]["RSB-Math-4"] == 120  # 100..140
-    assert "### Episode length" in paths["markdown"].read_text()
+    markdown = paths["markdown"].read_text()
+    assert "### Episode length" in markdown and "| oracle | RSB-Math-4 | 5 | 120.0† |" in markdown  # as the docs say
     assert paths["csv:steps"].read_text().startswith("row,suite_id,mean_steps")
     page = build_html(recs, tmp_path)
     assert '<a href="#steps">Steps</a>' in page
     assert re.search(r'<section id="steps"><h2>Episode length</h2>.*?<th>Mean steps</th>', page, re.S)
+    # the page's table is rendered from the same blocks, the small cell greyed
+    assert "<tr><td>oracle</td><td>RSB-Math-4</td><td>5</td><td class=\"small\">120.0†</td></tr>" in page
     # on the page after the preferences (page_order 80 > bias's 70), before the episodes
     assert page.index('<section id="bias">') < page.index('<section id="steps">') < page.index('id="episodes"')
 

@@ -106,7 +106,7 @@ def _html(text: Inline | Cell, strip: bool = True) -> str:
         return f"<strong>{html.escape(text.text)}</strong>{html.escape(text.mark)}"
     if isinstance(text, tuple):  # a run: its spaces between parts kept
         return "".join(_html(part, strip=False) for part in text)
-    return html.escape(text.strip() if strip else text)
+    return html.escape(text.strip() if strip else text)  # a cell's, heading's or note's text stripped
 
 
 def _td(cell: Inline | Cell) -> str:

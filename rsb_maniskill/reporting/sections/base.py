@@ -3,8 +3,9 @@
 A section turns the records (and the files beside them) into one table, then writes that table
 everywhere it appears: a key of ``summary.json``, a block of ``summary.md`` (in
 ``summary_order``), its own CSV / PNG files, and a ``<section>`` of
-``report.html`` (heading, note, an optional figure, the tables). ``writer.py`` and ``page.py`` only
-loop over the registry, so adding a section is adding one module there.
+``report.html`` (heading, note, an optional figure, the tables). Its summary.md block and its tables
+on the page are both rendered from its :meth:`Section.blocks` (``reporting/blocks.py``). ``writer.py``
+and ``page.py`` only loop over the registry, so adding a section is adding one module there.
 """
 from __future__ import annotations
 
@@ -15,9 +16,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 from markupsafe import Markup
 
-from rsb_maniskill.reporting.blocks import SMALL_MARK, Block, to_html, to_markdown
-
-__all__ = ["SMALL_MARK", "Section", "write_rows"]
+from rsb_maniskill.reporting.blocks import Block, to_html, to_markdown
 
 
 class Section:

@@ -29,9 +29,9 @@ from typing import Any, Iterable, Mapping, Sequence
 from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, num_choices, suite_order
 from rsb_maniskill.evaluation.records import LEFT_RANK_FIELD, dedupe, record_row
 from rsb_maniskill.objects.family import BLOCK_COLORS, split_env_id
-from rsb_maniskill.reporting.blocks import Block, Cell, Grid, Heading, Inline, Note, to_markdown
+from rsb_maniskill.reporting.blocks import SMALL_MARK, Block, Cell, Grid, Heading, Inline, Note, to_markdown
 from rsb_maniskill.reporting.cells import NA, pct
-from rsb_maniskill.reporting.sections.base import SMALL_MARK, Section, write_rows
+from rsb_maniskill.reporting.sections.base import Section, write_rows
 
 POSITION, CANDIDATE, LETTER = "position", "candidate", "letter"
 AXES: dict[str, str] = {POSITION: "position", CANDIDATE: "candidate", LETTER: "option letter"}

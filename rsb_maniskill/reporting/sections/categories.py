@@ -18,9 +18,9 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, nsg, num_choices, outcome, suite_order
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, dedupe, record_row
-from rsb_maniskill.reporting.blocks import Block, Cell, Grid, Heading, Inline, Note, Strong, to_markdown
+from rsb_maniskill.reporting.blocks import SMALL_MARK, Block, Cell, Grid, Heading, Inline, Note, Strong, to_markdown
 from rsb_maniskill.reporting.cells import rate_cell
-from rsb_maniskill.reporting.sections.base import SMALL_MARK, Section, write_rows
+from rsb_maniskill.reporting.sections.base import Section, write_rows
 from rsb_maniskill.semantic.categories import DIMENSIONS, SUITE_KIND, value_label, value_order
 
 SMALL_CELL = 20  # episodes: a cell with fewer is shown, marked as too small to read much into

@@ -113,6 +113,8 @@ def _avg_label(avgs: Sequence[Average]) -> tuple[str, str]:
     # The paper reports Avg only over all six suites; mark a partial Avg instead of hiding it.
     if all(a.complete for a in avgs):
         return "**Avg**", ""
+    if not any(a.suites for a in avgs):
+        return "**Avg**", "\n\nAvg: n/a: it is over the paper's six suites, and none was run (the Direct suites are controls)."
     return "**Avg\\***", "\n\n\\* Avg over the paper's suites that were run, not all six."
 
 

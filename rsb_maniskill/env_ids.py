@@ -49,10 +49,23 @@ TASK_ENVS: dict[str, dict[str, Any]] = {
     sid + fam.suffix: {"suite_id": sid, **({} if fam.name == DEFAULT_TARGETS else {"targets": fam.name})}
     for fam in FAMILIES.values() for sid in SUITE_IDS
 }
-# every id -> (max_episode_steps, default kwargs), as registered with ManiSkill and gymnasium
+# every env of the pack (the suites, the table) -> (max_episode_steps, default kwargs), as registered
+# with ManiSkill and gymnasium
 ENVS: dict[str, tuple[int, dict[str, Any]]] = {
     **{uid: (TASK_MAX_EPISODE_STEPS, kwargs) for uid, kwargs in TASK_ENVS.items()},
     TABLETOP_ID: (TABLETOP_MAX_EPISODE_STEPS, {}),
+}
+# The test-split aliases: "RSB-Direct-4-Test" is RSB-Direct-4 with ``split="test"`` as its default, for
+# scripts that name an env id but pass gym.make no keywords (ManiSkill's baselines: ``--env-id``).
+# gym.make("RSB-Direct-4-Test") and gym.make("RSB-Direct-4", split="test") give the same episode for
+# a seed. Aliases, not suites: they are registered (ENVS_AND_ALIASES) but are not in ENVS, the groups
+# or what resolve_env_ids accepts, so nothing that lists the suites lists them twice.
+TEST_SUFFIX = "-Test"
+TEST_ALIASES: dict[str, str] = {uid + TEST_SUFFIX: uid for uid in TASK_ENVS}  # alias -> suite env id
+# every id gymnasium and ManiSkill know from the pack -> (max_episode_steps, default kwargs)
+ENVS_AND_ALIASES: dict[str, tuple[int, dict[str, Any]]] = {
+    **ENVS,
+    **{alias: (ENVS[uid][0], {**ENVS[uid][1], "split": "test"}) for alias, uid in TEST_ALIASES.items()},
 }
 
 
@@ -86,6 +99,11 @@ def resolve_env_ids(names: str | Sequence[str]) -> list[str]:
         if not name:
             continue
         name = RELEASE_TASK_NAMES.get(name, name)
+        alias_of = TEST_ALIASES.get(name.split(":", 1)[-1])
+        if alias_of:
+            raise ValueError(f"{name} is the test-split alias of {alias_of} for gym.make (scripts that pass no "
+                             f"keywords), not a suite; name the suite, {alias_of} (rsb eval always runs the test "
+                             "split; rsb generate and rsb audit take --split test)")
         for eid in SUITE_GROUPS.get(name, (name.split(":", 1)[-1],)):
             if split_env_id(eid)[0] not in SUITE_IDS:
                 sfx = " or ".join(repr(f.suffix) for f in FAMILIES.values() if f.suffix)

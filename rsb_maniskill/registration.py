@@ -11,6 +11,9 @@ The robot: ``import rsb_maniskill.agents`` registers ``aloha_agilex`` with ManiS
 ``rsb_maniskill`` after ManiSkill does it too (ManiSkill is loaded already, so it costs nothing),
 so ``gym.make("Empty-v1", robot_uids="aloha_agilex")`` works in either case.
 
+The test-split aliases (``RSB-Math-4-Test``: ``split="test"`` by default, :data:`env_ids.TEST_ALIASES`)
+are registered the same way, with the class of their suite.
+
 Recorded trajectories name their env as ``"rsb_maniskill:RSB-Math-4"`` (see :mod:`tasks.base`):
 gymnasium imports the module before looking the id up, so ManiSkill's ``replay_trajectory``
 finds the env in a fresh process with nothing imported by hand.
@@ -24,7 +27,7 @@ from typing import Any, Sequence
 import gymnasium as gym
 from gymnasium.envs.registration import WrapperSpec
 
-from rsb_maniskill.env_ids import ENVS
+from rsb_maniskill.env_ids import ENVS, ENVS_AND_ALIASES, TEST_ALIASES
 
 _LOADED = False
 
@@ -41,8 +44,8 @@ def load_simulator() -> None:
 
     classes = served_by(TASK_CLASSES)
     drop_lazy_entries()  # ManiSkill's register_env writes the gymnasium entries itself
-    for uid, (steps, kwargs) in ENVS.items():
-        register_env(uid, max_episode_steps=steps, **kwargs)(classes[uid])
+    for uid, (steps, kwargs) in ENVS_AND_ALIASES.items():  # an alias with the class of its suite
+        register_env(uid, max_episode_steps=steps, **kwargs)(classes[TEST_ALIASES.get(uid, uid)])
     _LOADED = True
 
 
@@ -69,7 +72,7 @@ def register_agent_if_maniskill_loaded() -> None:
 
 def drop_lazy_entries() -> None:
     """Removes the lazy gymnasium entries (ManiSkill's ``register_env`` is about to write its own)."""
-    for uid in ENVS:
+    for uid in ENVS_AND_ALIASES:
         spec = gym.registry.get(uid)
         if spec is not None and isinstance(spec.entry_point, partial) and spec.entry_point.func is _make:
             del gym.registry[uid]
@@ -90,8 +93,9 @@ def _make_vec(env_id: str, **kwargs: Any):
 
 
 def register_envs() -> None:
-    """Registers every RSB id with gymnasium (ids already registered are left alone)."""
-    for uid, (steps, defaults) in ENVS.items():
+    """Registers every RSB id, the test-split aliases too, with gymnasium (ids already registered are
+    left alone)."""
+    for uid, (steps, defaults) in ENVS_AND_ALIASES.items():
         if uid in gym.registry:
             continue
         gym.register(uid, entry_point=partial(_make, env_id=uid), vector_entry_point=partial(_make_vec, env_id=uid),

@@ -223,14 +223,22 @@ class Average:
         return asdict(self)
 
 
-def average(metrics: Mapping[str, SuiteMetrics], suites: Sequence[str] | None = None) -> Average:
-    """Avg column over ``suites``, from those present.
+def avg_suites(suites: Iterable[str]) -> tuple[str, ...]:
+    """The suites of the Avg column among ``suites`` run: the paper's six, or its Beyond Blocks six
+    when only everyday-object suites were run; none when neither was (the Direct suites are
+    controls and never enter Avg). The one rule that summaries, results.json and the leaderboard share."""
+    run = tuple(suites)
+    for group in (PAPER_SUITES, PAPER_OBJECT_SUITES):
+        if any(s in group for s in run):
+            return tuple(group)
+    return ()
 
-    Default: the paper's six suites when any of them was run (Direct suites are controls and stay
-    out of Avg), else every suite in ``metrics``.
-    """
+
+def average(metrics: Mapping[str, SuiteMetrics], suites: Sequence[str] | None = None) -> Average:
+    """Avg column over ``suites`` (default: :func:`avg_suites` of those run), from those present.
+    No suite to average over (a run of Direct controls only): every value None, not complete."""
     if suites is None:
-        suites = PAPER_SUITES if any(s in metrics for s in PAPER_SUITES) else tuple(metrics)
+        suites = avg_suites(metrics)
     present = [s for s in suites if s in metrics and metrics[s].n_episodes > 0]
 
     def mean(values: list[float]) -> float | None:
@@ -240,7 +248,7 @@ def average(metrics: Mapping[str, SuiteMetrics], suites: Sequence[str] | None = 
     return Average(
         suites=tuple(suites),
         present=tuple(present),
-        complete=len(present) == len(suites),
+        complete=bool(suites) and len(present) == len(suites),
         gsr=mean([metrics[s].gsr.value for s in present]),
         tsr=mean([metrics[s].tsr.value for s in present]),
         nsg=mean(nsgs),

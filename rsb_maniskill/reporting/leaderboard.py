@@ -22,11 +22,10 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import (
-    PAPER_OBJECT_SUITES,
-    PAPER_SUITES,
     Average,
     Rate,
     average,
+    avg_suites,
     num_choices,
     suite_order,
 )
@@ -257,15 +256,6 @@ class _SuiteView:
     @classmethod
     def of(cls, suite: Mapping[str, Any]) -> _SuiteView:
         return cls(suite["n"], *(Rate(**suite[k]) for k in ("gsr", "tsr", "nsg")))
-
-
-def avg_suites(suites: Sequence[str]) -> tuple[str, ...]:
-    """The suites of the Avg column: the paper's six (its Beyond Blocks six when only objects suites
-    were run); none when neither was."""
-    for group in (PAPER_SUITES, PAPER_OBJECT_SUITES):
-        if any(s in group for s in suites):
-            return tuple(group)
-    return ()
 
 
 def random_row(suites: Sequence[str]) -> dict[str, Any]:

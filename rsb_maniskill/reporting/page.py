@@ -216,7 +216,8 @@ def _summary_rows(results: Mapping[str, Mapping[str, SuiteMetrics]], policy_of: 
         settings = runs.get(policy_of.get(label, label), {})
         info = ", ".join(f"{k}: {json.dumps(settings[k])}" for k in SETTINGS_SHOWN
                          if settings.get(k) not in (None, {}, ""))
-        rows.append({"label": label, "complete": a.complete, "n_suites": len(a.present), "info": info,
+        rows.append({"label": label, "complete": a.complete, "n_suites": len(a.present), "n_over": len(a.suites),
+                     "info": info,
                      **{k: pct(getattr(a, k), unit="%") for k in ("gsr", "tsr", "nsg")},
                      "bars": Markup(bars_svg(row))})
     return rows

@@ -111,12 +111,15 @@ def write_csv(results: Results, path: str | os.PathLike, benchmark_version: str 
 
 # ---------------------------------------------------------------- Markdown
 AVG_NOTE = Note("* Avg over the paper's suites that were run, not all six.")
+NO_AVG_NOTE = Note("Avg: n/a: it is over the paper's six suites, and none was run (the Direct suites are controls).")
 
 
 def _avg_label(avgs: Sequence[Average]) -> tuple[Strong, list[Block]]:
     # The paper reports Avg only over all six suites; mark a partial Avg instead of hiding it.
     if all(a.complete for a in avgs):
         return Strong("Avg"), []
+    if not any(a.suites for a in avgs):
+        return Strong("Avg"), [NO_AVG_NOTE]
     return Strong("Avg", mark="*"), [AVG_NOTE]
 
 

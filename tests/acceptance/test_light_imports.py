@@ -105,18 +105,20 @@ def test_lazy_entries_match_maniskills_and_ids_live_in_one_leaf():
     got = _run("""
         import json, gymnasium as gym
         import rsb_maniskill
-        from rsb_maniskill.env_ids import ENVS
+        from rsb_maniskill.env_ids import ENVS_AND_ALIASES
         def view(uid):
             s = gym.spec(uid)
             return [s.max_episode_steps, s.kwargs, [w.name for w in s.additional_wrappers],
                     s.vector_entry_point is not None]
-        lazy = {uid: view(uid) for uid in ENVS}
+        lazy = {uid: view(uid) for uid in ENVS_AND_ALIASES}
         gym.make("RSB-Math-4", obs_mode="state", render_backend="none").close()
-        print(json.dumps(dict(lazy=lazy, loaded={uid: view(uid) for uid in ENVS})))
+        print(json.dumps(dict(lazy=lazy, loaded={uid: view(uid) for uid in ENVS_AND_ALIASES})))
     """)
     from rsb_maniskill.semantic.suites import SUITE_IDS
 
-    assert got["lazy"] == got["loaded"] and len(got["lazy"]) == 2 * len(SUITE_IDS) + 1  # blocks, objects, table
+    # blocks, objects, their test-split aliases, the table
+    assert got["lazy"] == got["loaded"] and len(got["lazy"]) == 4 * len(SUITE_IDS) + 1
+    assert got["lazy"]["RSB-Math-4-Test"][1] == {"suite_id": "RSB-Math-4", "split": "test"}
     assert all(v[3] for v in got["lazy"].values())
 
 

@@ -6,8 +6,10 @@ import math
 import pytest
 
 from rsb_maniskill.evaluation.metrics import (
+    PAPER_OBJECT_SUITES,
     PAPER_SUITES,
     average,
+    avg_suites,
     nsg,
     num_choices,
     suite_metrics,
@@ -174,8 +176,17 @@ def test_average_complete_over_six_suites_and_direct_only():
     ms = summarize([r for s in PAPER_SUITES for r in make(s, 1, 0, 1, 0)])
     assert average(ms).complete
     direct = summarize(make("RSB-Direct-10", 3, 0, 1, 0))
-    a = average(direct)  # no paper suite run: the average is over what was run
-    assert a.present == ("RSB-Direct-10",) and a.tsr == pytest.approx(0.75)
+    a = average(direct)  # no paper suite run: no Avg (Direct suites are controls), as the leaderboard says
+    assert a.suites == () and a.present == () and not a.complete
+    assert (a.gsr, a.tsr, a.nsg) == (None, None, None)
+
+
+def test_average_of_objects_runs_is_over_the_beyond_blocks_six():
+    ms = summarize(make("RSB-Math-4-Objects", 2, 0, 2, 0) + make("RSB-Direct-4-Objects", 4, 0, 0, 0))
+    a = average(ms)  # the Direct control stays out here too
+    assert a.suites == PAPER_OBJECT_SUITES and a.present == ("RSB-Math-4-Objects",) and not a.complete
+    assert a.tsr == pytest.approx(0.5)
+    assert avg_suites(["RSB-Direct-4", "RSB-Math-10-Objects", "RSB-Math-4"]) == PAPER_SUITES
 
 
 def test_wilson_always_brackets_the_rate():

@@ -152,3 +152,21 @@ def test_eval_records_the_checkpoint_and_keeps_one_version_a_directory(tmp_path,
     err = capsys.readouterr().err
     assert "unversioned records" in err and "Use another --out" in err and len(err.strip().splitlines()) == 1
     assert (old / "episodes.jsonl").read_bytes() == before and not (old / "run.json").exists()
+
+
+def test_a_direct_only_run_has_no_avg_anywhere(tmp_path, capsys):
+    """Avg is over the paper's suites: a run of the Direct controls alone shows n/a in summary.md,
+    results.json, the page and the leaderboard alike (one rule, metrics.avg_suites)."""
+    run = write_dir(tmp_path / "direct", records("a", "RSB-Direct-4", 8, 2, 0))
+    assert main(["report", str(run)]) == 0
+    md = (run / "summary.md").read_text()
+    tsr_row = next(line for line in md.splitlines() if line.startswith("| a |"))
+    assert tsr_row.rstrip().endswith("| **n/a** |"), tsr_row
+    assert "Avg: n/a" in md and "Avg\\*" not in md
+    avg = json.loads((run / "results.json").read_text())["rows"][0]["average"]
+    assert avg["tsr"] is None and avg["suites"] == [] and avg["complete"] is False
+    assert "Avg: n/a (over the paper's suites" in (run / "report.html").read_text()
+    capsys.readouterr()
+    assert main(["leaderboard", str(run), "--out", str(tmp_path / "board")]) == 0
+    board = next((tmp_path / "board").glob("*.md")).read_text()
+    assert "Avg" not in board.splitlines()[[i for i, s in enumerate(board.splitlines()) if s.startswith("| Model")][0]]

@@ -13,7 +13,9 @@ from rsb_maniskill.reporting import sections
 from rsb_maniskill.reporting.blocks import SMALL_MARK, Bullets, Cell, Grid, Heading, Note, Strong, to_html, to_markdown
 from rsb_maniskill.reporting.sections.base import Section
 
-DATA = Path(__file__).parent / "data" / "sections"  # rsb eval + rsb backbone outputs that call for every section
+# 40 records of `rsb eval` (oracle; blind with counterfactual variants; leftmost and a talking policy, some
+# perturbed) and 3 answers of `rsb backbone arithmetic`: every section has rows
+DATA = Path(__file__).parent / "data" / "sections"
 
 BLOCKS = [
     Heading("a|b <on> RSB-Math-4"),

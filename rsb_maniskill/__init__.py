@@ -6,9 +6,13 @@ engine and the ``rsb`` command line stay light. The robot ``aloha_agilex`` regis
 ManiSkill at ``import rsb_maniskill.agents``, or here when ManiSkill is imported already
 (see registration.py).
 """
-from rsb_maniskill.registration import register_agent_if_maniskill_loaded, register_envs
-from rsb_maniskill.sim import render  # noqa: F401  (selects a Vulkan device before SAPIEN starts)
-from rsb_maniskill.version import package_version as _package_version
+from rsb_maniskill import startup
+
+startup.guard()  # the `rsb` command only: Ctrl-C during this import ends it quietly (cli.main releases it)
+
+from rsb_maniskill.registration import register_agent_if_maniskill_loaded, register_envs  # noqa: E402
+from rsb_maniskill.sim import render  # noqa: F401,E402  (selects a Vulkan device before SAPIEN starts)
+from rsb_maniskill.version import package_version as _package_version  # noqa: E402
 
 register_envs()
 register_agent_if_maniskill_loaded()

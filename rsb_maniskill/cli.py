@@ -16,6 +16,7 @@ import sys
 from typing import Any, Iterator, NoReturn
 
 from rsb_maniskill.debug import DEBUG_ENV, debug_mode, print_error
+from rsb_maniskill.startup import release as release_startup_guard
 
 _COMMAND_MODULES = (
     "rsb_maniskill.commands.demo",
@@ -69,8 +70,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Runs one command; returns its exit status (2 for a usage error, which argparse has printed).
 
-    Ctrl-C at any point (start-up included) ends with "rsb: interrupted" and 130, no traceback; a
+    Ctrl-C at any point ends with "rsb: interrupted" and 130, no traceback (during the package's
+    import too: ``startup.py``; only Python's own first ~50 ms are not ours); a
     reader that stops reading (``rsb questions ... | head``) ends it quietly with 0, as unix tools do."""
+    release_startup_guard()  # from here on Ctrl-C is a KeyboardInterrupt, caught below
     try:
         return _main(argv)
     except KeyboardInterrupt:

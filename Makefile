@@ -10,11 +10,17 @@ setup:
 demo: setup
 	$(VENV)/bin/rsb demo
 
+# Test files run in parallel (pytest-xdist), a worker a core, at most 4: each worker holds torch,
+# SAPIEN and a renderer, and memory runs out before cores do. A file's tests stay in one worker
+# (loadfile: module fixtures are built once). JOBS=0 runs everything in one process.
+JOBS ?= auto
+XDIST := -n $(JOBS) --maxprocesses 4 --dist loadfile
+
 test: setup
-	$(PY) -m pytest -ra
+	$(PY) -m pytest -ra $(XDIST)
 
 test-fast: setup
-	$(PY) -m pytest -ra -m "not slow"
+	$(PY) -m pytest -ra $(XDIST) -m "not slow"
 
 lint: setup
 	$(VENV)/bin/ruff check .

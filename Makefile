@@ -12,9 +12,10 @@ demo: setup
 
 # Test files run in parallel (pytest-xdist), a worker a core, at most 4: each worker holds torch,
 # SAPIEN and a renderer, and memory runs out before cores do. A file's tests stay in one worker
-# (loadfile: module fixtures are built once). JOBS=0 runs everything in one process.
+# (loadfile: module fixtures are built once), the longest files first (tests/conftest.py; xdist's
+# own reorder, by test count, would start the long few-test files last). JOBS=0: one process.
 JOBS ?= auto
-XDIST := -n $(JOBS) --maxprocesses 4 --dist loadfile
+XDIST := -n $(JOBS) --maxprocesses 4 --dist loadfile --no-loadscope-reorder
 
 test: setup
 	$(PY) -m pytest -ra $(XDIST)

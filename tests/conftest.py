@@ -4,6 +4,7 @@ only needs *some* questions skips on a machine without the datasets."""
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,36 @@ import pytest
 from net_helpers import silent_proxy_server
 
 FIXTURE_DATA = Path(__file__).resolve().parent / "fixtures" / "semantic_data"
+
+
+# Seconds each of the longest test files took in one whole run (2 shared cores, `pytest --durations`).
+# `make test` hands whole files to its workers in collection order (xdist --dist loadfile
+# --no-loadscope-reorder): the long ones go first, so none starts last and runs alone at the end.
+# Only the order depends on these numbers; a file not listed keeps its place after them.
+LONGEST_FILES = {
+    "acceptance/test_faults.py": 848, "integrations/test_lerobot_env.py": 501, "commands/test_eval_cli.py": 430,
+    "audit/test_audit.py": 317, "baselines/test_diffusion_policy.py": 261, "export/test_dataset_build.py": 256,
+    "motionplan/test_generate.py": 226, "commands/test_bad_input.py": 170, "export/test_lerobot_export.py": 115,
+    "tasks/test_perturb.py": 97, "semantic/test_options.py": 85, "parallel/test_ray_executor.py": 77,
+    "acceptance/test_light_imports.py": 72, "tasks/test_tasks.py": 68, "motionplan/test_expert.py": 67,
+    "sim/test_render_engine.py": 61, "evaluation/test_counterfactual_physics.py": 58,
+}
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """The longest files first (LONGEST_FILES), each file's tests in their own order."""
+    def seconds(item) -> int:
+        return LONGEST_FILES.get(item.nodeid.split("::", 1)[0].removeprefix("tests/"), 0)
+
+    items.sort(key=lambda item: -seconds(item))  # stable: the rest keep their order
+
+
+def pytest_configure(config) -> None:
+    """Tests run as from a terminal: a run started in a script's background (``make test &``)
+    inherits SIGINT ignored, and so would every command a test starts; its Ctrl-C tests would then
+    pass without the command ever being interrupted. (Runs in each xdist worker too.)"""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture

@@ -103,11 +103,11 @@ def _write_shard(work: Path, settings: dict, k: int, shard: ExportShard | SuiteS
         emit({"type": "shard", "expected": shard.size, "episodes": 0, "skipped": True})
         return
     tmp = work / "tmp" / f"shard-{k:05d}.{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)  # (exist_ok on the shared parents: workers create them at once)
-    fps, stride = check_fps(settings["fps"])
-    meta: dict[str, Any] = {"shard": k, **asdict(shard)}
-    try:
+    try:  # from before the folder exists: a signal at any point leaves nothing half-written
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)  # (exist_ok on the shared parents: workers create them at once)
+        fps, stride = check_fps(settings["fps"])
+        meta: dict[str, Any] = {"shard": k, **asdict(shard)}
         if isinstance(shard, SuiteShard):
             demo, extra = _generate(shard, settings, tmp / "demos")
             meta.update(extra)

@@ -57,8 +57,11 @@ def wait_until(ready: Callable[[], bool], proc: subprocess.Popen, timeout: float
     """Polls ``ready`` while ``proc`` runs; True when it came true before the process ended."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline and proc.poll() is None:
-        if ready():
-            return True
+        try:
+            if ready():
+                return True
+        except OSError:  # a temp file or folder the command is writing vanished under the walk: not yet
+            pass
         time.sleep(0.05)
     return False
 

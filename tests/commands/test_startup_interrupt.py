@@ -46,6 +46,7 @@ def test_guard_then_release_hand_ctrl_c_back(monkeypatch):
 
 _INTERRUPT_MID_IMPORT = """
 import os, signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)      # as from a terminal (not a background job)
 sys.orig_argv = [sys.executable, "-m", "rsb_maniskill.cli"]   # as `python -m rsb_maniskill.cli` starts
 import rsb_maniskill.startup as s                             # what the package does first
 s.guard()
@@ -63,7 +64,8 @@ def test_ctrl_c_during_the_import_is_one_line_and_130():
 
 def test_the_command_releases_the_guard_and_catches_ctrl_c_itself():
     """From cli.main on, Ctrl-C is a KeyboardInterrupt that main turns into its line (its cleanup runs)."""
-    code = ("import os, signal, sys\nsys.orig_argv = [sys.executable, '-m', 'rsb_maniskill.cli']\n"
+    code = ("import os, signal, sys\nsignal.signal(signal.SIGINT, signal.default_int_handler)\n"
+            "sys.orig_argv = [sys.executable, '-m', 'rsb_maniskill.cli']\n"
             "import rsb_maniskill.startup as s\ns.guard()\nfrom rsb_maniskill import cli\n"
             "cli.main(['--version'])\nprint(signal.getsignal(signal.SIGINT) is signal.default_int_handler)\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -215,7 +215,7 @@ def test_lerobot_loop_export_train_eval_report(tmp_path):
              "--policy.pretrained_backbone_weights=null", "--policy.dim_model=64", "--policy.n_heads=2",
              "--policy.dim_feedforward=128", "--policy.n_encoder_layers=1", "--policy.n_decoder_layers=1",
              "--policy.use_vae=false", "--policy.chunk_size=10", "--policy.n_action_steps=10", "--batch_size=4",
-             "--steps=300", "--save_freq=300", "--log_freq=100", "--num_workers=0", "--wandb.enable=false",
+             "--steps=40", "--save_freq=40", "--log_freq=20", "--num_workers=0", "--wandb.enable=false",
              f"--output_dir={tmp_path / 'train'}"]
     res = subprocess.run(train, capture_output=True, text=True, timeout=1200, env=env, cwd=tmp_path)
     assert res.returncode == 0, res.stderr[-4000:]

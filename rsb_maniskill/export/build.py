@@ -154,6 +154,8 @@ def _run(shards: list[tuple[Path, dict, int, Any]], num_procs: int, executor: An
         return [], True, bar
     finally:
         bar.close()
+        for work in {w for w, *_ in shards}:  # a worker stopped (or killed after the grace) mid-shard
+            clean_temps(work)                  # leaves its folder; every worker has ended here
     if outcome is None:
         return [], False, bar
     interrupted = bool(outcome.interrupted or any(t.interrupted for t in outcome.tasks))
@@ -231,7 +233,6 @@ def run_export_shards(shards: list[ExportShard], out: Path, settings: dict, *, n
     done = done_shards(work, len(shards))
     todo = [(work, settings, k, s) for k, s in enumerate(shards) if k not in done]
     errors, interrupted, _ = _run(todo, min(num_procs, max(1, len(todo))), executor, progress)
-    clean_temps(work)  # a worker stopped (or killed after the grace) mid-shard leaves its folder
     if interrupted:
         raise KeyboardInterrupt(f"interrupted: {len(done_shards(work, len(shards)))} of {len(shards)} shards "
                                 "written; rerun the same command to continue")
@@ -320,8 +321,6 @@ def build_datasets(cfg: BuildConfig, executor: Any = None) -> list[dict[str, Any
         todo += [(work, settings, k, s) for k, s in enumerate(shards) if k not in done]
     t0 = time.perf_counter()
     errors, interrupted, bar = _run(todo, min(cfg.num_procs, max(1, len(todo))), executor, cfg.progress)
-    for _, _, work, _, _, _ in suites:
-        clean_temps(work)  # a worker stopped (or killed after the grace) mid-shard leaves its folder
     if interrupted:
         total = sum(len(s[4]) for s in suites)
         have = sum(len(done_shards(s[2], len(s[4]))) for s in suites)

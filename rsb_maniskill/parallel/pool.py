@@ -235,6 +235,11 @@ class ProcessPool:
                 if p.is_alive():
                     p.kill()
                     p.join(timeout=10)
+                if p.exitcode is not None and p.exitcode != -signal.SIGKILL:
+                    # it ended by itself (os._exit in the block) and its exit, slow under load, outlasted
+                    # the limit: a death in the block, not a hang (a process already exiting keeps its code)
+                    done[k] = TaskOutcome(k, error=f"exited with code {p.exitcode}", stuck=what, exit_code=p.exitcode)
+                    continue
                 done[k] = TaskOutcome(k, error=f"killed: {what} did not return within {limit:g} s",
                                       stuck=what, timed_out=limit)
 

@@ -92,6 +92,34 @@ def test_process_pool_reports_a_failed_and_a_dead_worker():
     assert outcome.errors == {1: "exited with code 3"}
 
 
+class _Exited:
+    """A worker process as the parent sees it: already gone with ``code``, or alive until killed."""
+
+    def __init__(self, code: int | None) -> None:
+        self.exitcode, self.killed = code, False
+
+    def is_alive(self) -> bool:
+        return self.exitcode is None
+
+    def kill(self) -> None:
+        self.killed, self.exitcode = True, -signal.SIGKILL
+
+    def join(self, timeout: float | None = None) -> None:
+        pass
+
+
+def test_a_death_in_a_watched_block_is_not_taken_for_a_hang():
+    """os._exit in a policy call, and the process's exit (slow on a loaded machine) outlasts the
+    call's limit before the parent sees the sentinel: a death in that call, with its exit code."""
+    label = argparse.Namespace(value=b"act")
+    long_ago = time.monotonic() - 10
+    done = {}
+    ProcessPool._check_watches([_Exited(3), _Exited(None)], done, [[long_ago, 2.0], [long_ago, 2.0]], [label, label])
+    assert done[0].error == "exited with code 3" and done[0].exit_code == 3 and done[0].timed_out is None
+    assert done[0].stuck == "act"
+    assert done[1].error == "killed: act did not return within 2 s" and done[1].timed_out == 2.0
+
+
 def test_a_signal_stops_the_workers_and_keeps_what_they_sent():
     """SIGTERM to this process (here: sent by itself once both workers run) reaches each worker."""
     for target, expect in ((wait_for_stop, None), (finish_up_on_stop, "saved its part after SIGTERM")):

@@ -6,7 +6,7 @@ the cheapest settings that exercise the path: state observations, RSB-Math-4, 1-
 demos, a few steps. A rerun after an interruption must end with the same finished output as an
 uninterrupted run (records without their timings; demos array for array; pages and tables with
 their time stamps masked) and leave no stray file. ``rsb dataset build``'s own kill -9 / SIGINT /
-SIGTERM cases are in test_dataset_build.py (not slow); here one more, slow, on two shards.
+SIGTERM cases are in tests/export/test_dataset_build.py.
 """
 from __future__ import annotations
 
@@ -352,22 +352,6 @@ def test_generate_with_two_workers_killed_then_rerun(demos_reference, tmp_path):
     assert rsb(*run).returncode == 0
     assert _demos(out / DEMO_FILE)[0] == _demos(demos_reference)[0]
     assert stray_files(out) == []
-
-
-@pytest.mark.slow
-def test_dataset_build_killed_then_rerun(tmp_path):
-    """The LeRobot build (expert + rendering, one shard a question): kill -9 after the first shard."""
-    build = ["dataset", "build", "--suites", SUITE, "--questions", "0:2", "--shard-size", "1"]
-    ref, cut = tmp_path / "ref", tmp_path / "cut"
-    assert rsb(*build, "--out", str(ref), timeout=900).returncode == 0
-    proc = start(*build, "--out", str(cut))
-    wait_until(lambda: any(cut.rglob("rsb_shard.json")), proc, timeout=600)
-    stop(proc, signal.SIGKILL)
-    res = rsb(*build, "--out", str(cut), timeout=900)
-    assert res.returncode == 0, res.stderr[-2000:]
-    from lerobot_venv import fingerprint
-
-    assert fingerprint(cut / SUITE) == fingerprint(ref / SUITE) and stray_files(cut / SUITE) == []
 
 
 # ------------------------------------------------------------ odd input: one line, non-zero, nothing lost

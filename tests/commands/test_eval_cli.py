@@ -211,7 +211,7 @@ def test_paper_objects_prints_the_beyond_blocks_table(tmp_path, capsys, question
     """`--suites paper-objects`: the six paper suites with everyday objects, and the appendix's
     Scene | GSR | TSR table with its Avg row."""
     out = tmp_path / "res"
-    assert main(["eval", "oracle", "--suites", "paper-objects", "-n", "2", "--out", str(out)]) == 0
+    assert main(["eval", "oracle", "--suites", "paper-objects", "-n", "1", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "Beyond Blocks: oracle" in text
     table = text.split("Beyond Blocks: oracle", 1)[1]

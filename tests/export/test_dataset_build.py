@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -23,6 +24,7 @@ from rsb_maniskill.version import BENCHMARK_VERSION
 from lerobot_venv import _lerobot_python, fingerprint, read_data
 
 SUITE = "RSB-Math-4"
+STRAY = re.compile(r"\.tmp|\.partial|\.part\d|write-probe")  # what a half-done write is named
 SMALL = {"camera_size": (64, 48)}  # the pipeline is the same at 320x240, only slower
 
 
@@ -187,6 +189,7 @@ def test_kill_9_then_rerun_resumes_without_duplicates(one_proc, tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     assert fingerprint(out / SUITE) == fingerprint(one_proc)
     assert not list((out / WORK_DIR / SUITE / "tmp").glob("*"))  # the killed run's partial shard is gone
+    assert [p.name for p in (out / SUITE).rglob("*") if STRAY.search(p.name)] == []  # nor a half-done write
 
 
 def test_sigint_stops_keeping_finished_shards(tmp_path):

@@ -19,6 +19,7 @@ from typing import Any, Mapping, Sequence
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, EVAL_SEED_BASE
 from rsb_maniskill.evaluation.store import safe_name
 from rsb_maniskill.outdirs import writable_dir
+from rsb_maniskill.parallel.plan import NO_RENDER_OBS_MODES
 
 # Fixed by the protocol (the evaluation split): not settable with --env-arg.
 PROTOCOL_KEYS: tuple[str, ...] = tuple(EVAL_ENV_KWARGS)
@@ -141,7 +142,7 @@ def check_env_settings(suites: Sequence[str], env_kwargs: Mapping[str, Any], obs
 
     by_suite = {k for _, kwargs in ENVS.values() for k in kwargs}  # suite_id, targets
     for suite in dict.fromkeys(suites):
-        params = env_parameters(suite)
+        params = env_parameters(suite) if env_kwargs else {}  # no keyword to check: the simulator stays unloaded
         for key, value in env_kwargs.items():
             if key in by_suite:
                 raise EvalError(f"--env-arg cannot set {key}: the suite id fixes it (e.g. RSB-Math-4-Objects for "
@@ -173,6 +174,8 @@ def _task_class(env_id: str) -> type:
 
 def _check_obs_mode(suite: str, obs_mode: str) -> None:
     """ManiSkill's rule: one of the task's obs modes, or camera textures joined by '+'."""
+    if obs_mode in NO_RENDER_OBS_MODES:  # every ManiSkill task's: no need to load the simulator to say so
+        return
     from mani_skill.envs.utils.observations import ALL_VISUAL_TEXTURES, parse_obs_mode_to_struct
 
     supported = _task_class(suite).SUPPORTED_OBS_MODES

@@ -27,7 +27,10 @@ def _run(code: str) -> dict:
                                   "from rsb_maniskill.semantic import EpisodeSampler; "
                                   "EpisodeSampler('RSB-Math-4').episode(0)",
                                   "import rsb_maniskill.motionplan.generate, rsb_maniskill.evaluation.metrics",
-                                  "import rsb_maniskill.export.lerobot, rsb_maniskill.export.merge"])
+                                  "import rsb_maniskill.export.lerobot, rsb_maniskill.export.merge",
+                                  # rsb eval's own process, on state and no --env-arg: only its worker loads them
+                                  "from rsb_maniskill.commands.eval_args import check_env_settings; "
+                                  "check_env_settings(['RSB-Math-4', 'RSB-General-10'], {}, 'state')"])
 def test_imports_are_light(stmt):
     got = _run(f"""
         import json, sys

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import functools
 import hashlib
 import os
 import shutil
@@ -62,6 +63,7 @@ def venv_lock(venv: Path = VENV) -> Iterator[None]:
             fcntl.flock(f, fcntl.LOCK_UN)
 
 
+@functools.lru_cache(maxsize=None)  # checked once a test process: the check imports LeRobot, ~7 s
 def _lerobot_python() -> Path:
     """Python of a virtual environment with LeRobot (built once, reused from $RSB_LEROBOT_VENV)."""
     with venv_lock():

@@ -65,14 +65,14 @@ def _cluster(v: np.ndarray) -> list[float]:
 def made_of_others(v: np.ndarray) -> list[float]:
     """1 for an option equal to the sum, difference or product of two other options
     (how an intermediate result of the solution would give the answer away)."""
-    out = []
-    for i, x in enumerate(v):
-        o = np.delete(v, i)
-        a, b = o[:, None], o[None, :]
-        hit = np.isclose(x, a + b) | np.isclose(x, a - b) | np.isclose(x, a * b)
-        np.fill_diagonal(hit, False)
-        out.append(float(hit.any()))
-    return out
+    v = np.asarray(v, dtype=float)
+    n = len(v)
+    a, b, x = v[:, None], v[None, :], v[:, None, None]  # x: each option against every pair (j, k)
+    hit = np.isclose(x, a + b) | np.isclose(x, a - b) | np.isclose(x, a * b)  # (i, j, k), all options at once
+    idx = np.arange(n)
+    others = (idx[:, None, None] != idx[None, :, None]) & (idx[:, None, None] != idx[None, None, :])
+    pairs = idx[:, None] != idx[None, :]  # two different options, neither of them the option itself
+    return [float(h) for h in (hit & others & pairs).any(axis=(1, 2))]
 
 
 _QNUM = re.compile(r"(?<![\d.])-?\d[\d,]*(?:\.\d+)?")

@@ -160,6 +160,15 @@ def test_numeric_guessers_read_the_number_a_text_option_starts_with():
     assert median.score(dataclasses.replace(sp, options=("a", "b", "c", "d"))) is None
 
 
+def test_made_of_others_needs_two_other_options():
+    """An option that is the sum, difference or product of two *other* options; never of itself."""
+    from rsb_maniskill.audit.guessers import made_of_others
+
+    assert made_of_others(np.array([2.0, 3.0, 6.0, 9.0])) == [0.0, 1.0, 1.0, 1.0]  # 6 = 2*3, 9 = 6+3, 3 = 9-6
+    assert made_of_others(np.array([1.0, 2.0, 4.0])) == [0.0, 0.0, 0.0]  # 2 = 1*2 and 4 = 2*2 use the option itself
+    assert made_of_others(np.array([5.0])) == [0.0] and made_of_others(np.array([])) == []
+
+
 def test_credit_splits_ties():
     assert credit([1, 3, 3, 0], 1) == 0.5 and credit([1, 3, 3, 0], 0) == 0.0 and credit([2, 2, 2, 2], 3) == 0.25
 

@@ -383,3 +383,14 @@ def test_a_batched_policy_is_blamed_for_its_wave():
         batched_loop(FakeBatchedEnv(2), [Nan(), Nan()], settings, SEEDS, list().append)
     assert str(caught.value).startswith(f"policy 'nan-policy' on {SUITE} seeds {SEEDS[0]}..{SEEDS[1]} (normal "
                                         "instruction): act_batch returned NaN or inf actions (42 of 42 numbers")
+
+
+def test_the_obs_modes_checked_without_the_simulator_are_every_suites():
+    """`rsb eval` passes the obs modes that read no camera without loading the task class (its own
+    process stays light): every suite's task class must take them."""
+    from rsb_maniskill.commands.eval_args import _task_class
+    from rsb_maniskill.env_ids import ENVS
+    from rsb_maniskill.parallel.plan import NO_RENDER_OBS_MODES
+
+    for suite in ENVS:
+        assert set(NO_RENDER_OBS_MODES) <= set(_task_class(suite).SUPPORTED_OBS_MODES), suite

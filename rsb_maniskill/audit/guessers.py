@@ -69,10 +69,9 @@ def made_of_others(v: np.ndarray) -> list[float]:
     n = len(v)
     a, b, x = v[:, None], v[None, :], v[:, None, None]  # x: each option against every pair (j, k)
     hit = np.isclose(x, a + b) | np.isclose(x, a - b) | np.isclose(x, a * b)  # (i, j, k), all options at once
-    idx = np.arange(n)
-    others = (idx[:, None, None] != idx[None, :, None]) & (idx[:, None, None] != idx[None, None, :])
-    pairs = idx[:, None] != idx[None, :]  # two different options, neither of them the option itself
-    return [float(h) for h in (hit & others & pairs).any(axis=(1, 2))]
+    i, j, k = np.ogrid[:n, :n, :n]
+    distinct = (i != j) & (i != k) & (j != k)  # two different options, neither of them the option itself
+    return [float(h) for h in (hit & distinct).any(axis=(1, 2))]
 
 
 _QNUM = re.compile(r"(?<![\d.])-?\d[\d,]*(?:\.\d+)?")

@@ -238,7 +238,7 @@ class ProcessPool:
                 if p.exitcode is not None and p.exitcode != -signal.SIGKILL:
                     # it ended by itself (os._exit in the block) and its exit, slow under load, outlasted
                     # the limit: a death in the block, not a hang (a process already exiting keeps its code)
-                    done[k] = TaskOutcome(k, error=f"exited with code {p.exitcode}", stuck=what, exit_code=p.exitcode)
+                    done[k] = ProcessPool._died(k, p, watches[k], labels[k])
                     continue
                 done[k] = TaskOutcome(k, error=f"killed: {what} did not return within {limit:g} s",
                                       stuck=what, timed_out=limit)

@@ -96,13 +96,13 @@ class _Exited:
     """A worker process as the parent sees it: already gone with ``code``, or alive until killed."""
 
     def __init__(self, code: int | None) -> None:
-        self.exitcode, self.killed = code, False
+        self.exitcode = code
 
     def is_alive(self) -> bool:
         return self.exitcode is None
 
     def kill(self) -> None:
-        self.killed, self.exitcode = True, -signal.SIGKILL
+        self.exitcode = -signal.SIGKILL
 
     def join(self, timeout: float | None = None) -> None:
         pass

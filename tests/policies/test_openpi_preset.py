@@ -14,6 +14,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from venvs import install, make_venv
 
 import rsb_maniskill  # noqa: E402,F401  (registers the envs)
 from rsb_maniskill.agents.aloha import to_aloha14  # noqa: E402
@@ -144,10 +145,7 @@ def _openpi_python() -> Path:
     check = [str(py), "-c", "import openpi_server, openpi_client.action_chunk_broker"]
     if py.exists() and subprocess.run(check, capture_output=True).returncode == 0:
         return py
-    subprocess.run([sys.executable, "-m", "venv", "--clear", str(VENV)], check=True)
-    res = subprocess.run([str(py), "-m", "pip", "install", "-q", *OPENPI], capture_output=True, text=True, timeout=900)
-    if res.returncode != 0:
-        pytest.fail(f"pip install {' '.join(OPENPI)} failed:\n{res.stderr[-3000:]}")
+    install(make_venv(VENV, sys.executable), *OPENPI, timeout=900)
     return py
 
 

@@ -14,17 +14,18 @@ from net_helpers import silent_proxy_server
 FIXTURE_DATA = Path(__file__).resolve().parent / "fixtures" / "semantic_data"
 
 
-# Seconds each of the longest test files took in one whole run (2 shared cores, `pytest --durations`).
+# Seconds each of the longest test files took in one whole `make test` run (2 cores, the sum of its
+# tests' setup, call and teardown).
 # `make test` hands whole files to its workers in collection order (xdist --dist loadfile
 # --no-loadscope-reorder): the long ones go first, so none starts last and runs alone at the end.
 # Only the order depends on these numbers; a file not listed keeps its place after them.
 LONGEST_FILES = {
-    "acceptance/test_faults.py": 848, "integrations/test_lerobot_env.py": 501, "commands/test_eval_cli.py": 430,
-    "audit/test_audit.py": 317, "baselines/test_diffusion_policy.py": 261, "export/test_dataset_build.py": 256,
-    "motionplan/test_generate.py": 226, "commands/test_bad_input.py": 170, "export/test_lerobot_export.py": 115,
-    "tasks/test_perturb.py": 97, "semantic/test_options.py": 85, "parallel/test_ray_executor.py": 77,
-    "acceptance/test_light_imports.py": 72, "tasks/test_tasks.py": 68, "motionplan/test_expert.py": 67,
-    "sim/test_render_engine.py": 61, "evaluation/test_counterfactual_physics.py": 58,
+    "export/test_dataset_build.py": 268, "acceptance/test_faults.py": 239, "audit/test_audit.py": 207,
+    "integrations/test_lerobot_env.py": 206, "commands/test_eval_cli.py": 201, "motionplan/test_generate.py": 168,
+    "commands/test_bad_input.py": 129, "export/test_lerobot_export.py": 127, "semantic/test_options.py": 98,
+    "tasks/test_perturb.py": 90, "parallel/test_ray_executor.py": 85, "baselines/test_diffusion_policy.py": 73,
+    "sim/test_render_engine.py": 73, "motionplan/test_expert.py": 70, "acceptance/test_light_imports.py": 52,
+    "tasks/test_tasks.py": 46, "vector/test_vector_env.py": 45, "reporting/test_html_report.py": 41,
 }
 
 

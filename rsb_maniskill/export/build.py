@@ -146,8 +146,13 @@ def _run(shards: list[tuple[Path, dict, int, Any]], num_procs: int, executor: An
         if not tasks:
             outcome = None
         elif isinstance(chosen, InProcess) and threading.current_thread() is threading.main_thread():
-            with InterruptGuard():  # SIGTERM stops a one-process build as Ctrl-C does
-                outcome = chosen.run(run_worker, tasks, bar)
+            with InterruptGuard() as guard:  # SIGTERM stops a one-process build as Ctrl-C does
+                try:
+                    outcome = chosen.run(run_worker, tasks, bar)
+                except Exception as err:  # native code's own error in place of the signal's
+                    if guard.signal_behind(err) is None:
+                        raise
+                    return [], True, bar
         else:  # ProcessPool and Ray handle SIGINT / SIGTERM themselves
             outcome = chosen.run(run_worker, tasks, bar)
     except KeyboardInterrupt:  # in this process (InProcess): the shard in flight was dropped whole

@@ -82,14 +82,15 @@ def run_worker(cfg: GenerateConfig, plan: WorkPlan, part_h5: str | Path, video_d
                            source_desc=SOURCE_DESC)
         try:
             _run_share(cfg, plan, env, expert_cls, guard, summary, meta, video_dir, report, resume, done)
-        except Interrupted as err:
+        except (Interrupted, Exception) as err:
             guard.disarm()
-            summary["interrupted"] = signal.Signals(err.signum).name
-        except Exception as err:
-            guard.disarm()
-            summary["error"] = f"worker {plan.worker}: {err}"
-            if not isinstance(err, RuntimeError):
-                summary["error"] += "\n" + traceback.format_exc()
+            signum = guard.signal_behind(err)
+            if signum is not None:
+                summary["interrupted"] = signal.Signals(signum).name
+            else:
+                summary["error"] = f"worker {plan.worker}: {err}"
+                if not isinstance(err, RuntimeError):
+                    summary["error"] += "\n" + traceback.format_exc()
         finally:
             guard.disarm()
             env.close()  # closes the scratch pair (the demos are saved already)

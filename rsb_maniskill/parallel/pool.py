@@ -101,6 +101,12 @@ class InterruptGuard:
                 return
             raise Interrupted(signum)
 
+    def signal_behind(self, err: BaseException) -> int | None:
+        """The signal ``err`` stands for: an :class:`Interrupted`'s, or one received before any other
+        exception. Native code may raise its own error in place of the one a signal handler raised
+        inside it: pybind11 (SAPIEN) turns it into "incompatible constructor arguments"."""
+        return err.signum if isinstance(err, Interrupted) else self.received
+
     def _cancel_resend(self) -> None:
         if self._resend is not None:
             self._resend.cancel()
@@ -359,10 +365,12 @@ def _worker_main(target: Target, task: Any, index: int, conn: Any, watch: Any, l
 
         try:
             outcome = TaskOutcome(index, result=target(task, emit))
-        except Interrupted as err:
-            outcome = TaskOutcome(index, interrupted=err.signum)
         except BaseException as err:  # noqa: BLE001  (reported to the parent, with the traceback)
-            outcome = TaskOutcome(index, error=f"{err!r}\n{traceback.format_exc()}")
+            signum = guard.signal_behind(err)
+            if signum is not None:
+                outcome = TaskOutcome(index, interrupted=signum)
+            else:
+                outcome = TaskOutcome(index, error=f"{err!r}\n{traceback.format_exc()}")
         guard.disarm()
         watch[0] = 0.0
         conn.send(("done", outcome))

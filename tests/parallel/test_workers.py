@@ -37,6 +37,17 @@ def die_hard(task, emit):
     return task
 
 
+def signal_turned_into_a_type_error(task, emit):
+    """What pybind11 did in SAPIEN's Pose(): the Interrupted its argument conversion met came out
+    as its own TypeError."""
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)
+    except Interrupted:
+        raise TypeError("__init__(): incompatible constructor arguments") from None
+    return "no signal"
+
+
 def cuda_visible_devices(task, emit):
     return os.environ.get("CUDA_VISIBLE_DEVICES")
 
@@ -159,6 +170,17 @@ def test_interrupt_guard_defers_signals_in_critical_blocks():
         os.kill(os.getpid(), signal.SIGTERM)  # only recorded: we are already shutting down
         time.sleep(0.05)
         assert guard.received == signal.SIGTERM
+
+
+def test_an_error_native_code_raised_in_place_of_a_signal_is_the_signal():
+    outcome = ProcessPool().run(signal_turned_into_a_type_error, ["t"], lambda m: None)
+    assert outcome.tasks[0].interrupted == signal.SIGTERM and outcome.tasks[0].error is None
+    with InterruptGuard() as guard:
+        assert guard.signal_behind(TypeError("x")) is None  # no signal: an error is an error
+        assert guard.signal_behind(Interrupted(signal.SIGINT)) == signal.SIGINT
+        with pytest.raises(TypeError):
+            signal_turned_into_a_type_error("t", None)
+        assert guard.signal_behind(TypeError("x")) == signal.SIGTERM
 
 
 class _SignalledWhileCollected:

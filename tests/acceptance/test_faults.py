@@ -104,6 +104,9 @@ def tree(root: Path) -> dict[str, bytes]:
 # ------------------------------------------------------------ policies that exit or hang
 
 
+# The limit a case runs under: one a normal call never reaches on a loaded machine where the policy
+# exits (it only catches a hang), and a short one where it hangs (every case waits it out).
+EXIT_LIMIT_S, HANG_LIMIT_S = 60, 3
 POLICY_CASES = [  # (policy args, extra flags, phrase of the one error line, records kept)
     (["-a", "how=sys.exit", "-a", "after=3"], [], "act called sys.exit(0)", 1),
     (["-a", "how=os._exit", "-a", "after=3"], [], "act ended the worker process (exit code 3)", 1),
@@ -111,9 +114,9 @@ POLICY_CASES = [  # (policy args, extra flags, phrase of the one error line, rec
     (["-a", "how=os._exit", "-a", "where=reset"], ["--num-procs", "2"], "reset ended the worker process", 0),
 ]
 HANG_CASES = [
-    (["-a", "how=c", "-a", "after=3"], [], "act did not return within 2 s", 1),  # blocked in native code
-    (["-a", "where=factory"], [], "building it did not return within 2 s", 0),
-    (["-a", "where=act"], ["--num-procs", "2"], "act did not return within 2 s", 0),
+    (["-a", "how=c", "-a", "after=3"], [], f"act did not return within {HANG_LIMIT_S} s", 1),  # blocked in native code
+    (["-a", "where=factory"], [], f"building it did not return within {HANG_LIMIT_S} s", 0),
+    (["-a", "where=act"], ["--num-procs", "2"], f"act did not return within {HANG_LIMIT_S} s", 0),
 ]
 
 
@@ -126,8 +129,9 @@ def test_a_policy_that_exits_or_hangs_is_a_policy_error(policy, kwargs, flags, p
     on the default one-worker path and with workers: one line naming the policy call, exit 1, the
     finished episodes kept (act fails in the second episode: 3 one-step chunks a 3-step episode)."""
     out = tmp_path / "r"
+    limit = HANG_LIMIT_S if policy.endswith("hangs") else EXIT_LIMIT_S
     t0 = time.monotonic()
-    res = rsb("eval", policy, *kwargs, *EVAL, "-n", "2", "--max-steps", "3", "--policy-timeout", "2", *flags,
+    res = rsb("eval", policy, *kwargs, *EVAL, "-n", "2", "--max-steps", "3", "--policy-timeout", str(limit), *flags,
               "--out", str(out))
     assert res.returncode == 1, res.stderr[-3000:]
     errors = error_lines(res.stderr)

@@ -102,9 +102,12 @@ CERT=$($PIP config list 2>/dev/null | sed -n "s/^[^=]*\.cert='\(.*\)'$/\1/p" | h
 [ -n "$CERT" ] && [ -z "${SSL_CERT_FILE:-}" ] && export SSL_CERT_FILE=$CERT  # pip's CA bundle, for uv
 
 install() {
-  # uv installs in parallel: the project's pins take about 10 s where pip takes 70 s on a fresh
+  # uv installs in parallel: the project's pins take about 30 s where pip takes 70 s on a fresh
   # machine. Pip does it where uv cannot (no uv for this platform, an index setting uv lacks).
-  if [ -x "$VENV/bin/uv" ] && "$VENV/bin/uv" pip install -q --python "$VENV/bin/python" "${UV_FLAGS[@]}" "$@"; then
+  # --compile-bytecode, as pip does: where PYTHONDONTWRITEBYTECODE is set (CI's often is), every
+  # process would otherwise compile torch's and SAPIEN's Python anew (3 s more per import).
+  if [ -x "$VENV/bin/uv" ] && "$VENV/bin/uv" pip install -q --compile-bytecode --python "$VENV/bin/python" \
+       "${UV_FLAGS[@]}" "$@"; then
     return 0
   fi
   echo "setup: uv could not install $*; pip does (slower)" >&2

@@ -70,7 +70,7 @@ def test_install_uses_uv_with_the_flags_and_pip_where_uv_fails(tmp_path):
     res = bash(f"export UV_WORKS=1\n{script}")
     assert res.returncode == 0 and res.stderr == "", res.stderr
     assert log.read_text().splitlines() == [
-        f"uv pip install -q --python {venv}/bin/python --find-links=/wheels -e .[dev]"]
+        f"uv pip install -q --compile-bytecode --python {venv}/bin/python --find-links=/wheels -e .[dev]"]
 
     log.unlink()
     res = bash(f"export UV_WORKS=0\n{script}")

@@ -10,11 +10,13 @@ setup:
 demo: setup
 	$(VENV)/bin/rsb demo
 
-# Test files run in parallel (pytest-xdist), a worker a core, at most 4: each worker holds torch,
-# SAPIEN and a renderer, and memory runs out before cores do. A file's tests stay in one worker
+# Test files run in parallel (pytest-xdist), a worker a core plus one, at most 4: each worker holds
+# torch, SAPIEN and a renderer, and memory runs out before cores do. The extra worker fills the
+# time tests wait on the processes they start (signals, limits, venv builds): on 2 cores the suite
+# took 1,224 s with 3 workers, 1,370 s with 2 (peak 6 GB). A file's tests stay in one worker
 # (loadfile: module fixtures are built once), the longest files first (tests/conftest.py; xdist's
 # own reorder, by test count, would start the long few-test files last). JOBS=0: one process.
-JOBS ?= auto
+JOBS ?= $(shell python3 -c "import os; print(len(os.sched_getaffinity(0)) + 1)" 2>/dev/null || echo auto)
 XDIST := -n $(JOBS) --maxprocesses 4 --dist loadfile --no-loadscope-reorder
 
 test: setup

@@ -61,12 +61,12 @@ install_chromium() {
 
 uv_flags_from_pip() {
   # uv reads no pip.conf: pass on pip's own index settings (its config files and PIP_* variables,
-  # as `pip config list` shows them), so a lab's private index or wheel mirror serves uv as it
-  # serves pip. unsafe-best-match: like pip, the newest release any index has (uv's default takes
-  # a package from the first index that lists it).
+  # as `pip config list` shows them, in $PIP_CONFIG), so a lab's private index or wheel mirror
+  # serves uv as it serves pip. unsafe-best-match: like pip, the newest release any index has
+  # (uv's default takes a package from the first index that lists it).
   echo "--index-strategy=unsafe-best-match"
   local line key value v
-  $PIP config list 2>/dev/null | while IFS= read -r line; do
+  printf '%s\n' "$PIP_CONFIG" | while IFS= read -r line; do
     key=${line%%=*}; key=${key#*.}; value=${line#*=}; value=${value#\'}; value=${value%\'}
     case $key in
       index-url) echo "--index-url=$value" ;;
@@ -97,8 +97,9 @@ fi
 PIP="$VENV/bin/python -m pip"
 $PIP install -q --upgrade pip >/dev/null
 $PIP install -q uv 2>/dev/null || true  # optional: install() falls back to pip
+PIP_CONFIG=$($PIP config list 2>/dev/null || true)
 mapfile -t UV_FLAGS < <(uv_flags_from_pip)
-CERT=$($PIP config list 2>/dev/null | sed -n "s/^[^=]*\.cert='\(.*\)'$/\1/p" | head -n 1)
+CERT=$(printf '%s\n' "$PIP_CONFIG" | sed -n "s/^[^=]*\.cert='\(.*\)'$/\1/p" | head -n 1)
 [ -n "$CERT" ] && [ -z "${SSL_CERT_FILE:-}" ] && export SSL_CERT_FILE=$CERT  # pip's CA bundle, for uv
 
 install() {

@@ -39,8 +39,7 @@ def test_pips_index_settings_reach_uv(tmp_path):
         "global.cert='/etc/ssl/certs/ca.crt'\n"
         ":env:.find-links='/opt/wheels'\n"
         ":env:.default-timeout='180'\n")
-    pip = fake(tmp_path / "pip", f'[ "$1 $2" = "config list" ] && cat {config}\n')
-    res = bash(f"PIP={pip}\n{function('uv_flags_from_pip')}uv_flags_from_pip")
+    res = bash(f"PIP_CONFIG=$(cat {config})\n{function('uv_flags_from_pip')}uv_flags_from_pip")
     assert res.returncode == 0, res.stderr
     assert res.stdout.splitlines() == [
         "--index-strategy=unsafe-best-match",  # pip's choice: the newest release on any index
@@ -54,8 +53,7 @@ def test_pips_index_settings_reach_uv(tmp_path):
 def test_no_index_reaches_uv(tmp_path):
     config = tmp_path / "config.txt"
     config.write_text(":env:.no-index='1'\n:env:.find-links='/wheels'\n")
-    pip = fake(tmp_path / "pip", f"cat {config}\n")
-    res = bash(f"PIP={pip}\n{function('uv_flags_from_pip')}uv_flags_from_pip")
+    res = bash(f"PIP_CONFIG=$(cat {config})\n{function('uv_flags_from_pip')}uv_flags_from_pip")
     assert res.stdout.split() == ["--index-strategy=unsafe-best-match", "--no-index", "--find-links=/wheels"]
 
 

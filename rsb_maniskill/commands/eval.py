@@ -106,6 +106,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "process, which is killed when a call outlasts it")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     add_worker_args(p)  # --num-procs auto|N, --executor, --address
+    p.add_argument("--policy-process", choices=("auto", "shared", "worker"), default="auto",
+                   help="shared: the policy built once, in a server process of its own that answers every worker's "
+                        "envs in one batched call (rsb serve over loopback); worker: one policy per worker; auto "
+                        "(default): shared for a policy that declares a model (heavy) with several workers, printed "
+                        "with why")
     p.set_defaults(func=run_eval)
 
 
@@ -195,16 +200,16 @@ def run_eval(args: argparse.Namespace) -> int:
 
 def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kwargs: dict, obs_mode: str,
               max_steps: int, env_kwargs: dict, out: Path, records_path: Path, num_procs: int,
-              executor: Any, perturbs: list[dict[str, int]], stamp: dict[str, str]) -> None:
+              executor: Any, perturbs: list[dict[str, int]], stamp: dict[str, str], policy: str | None = None) -> None:
     """Every suite x instruction mode x perturbation, one after the other; ``stamp``: the settings id
-    each record carries."""
+    each record carries; ``policy``, ``policy_kwargs``: what the workers build (the shared server's client)."""
     from rsb_maniskill.evaluation.jobs import EvalJob, run_job
     from rsb_maniskill.evaluation.protocol import COUNTERFACTUAL, eval_seed_range
 
     for suite in suites:
         for mode, perturb in ((m, p) for m in args.instruction for p in perturbs):
             job = EvalJob(perturb=perturb or None,
-                suite_id=suite, seeds=eval_seed_range(suite, args.num_episodes), policy=args.policy,
+                suite_id=suite, seeds=eval_seed_range(suite, args.num_episodes), policy=policy or args.policy,
                 label=label, policy_kwargs=policy_kwargs, instruction_mode=mode, obs_mode=obs_mode,
                 variants=args.variants if mode == COUNTERFACTUAL else None,
                 control_mode=args.control_mode, num_envs=args.num_envs, sim_backend=args.sim_backend,
@@ -213,6 +218,24 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
                 num_videos=args.videos, policy_timeout=args.policy_timeout or None)
             run_job(job, records_path, num_procs=num_procs, progress=not args.quiet, executor=executor, isolate=True,
                     stamp=stamp)
+
+
+def _shared_server(args: argparse.Namespace, stack: contextlib.ExitStack, num_procs: int, policy_kwargs: dict) -> Any:
+    """``--policy-process``: the shared policy server (started on ``stack``, stopped with it), or None when
+    each worker builds its own policy; the choice is printed with why."""
+    from rsb_maniskill.policies.remote.shared import SharedServer, choose
+
+    try:
+        choice, why = choose(args.policy_process, args.policy, num_procs, local=args.executor == "local")
+    except ValueError as err:
+        raise EvalError(str(err)) from None
+    if (args.policy_process == "auto" and num_procs > 1) or choice == "shared":
+        where = "one server process for every worker" if choice == "shared" else "one per worker"
+        print(f"rsb eval: policy process: {choice} ({where}): {why}", file=sys.stderr)
+    if choice != "shared":
+        return None
+    return stack.enter_context(SharedServer(args.policy, policy_kwargs, start_timeout=args.policy_timeout or None,
+                                            request_timeout=args.policy_timeout or None))
 
 
 def _print_counterfactual(records: list[dict]) -> None:
@@ -318,14 +341,19 @@ def _run_eval(args: argparse.Namespace) -> int:
         executor, num_procs = resolve_workers(args.num_procs, executor, obs_mode_renders(obs_mode) or args.videos > 0,
                                               num_envs=args.num_envs, episodes=args.num_episodes,
                                               gpu_physics=gpu_physics)
+        server = None
         try:
-            _run_jobs(args, suites, label, policy_kwargs, obs_mode, max_steps, env_kwargs, out, records_path,
-                      num_procs, executor, perturbs, {SETTINGS_FIELD: settings_id(settings, MANIFEST_KEYS)})
+            server = _shared_server(args, stack, num_procs, policy_kwargs)  # --policy-process
+            _run_jobs(args, suites, label, server.client_kwargs() if server else policy_kwargs, obs_mode, max_steps,
+                      env_kwargs, out, records_path, num_procs, executor, perturbs,
+                      {SETTINGS_FIELD: settings_id(settings, MANIFEST_KEYS)}, policy="remote" if server else None)
         except KeyboardInterrupt:
             interrupted = True
-        except (PolicyError, JobError):
+        except (PolicyError, JobError) as err:
             start.undo(label)
-            raise
+            if server is not None:
+                server.check()  # a dead server is the cause: said in one line
+            raise err
 
     from rsb_maniskill.evaluation.records import perturb_label as record_perturb
     from rsb_maniskill.perturb import label as perturb_label

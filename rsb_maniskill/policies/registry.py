@@ -25,6 +25,7 @@ class PolicySpec:
     needs_env: bool = False
     single_env: bool = False  # reads the simulator of env 0: one env at a time, never parallel envs
     obs_mode: str = "rgb"  # the observations it reads by default
+    heavy: bool = False  # loads a model (a checkpoint, a GPU): `rsb eval --policy-process auto` serves it once
 
 
 # The one table of built-in names. Privileged baselines are built with the env and drive one env;
@@ -44,11 +45,20 @@ _USER_SPEC = PolicySpec("")  # what a "package.module:factory" spec is: no env, 
 
 
 def register_policy(name: str, factory: str | Callable[..., Any], *, needs_env: bool = False,
-                    single_env: bool = False, obs_mode: str = "rgb") -> None:
+                    single_env: bool = False, obs_mode: str = "rgb", heavy: bool = False) -> None:
     """Make ``load_policy(name)`` use ``factory``; names hold no ':' so they never clash with specs."""
     if ":" in name:
         raise ValueError(f"built-in policy names cannot contain ':', got {name!r}")
-    POLICIES[name] = PolicySpec(factory, needs_env, single_env, obs_mode)
+    POLICIES[name] = PolicySpec(factory, needs_env, single_env, obs_mode, heavy)
+
+
+def is_heavy(spec: str) -> bool:
+    """Whether a policy declares that it loads a model worth loading once for every worker: its
+    table entry's ``heavy``, or for ``package.module:factory`` the factory's own ``heavy = True``
+    attribute (imports the factory's module)."""
+    if spec in POLICIES:
+        return POLICIES[spec].heavy
+    return bool(getattr(resolve_factory(spec), "heavy", False))
 
 
 def builtin_policies() -> tuple[str, ...]:

@@ -214,12 +214,16 @@ def test_batch_false_sends_one_request_per_env():
     assert policy.calls > len(env.actions) / 3
 
 
-def test_batched_request_to_a_single_env_policy_says_what_to_do():
-    with PolicyServer(EchoPolicy(), host="127.0.0.1", port=0) as server:
+def test_batched_request_to_a_single_env_policy_is_served_one_row_at_a_time():
+    policy = EchoPolicy()
+    with PolicyServer(policy, host="127.0.0.1", port=0) as server:
         with RemotePolicy("127.0.0.1", server.port, connect_timeout=10, request_timeout=10) as client:
             client.reset_batch(["a", "b"], {})
-            with pytest.raises(RuntimeError, match="batch=False"):
-                client.act_batch({"agent": {"qpos": np.zeros((2, 14), np.float32)}}, [0, 1])
+            chunks = client.act_batch({"agent": {"qpos": np.zeros((2, 14), np.float32)}}, [0, 1])
+    assert [c.shape for c in chunks] == [(T, D), (T, D)]
+    # row 0 drives the object itself; row 1 a copy with its own episode state (its reset is its own)
+    assert policy.resets == ["a"] and policy.calls == 1 and policy.seen[0]["agent"]["qpos"].shape == (14,)
+    assert server.batcher.sizes == {2: 1}  # both rows in one batch
 
 
 def test_batched_requests_to_a_server_in_another_process(tmp_path):

@@ -15,3 +15,6 @@ def make_policy(checkpoint: str, **kwargs):
     from rsb_maniskill.baselines.diffusion_policy.policy import make_policy as _make
 
     return _make(checkpoint, **kwargs)
+
+
+make_policy.heavy = True  # a loaded checkpoint: `rsb eval --policy-process auto` loads it once for every worker

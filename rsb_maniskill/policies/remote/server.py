@@ -1,17 +1,28 @@
-"""A minimal openpi-compatible websocket policy server.
+"""An openpi-compatible websocket policy server that batches: one model for every client.
 
-Serves either an openpi-style object (``infer(obs: dict) -> dict`` with ``"actions"``) or an RSB
-:class:`~rsb_maniskill.policies.interface.Policy` (``reset``/``act``), the latter through
-:class:`PolicyAdapter`. Same wire protocol as openpi's ``WebsocketPolicyServer`` (see
-``wire.py``), so openpi's client can talk to it and :class:`RemotePolicy` can talk to openpi.
+Serves an RSB :class:`~rsb_maniskill.policies.interface.Policy` (``reset``/``act``, and the batched
+form ``reset_batch``/``act_batch``), an openpi-style object (``infer(obs: dict) -> dict`` with
+``"actions"``) or a backbone (``answer``). Same wire protocol as openpi's ``WebsocketPolicyServer``
+(see ``wire.py``), so openpi's client, :class:`RemotePolicy` and the vla-eval adapter talk to it.
 
-Run one from the shell: ``python -m rsb_maniskill.policies.remote.server pkg.mod:make_policy --port 8000``.
+An RSB policy is served by a :class:`~rsb_maniskill.policies.remote.batching.Batcher`: the
+requests of every connection are gathered for at most ``max_wait_ms`` or ``max_batch`` rows (envs)
+and answered by one ``act_batch`` over all their rows (a single-env policy: one row at a time);
+``batching=False`` is the server of before (one request at a time under one lock), kept as the
+benchmark's reference. ``infer`` and ``answer`` objects are served one request at a time.
+
+Run one from the shell: ``rsb serve pkg.mod:make_policy --port 8000`` (or
+``python -m rsb_maniskill.policies.remote.server pkg.mod:make_policy --port 8000``).
 """
 from __future__ import annotations
 
 import argparse
 import http
+import json
 import logging
+import os
+import signal
+import sys
 import threading
 import time
 import traceback
@@ -20,11 +31,14 @@ from typing import Any
 import numpy as np
 
 from rsb_maniskill.policies.interface import as_chunk, as_chunks, is_batched, split_output, split_outputs
-from rsb_maniskill.policies.registry import load_policy
+from rsb_maniskill.policies.registry import load_policy, policy_spec
+from rsb_maniskill.policies.remote.batching import DEFAULT_MAX_BATCH, DEFAULT_MAX_WAIT_MS, Batcher, Request
 from rsb_maniskill.policies.remote.openpi import PRESETS, make_preset
 from rsb_maniskill.policies.remote.wire import INSTALL_HINT, packb, unflatten_obs, unpackb
 
 logger = logging.getLogger(__name__)
+READY = "rsb serve: listening on"  # the line a parent process reads the port from (stdout)
+PARENT_POLL_S = 1.0  # --parent-pid: how often the server checks that its parent still lives
 
 
 class PolicyAdapter:
@@ -100,11 +114,19 @@ def _health_check(connection: Any, request: Any) -> Any:
     return None
 
 
+def _with_row_dim(obs: Any) -> Any:
+    if isinstance(obs, dict):
+        return {k: _with_row_dim(v) for k, v in obs.items()}
+    return np.asarray(obs)[None]
+
+
 class PolicyServer:
     """Serve ``policy`` over websocket; ``port=0`` picks a free port (read it from ``.port``).
 
     ``start()`` serves from a background thread (tests, notebooks); ``serve_forever()`` blocks.
-    Requests are handled one at a time, as one policy object holds one episode's state.
+    An RSB policy's requests are batched across connections (``max_batch`` rows, ``max_wait_ms``;
+    ``batching=False``: one request at a time, the server of before); ``.batcher.sizes`` counts
+    the rows of each policy call.
     """
 
     def __init__(
@@ -116,6 +138,9 @@ class PolicyServer:
         prompt_key: str = "prompt",
         obs_prefix: str = "observation",
         preset: Any = None,
+        max_batch: int = DEFAULT_MAX_BATCH,
+        max_wait_ms: float = DEFAULT_MAX_WAIT_MS,
+        batching: bool = True,
     ) -> None:
         try:
             from websockets.sync.server import serve
@@ -128,11 +153,21 @@ class PolicyServer:
         self.preset = preset
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
+        rsb_policy = is_batched(policy) or all(callable(getattr(policy, m, None)) for m in ("reset", "act"))
+        openpi_style = preset is None and callable(getattr(policy, "infer", None))
+        self.batcher = Batcher(policy, max_batch, max_wait_ms) if batching and rsb_policy and not openpi_style \
+            else None
         self._server = serve(
             self._handle, host, port, compression=None, max_size=None, process_request=_health_check
         )
         self.host = host
         self.port = int(self._server.socket.getsockname()[1])
+
+    def describe(self) -> str:
+        """How requests are answered (said once at start)."""
+        if self.batcher is not None:
+            return self.batcher.describe()
+        return f"{type(self.policy).__name__}: one request at a time"
 
     def _infer_fn(self) -> Any:
         if self.preset is None and callable(getattr(self.policy, "infer", None)):
@@ -142,30 +177,65 @@ class PolicyServer:
         # One adapter per connection: a new client starts a new episode.
         return PolicyAdapter(self.policy, self.prompt_key, self.obs_prefix, self.preset).infer
 
+    # ------------------------------------------------------------ batched serving
+    def _obs(self, request: dict) -> Any:
+        if self.obs_prefix in request:  # a flat "state" observation: the array itself
+            return request[self.obs_prefix]
+        return unflatten_obs(request, self.obs_prefix)
+
+    def _request(self, conn: int, request: dict) -> tuple[Request, bool]:
+        """A decoded request (its rows) and whether it was a single-env one."""
+        request = dict(request)
+        prompt = request.pop(self.prompt_key, "")
+        start = bool(request.pop("episode_start", False))
+        if isinstance(prompt, list):
+            if self.preset:
+                raise TypeError("the openpi-aloha preset takes one observation per request, not a batch")
+            envs = [int(e) for e in request.pop("env_ids", range(len(prompt)))]
+            return Request(conn, envs, [str(p) for p in prompt], start, self._obs(request)), False
+        obs = self.preset.obs_from_request(request) if self.preset else self._obs(request)
+        return Request(conn, [0], [str(prompt)], start, _with_row_dim(obs)), True
+
+    def _batched_reply(self, conn: int, request: dict) -> dict:
+        assert self.batcher is not None
+        rows, single = self._request(conn, request)
+        chunks, texts = self.batcher.submit(rows)
+        if single:
+            reply = {"actions": self.preset.aloha_actions(chunks[0]) if self.preset else chunks[0]}
+            return reply if texts[0] is None else {**reply, "text": texts[0]}
+        reply = {"actions": np.stack(chunks)}
+        return reply if all(t is None for t in texts) else {**reply, "text": texts}
+
     def _handle(self, ws: Any) -> None:
         from websockets.exceptions import ConnectionClosed
 
-        infer = self._infer_fn()
-        ws.send(packb(self.metadata))
-        while True:
-            try:
+        conn = self.batcher.open() if self.batcher is not None else -1
+        infer = self._infer_fn() if self.batcher is None else None
+        try:
+            ws.send(packb(self.metadata))
+            while True:
                 request = unpackb(ws.recv())
                 t0 = time.monotonic()
-                with self._lock:
-                    reply = dict(infer(request))
+                if infer is None:
+                    reply = self._batched_reply(conn, request)
+                else:
+                    with self._lock:
+                        reply = dict(infer(request))
                 reply["server_timing"] = {"infer_ms": 1000.0 * (time.monotonic() - t0)}
                 ws.send(packb(reply))
+        except ConnectionClosed:
+            return
+        except Exception:
+            # Like openpi: the traceback as a text frame, then close with 1011 (internal error).
+            logger.exception("policy server: request failed")
+            try:
+                ws.send(traceback.format_exc())
+                ws.close(code=1011, reason="Internal server error. Traceback included in previous frame.")
             except ConnectionClosed:
-                return
-            except Exception:
-                # Like openpi: the traceback as a text frame, then close with 1011 (internal error).
-                logger.exception("policy server: request failed")
-                try:
-                    ws.send(traceback.format_exc())
-                    ws.close(code=1011, reason="Internal server error. Traceback included in previous frame.")
-                except ConnectionClosed:
-                    pass
-                return
+                pass
+        finally:
+            if self.batcher is not None:
+                self.batcher.close(conn)  # its rows' slots are free again
 
     def serve_forever(self) -> None:
         self._server.serve_forever()
@@ -179,6 +249,8 @@ class PolicyServer:
         self._server.shutdown()
         if self._thread is not None:
             self._thread.join(timeout=10)
+        if self.batcher is not None:
+            self.batcher.stop()
 
     def __enter__(self) -> "PolicyServer":
         return self.start()
@@ -188,40 +260,121 @@ class PolicyServer:
 
 
 def serve_policy(policy: Any, host: str = "0.0.0.0", port: int = 8000, metadata: dict | None = None,
-                 preset: Any = None) -> None:
-    """Serve ``policy`` until interrupted (blocks)."""
-    server = PolicyServer(policy, host, port, metadata, preset=preset)
+                 preset: Any = None, max_batch: int = DEFAULT_MAX_BATCH, max_wait_ms: float = DEFAULT_MAX_WAIT_MS,
+                 batching: bool = True, parent_pid: int | None = None) -> None:
+    """Serve ``policy`` until interrupted (Ctrl-C, SIGTERM, or ``parent_pid`` gone); blocks. Says how it
+    serves once at start, prints the ready line (:data:`READY`) on stdout and the formed batch sizes at the end."""
+    server = PolicyServer(policy, host, port, metadata, preset=preset, max_batch=max_batch, max_wait_ms=max_wait_ms,
+                          batching=batching)
+    print(f"rsb serve: {server.describe()}", file=sys.stderr, flush=True)
     logger.info("serving %s on ws://%s:%d", type(policy).__name__, host, server.port)
+    print(f"{READY} ws://{host}:{server.port}", flush=True)
+    if parent_pid:
+        threading.Thread(target=_watch_parent, args=(parent_pid, server), name="rsb-parent-watch",
+                         daemon=True).start()
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt) \
+        if threading.current_thread() is threading.main_thread() else None
     try:
         server.serve_forever()
     except KeyboardInterrupt:
         pass
     finally:
         server.shutdown()
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+        if server.batcher is not None:
+            print(f"rsb serve: batches formed: {server.batcher.summary()}", file=sys.stderr, flush=True)
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description="Serve an RSB policy or backbone (module:factory) over openpi's "
-                                            "websocket protocol")
-    p.add_argument("policy", help="'package.module:factory' returning an object with reset/act (or infer), or a "
-                                  "backbone with answer(instruction, images)")
-    p.add_argument("--host", default="0.0.0.0")
-    p.add_argument("--port", type=int, default=8000)
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def _watch_parent(pid: int, server: PolicyServer) -> None:
+    """Stop serving when the process that started this server is gone (a server never outlives its run)."""
+    while True:
+        time.sleep(PARENT_POLL_S)
+        if os.getppid() != pid:
+            server._server.shutdown()
+            return
+
+
+def _policy_args(items: list[str]) -> dict[str, Any]:
+    """``-a KEY=VALUE`` items (VALUE as JSON, else a string), as ``rsb eval`` reads them."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"-a {item!r} must look like KEY=VALUE")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def add_serve_args(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rsb serve`` (and ``python -m rsb_maniskill.policies.remote.server``)."""
+    p.add_argument("policy", help="built-in name or 'package.module:factory' returning an object with reset/act "
+                                  "(and reset_batch/act_batch to batch), or infer, or a backbone's answer")
+    p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="keyword argument of the policy factory (VALUE parsed as JSON, else a string); repeatable")
+    p.add_argument("--host", default="0.0.0.0", help="interface to listen on (default 0.0.0.0; 127.0.0.1: this "
+                                                     "machine only)")
+    p.add_argument("--port", type=int, default=8000, help="port (default 8000; 0: a free one, printed)")
+    p.add_argument("--max-batch", type=int, default=DEFAULT_MAX_BATCH, metavar="B",
+                   help=f"rows (envs) one policy call answers at most (default {DEFAULT_MAX_BATCH})")
+    p.add_argument("--max-wait-ms", type=float, default=DEFAULT_MAX_WAIT_MS, metavar="T",
+                   help="how long a request waits for others to join its batch, unless every client is in "
+                        f"(default {DEFAULT_MAX_WAIT_MS:g})")
+    p.add_argument("--serial", action="store_true",
+                   help="no batching: one request at a time (the server of before; a reference for benchmarks)")
     p.add_argument("--preset", choices=sorted(PRESETS), default=None,
                    help="requests and replies in this layout (openpi-aloha: openpi's Aloha keys, state and actions)")
-    args = p.parse_args(argv)
-    logging.basicConfig(level=logging.INFO)
-    policy = load_policy(args.policy, check=False)
+    p.add_argument("--parent-pid", type=int, default=None, help=argparse.SUPPRESS)
+
+
+def run_server(args: argparse.Namespace) -> int:
+    """Build the policy of ``args`` once and serve it; usage errors raise ValueError (one line)."""
+    if args.max_batch < 1:
+        raise ValueError(f"--max-batch must be >= 1 rows, got {args.max_batch}")
+    if not args.max_wait_ms >= 0:
+        raise ValueError(f"--max-wait-ms must be >= 0, got {args.max_wait_ms}")
+    kwargs = _policy_args(args.policy_arg)
+    from rsb_maniskill.plugins import load_plugins
+
+    load_plugins()  # a plugin's register_policy names, as `rsb eval` knows them
+    if policy_spec(args.policy).needs_env:
+        raise ValueError(f"policy {args.policy!r} is built with the env (it reads the simulator): it cannot be "
+                         "served; run it with rsb eval")
+    policy = load_policy(args.policy, check=False, **kwargs)
     has_act = all(callable(getattr(policy, m, None)) for m in ("reset", "act"))
     built = f"{args.policy} built a {type(policy).__name__}"
     if args.preset and not has_act:
-        p.error(f"{built}, which has no reset()/act(): --preset adapts requests and replies for those")
+        raise ValueError(f"{built}, which has no reset()/act(): --preset adapts requests and replies for those")
     if not has_act and not is_batched(policy) and not any(callable(getattr(policy, m, None))
                                                           for m in ("infer", "answer")):
-        p.error(f"{built}, which has neither infer() nor reset()/act() (nor reset_batch()/act_batch(), "
-                "nor answer())")
-    serve_policy(policy, args.host, args.port, preset=make_preset(args.preset) if args.preset else None)
+        raise ValueError(f"{built}, which has neither infer() nor reset()/act() (nor reset_batch()/act_batch(), "
+                         "nor answer())")
+    serve_policy(policy, args.host, args.port, preset=make_preset(args.preset) if args.preset else None,
+                 max_batch=args.max_batch, max_wait_ms=args.max_wait_ms, batching=not args.serial,
+                 parent_pid=args.parent_pid)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m rsb_maniskill.policies.remote.server",
+                                description="Serve an RSB policy or backbone over openpi's websocket protocol, "
+                                            "batching the requests of every client (as `rsb serve`)")
+    add_serve_args(p)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO)
+    try:
+        return run_server(args)
+    except ValueError as err:
+        p.error(str(err))
+    except KeyboardInterrupt:  # Ctrl-C while the policy loads
+        return 130
 
 
 if __name__ == "__main__":

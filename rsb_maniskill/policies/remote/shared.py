@@ -1,0 +1,136 @@
+"""``rsb eval --policy-process shared``: one policy server process for every worker.
+
+The policy is built once, in a server process of its own (``server.py``, batching); each worker
+builds the ``remote`` policy pointed at it over loopback instead of its own copy. The server stops
+with the run (and by itself if the run dies: ``--parent-pid``); a worker that dies only frees its
+rows. ``auto`` shares a policy that declares itself heavy (``registry.is_heavy``: a checkpoint or
+a GPU model) when there is more than one worker, and keeps the reference policies in the workers.
+"""
+from __future__ import annotations
+
+import json
+import os
+import queue
+import subprocess
+import sys
+import threading
+from typing import Any, Callable, Mapping
+
+from rsb_maniskill.policies.errors import PolicyError
+from rsb_maniskill.policies.registry import is_heavy, policy_spec
+from rsb_maniskill.policies.remote.batching import DEFAULT_MAX_BATCH, DEFAULT_MAX_WAIT_MS
+
+POLICY_PROCESSES = ("auto", "shared", "worker")
+LOOPBACK = "127.0.0.1"
+STOP_WAIT_S = 10.0
+CHECK_WAIT_S = 2.0  # after workers failed: how long the server may take to be seen gone  # how long a stopped server may take to print its batch sizes before it is killed
+
+
+def choose(mode: str, spec: str, num_procs: int, local: bool = True) -> tuple[str, str]:
+    """``(shared | worker, why)`` for ``--policy-process mode``; ValueError (one line) for a policy
+    ``shared`` cannot serve."""
+    if mode not in POLICY_PROCESSES:
+        raise ValueError(f"--policy-process must be one of {', '.join(POLICY_PROCESSES)}, got {mode!r}")
+    if mode == "worker":
+        return "worker", "--policy-process worker"
+    reads_sim = policy_spec(spec).needs_env
+    if mode == "shared":
+        if reads_sim:
+            raise ValueError(f"--policy-process shared: policy {spec!r} is built with each worker's env (it reads "
+                             "the simulator), so it cannot be served; use --policy-process worker")
+        if not local:
+            raise ValueError("--policy-process shared serves the policy over loopback to local workers; with "
+                             "--executor ray use --policy-process worker (or serve it yourself: rsb serve, then "
+                             "rsb eval remote)")
+        return "shared", "--policy-process shared"
+    if reads_sim:
+        return "worker", f"{spec} is built with each worker's env"
+    if not local:
+        return "worker", "Ray workers are not on this machine's loopback"
+    if not is_heavy(spec):
+        return "worker", f"{spec} declares no model to share (heavy)"
+    if num_procs <= 1:
+        return "worker", "one worker: one copy either way"
+    return "shared", f"{spec} declares a model (heavy): loaded once for the {num_procs} workers"
+
+
+class SharedServer:
+    """A policy server process on a free loopback port; ``client_kwargs`` are the ``remote`` policy's
+    arguments that reach it. A context manager: stopped (SIGTERM, then killed) on exit."""
+
+    def __init__(self, spec: str, policy_kwargs: Mapping[str, Any], *, max_batch: int = DEFAULT_MAX_BATCH,
+                 max_wait_ms: float = DEFAULT_MAX_WAIT_MS, start_timeout: float | None = None,
+                 request_timeout: float | None = None, log: Callable[[str], None] | None = None) -> None:
+        self.spec = spec
+        self.request_timeout = request_timeout
+        self.log = log or (lambda line: print(line, file=sys.stderr, flush=True))
+        cmd = [sys.executable, "-m", "rsb_maniskill.policies.remote.server", spec, "--host", LOOPBACK, "--port", "0",
+               "--max-batch", str(max_batch), "--max-wait-ms", str(max_wait_ms), "--parent-pid", str(os.getpid())]
+        for key, value in policy_kwargs.items():
+            cmd += ["-a", f"{key}={json.dumps(value)}"]
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))  # the specs this run resolves
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, env=env, text=True)
+        self.port = self._read_port(start_timeout)
+
+    def _read_port(self, timeout: float | None) -> int:
+        from rsb_maniskill.policies.remote.server import READY
+
+        lines: queue.Queue[str | None] = queue.Queue()
+
+        def pump() -> None:  # the server's stdout: its ready line, then whatever it prints
+            assert self.proc.stdout is not None
+            for line in self.proc.stdout:
+                lines.put(line)
+            lines.put(None)
+
+        threading.Thread(target=pump, name="rsb-shared-server-stdout", daemon=True).start()
+        while True:
+            try:
+                line = lines.get(timeout=timeout)
+            except queue.Empty:
+                self.stop()
+                raise PolicyError(f"the shared policy server built no policy within {timeout:g} s "
+                                  "(--policy-timeout)", policy=self.spec) from None
+            if line is None:
+                code = self.proc.wait()
+                raise PolicyError(f"the shared policy server exited (code {code}) before serving: its error is "
+                                  "above", policy=self.spec)
+            if line.startswith(READY):
+                return int(line.rsplit(":", 1)[1])
+            print(line, end="")  # the policy's own prints while it loads
+
+    def client_kwargs(self) -> dict[str, Any]:
+        """The ``remote`` policy's arguments: this server, episode starts marked (rows reset on them)."""
+        return {"host": LOOPBACK, "port": self.port, "mark_episode_start": True, "connect_timeout": 60.0,
+                "request_timeout": self.request_timeout}
+
+    def dead(self) -> str | None:
+        """None while serving; else one line saying it stopped."""
+        code = self.proc.poll()
+        return None if code is None else f"the shared policy server (pid {self.proc.pid}) stopped with exit code {code}"
+
+    def check(self) -> None:
+        """Raise a PolicyError naming the server when it is gone (called when workers failed: a server
+        killed closes their connections as it exits, so it is given a moment to be reaped)."""
+        try:
+            self.proc.wait(timeout=CHECK_WAIT_S)
+        except subprocess.TimeoutExpired:
+            return
+        line = self.dead()
+        if line:
+            raise PolicyError(f"{line}; the workers lost their policy", policy=self.spec)
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=STOP_WAIT_S)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def __enter__(self) -> "SharedServer":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

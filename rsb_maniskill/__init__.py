@@ -9,6 +9,10 @@ ManiSkill at ``import rsb_maniskill.agents``, or here when ManiSkill is imported
 from rsb_maniskill import startup
 
 startup.guard()  # the `rsb` command only: Ctrl-C during this import ends it quietly (cli.main releases it)
+if startup.bare_command():  # `rsb --version` / `--help`: before the suites are read, which loads the plugins
+    from rsb_maniskill.plugins import skip_plugins
+
+    skip_plugins()
 
 from rsb_maniskill.registration import register_agent_if_maniskill_loaded, register_envs  # noqa: E402
 from rsb_maniskill.sim import render  # noqa: F401,E402  (selects a Vulkan device before SAPIEN starts)

@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import signal
 import sys
 from typing import Any, Iterator, NoReturn
 
 from rsb_maniskill.debug import DEBUG_ENV, debug_mode, print_error
+from rsb_maniskill.plugins import skip_plugins
+from rsb_maniskill.startup import BARE_FLAGS
 from rsb_maniskill.startup import release as release_startup_guard
 
 _COMMAND_MODULES = (
@@ -118,6 +121,8 @@ def _quiet_stdout() -> None:
 
 
 def _main(argv: list[str] | None) -> int:
+    if (sys.argv[1:] if argv is None else argv) in BARE_FLAGS:
+        skip_plugins()  # the version and the command list need none: a plugin that hangs cannot stop them
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -134,6 +139,11 @@ def _main(argv: list[str] | None) -> int:
         except Exception as err:  # noqa: BLE001  (a command let it through: one line, the traceback with --debug)
             if received:  # Ctrl-C cut a library call short, which raised something else: say what happened
                 raise KeyboardInterrupt from None
+            from rsb_maniskill.outdirs import write_error_line
+
+            line = write_error_line(err)  # a full disk, a read-only folder: the path and the fix, not a bug
+            if line is not None:  # a name too long is bad input (2), as any other
+                return print_error(args.command, line, 2 if err.errno == errno.ENAMETOOLONG else 1)
             return print_error(args.command, err, 1, hint=True, unexpected=True)
         if status not in (0, 130) and received:  # the command reported the cut-short call as an error
             print(f"rsb {args.command}: the error above came from the interruption (Ctrl-C)", file=sys.stderr)

@@ -5,15 +5,78 @@ that module registers what it adds (``register_suite``, ``register_family``, ``r
 ``register_protocol``). The modules are imported once, when the suites are first read (before env ids
 exist), so a plugin's suites and families get env ids, gym registrations and commands like the
 built-in ones. As LeRobot's ``lerobot_env_*`` plugins: installing the distribution is the switch.
-A plugin that fails to import is named on stderr in one line and skipped; nothing else is.
+
+A plugin must not take the pack down: one that fails to import (an exception, ``sys.exit``) or does
+not finish importing within ``RSB_PLUGIN_TIMEOUT`` seconds is named on stderr in one line, with how
+to turn it off (``RSB_NO_PLUGINS``), and skipped; nothing else is. A built-in name it registers is
+refused (the registries raise). Worker processes inherit what the parent skipped and said: a plugin
+skipped there is skipped in them without a second wait or a second line.
 """
 from __future__ import annotations
 
 import importlib
+import os
+import signal
 import sys
+import threading
 
 GROUP = "rsb_maniskill.plugins"
+DISABLE_ENV = "RSB_NO_PLUGINS"  # "1" / "all": no plugin; else the names of those to skip, comma-separated
+TIMEOUT_ENV = "RSB_PLUGIN_TIMEOUT"  # seconds a plugin's import may take (default below)
+DEFAULT_TIMEOUT_S = 60.0  # a plugin importing torch on a loaded machine takes seconds, not a minute
+_SKIPPED_ENV = "_RSB_PLUGINS_SKIPPED"  # set for worker processes: the plugins this run skipped, already named
 _loaded: list[str] | None = None
+
+
+def _names(value: str | None) -> set[str]:
+    return {n.strip() for n in (value or "").split(",") if n.strip()}
+
+
+def _timeout_s() -> float:
+    try:
+        return max(0.1, float(os.environ.get(TIMEOUT_ENV, DEFAULT_TIMEOUT_S)))
+    except ValueError:
+        return DEFAULT_TIMEOUT_S
+
+
+class _ImportTimeout(BaseException):
+    """Raised into a plugin's import by the alarm (a BaseException: the plugin's ``except Exception``
+    does not swallow it)."""
+
+
+def _import(module: str, timeout_s: float) -> str | None:
+    """Imports ``module``; why it failed (one phrase), or None. In the main thread an alarm cuts an
+    import that blocks (a network call, a sleep, a lock) after ``timeout_s``: it costs that, not the
+    command. (The import runs here, not in a thread: the plugin imports the module that is loading it.)"""
+    timer = threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer")
+    if timer:
+        def expire(signum: int, frame: object) -> None:
+            raise _ImportTimeout
+
+        previous = signal.signal(signal.SIGALRM, expire)
+        signal.setitimer(signal.ITIMER_REAL, timeout_s)
+    try:
+        importlib.import_module(module)
+        return None
+    except _ImportTimeout:
+        return f"its import did not finish within {timeout_s:g} s ({TIMEOUT_ENV} sets the limit)"
+    except SystemExit as stop:  # sys.exit at import: it would end every command without a word
+        return f"it called sys.exit({stop.code!r}) while importing"
+    except KeyboardInterrupt:
+        raise
+    except BaseException as err:  # noqa: BLE001  (a broken plugin is named, not raised)
+        return f"{type(err).__name__}: {err}"
+    finally:
+        if timer:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+
+
+def skip_plugins() -> None:
+    """This process loads no plugin (``rsb --version`` / ``--help``); call it before the suites are read."""
+    global _loaded
+    if _loaded is None:
+        _loaded = []
 
 
 def load_plugins() -> list[str]:
@@ -22,14 +85,23 @@ def load_plugins() -> list[str]:
     if _loaded is not None:
         return _loaded
     _loaded = []
+    disabled = _names(os.environ.get(DISABLE_ENV))
+    if disabled & {"1", "all", "true", "yes"}:
+        return _loaded
     from importlib.metadata import entry_points
 
+    said = _names(os.environ.get(_SKIPPED_ENV))  # named by the parent process already
+    skipped = set(said)
     for ep in entry_points(group=GROUP):
-        try:
-            importlib.import_module(ep.value.partition(":")[0])
-        except Exception as err:  # a broken plugin must not take the pack down; it is named, not hidden
-            print(f"rsb_maniskill: plugin {ep.name!r} ({ep.value}) failed to load and is skipped: "
-                  f"{type(err).__name__}: {err}", file=sys.stderr)
+        if ep.name in disabled or ep.name in said:
+            continue
+        why = _import(ep.value.partition(":")[0], _timeout_s())
+        if why is not None:
+            skipped.add(ep.name)
+            print(f"rsb_maniskill: plugin {ep.name!r} ({ep.value}) failed to load and is skipped: {why} "
+                  f"(without it: {DISABLE_ENV}={ep.name})", file=sys.stderr)
             continue
         _loaded.append(ep.name)
+    if skipped:
+        os.environ[_SKIPPED_ENV] = ",".join(sorted(skipped))
     return _loaded

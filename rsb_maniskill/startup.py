@@ -27,6 +27,15 @@ def is_command() -> bool:
     return "-m" in orig[:-1] and orig[orig.index("-m") + 1] == CLI_MODULE
 
 
+BARE_FLAGS = (["--version"], ["-h"], ["--help"])  # `rsb` with one of these alone needs no command and no plugin
+
+
+def bare_command() -> bool:
+    """Whether this process is ``rsb --version`` or ``rsb --help`` (the package skips its plugins:
+    one that hangs or exits at import cannot stop them)."""
+    return is_command() and sys.argv[1:] in BARE_FLAGS
+
+
 def _interrupted(signum: int, frame: object) -> None:
     os.write(2, b"rsb: interrupted\n")
     os._exit(INTERRUPTED)

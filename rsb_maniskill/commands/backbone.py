@@ -11,6 +11,7 @@ report.html show the semantic gap (``reporting/sections/gap.py``).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from rsb_maniskill.commands.eval_args import (
@@ -104,6 +105,8 @@ def _run_backbone(args: argparse.Namespace) -> int:
                                            env_kwargs=env_kwargs), section="backbones", keys=BACKBONE_KEYS)
     if note:
         print(f"rsb backbone: note: {note}", file=sys.stderr)
+    if args.quiet:
+        _quiet_libraries()
     try:
         backbone = load_backbone(args.backbone, **kwargs)
     except (TypeError, ValueError, ImportError, ConnectionError) as err:
@@ -134,3 +137,15 @@ def _run_backbone(args: argparse.Namespace) -> int:
     else:
         print(f"answers: {path}\n(no {RECORDS_FILE} in {out}: run `rsb eval ... --out {out}` to see the gap)")
     return 0
+
+
+def _quiet_libraries() -> None:
+    """``-q``: the progress bars of what a backbone loads (a model's "Loading weights") stay off too."""
+    os.environ["HF_HUB_DISABLE_PROGRESS_BARS"] = "1"  # a library imported from here on reads it
+    try:
+        from huggingface_hub.utils import disable_progress_bars
+    except ImportError:
+        return
+    disable_progress_bars()  # transformers asks huggingface_hub whether to draw its bars
+    if "transformers" in sys.modules:
+        sys.modules["transformers"].utils.logging.disable_progress_bar()

@@ -261,7 +261,7 @@ def _run_eval(args: argparse.Namespace) -> int:
         settings_id,
     )
     from rsb_maniskill.parallel.plan import executor_from_args, obs_mode_renders, resolve_num_envs, resolve_workers
-    from rsb_maniskill.policies.registry import policy_spec
+    from rsb_maniskill.policies.registry import factory_path, policy_spec
     from rsb_maniskill.version import BENCHMARK_VERSION
 
     suites = args.suites
@@ -323,7 +323,8 @@ def _run_eval(args: argparse.Namespace) -> int:
     max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
     settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
                     control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs,
-                    benchmark_version=BENCHMARK_VERSION, checkpoint=args.checkpoint)
+                    benchmark_version=BENCHMARK_VERSION, checkpoint=args.checkpoint,
+                    policy_factory=factory_path(args.policy))  # a resume checks its records came from this code
     pool = check_question_pool(read_records(out / RECORDS_FILE), label, env_kwargs.get("data_dir"),
                                env_kwargs.get("color_map", "fixed"))
     if pool:  # a resume on other question data would pool two question pools in one summary

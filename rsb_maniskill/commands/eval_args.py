@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, EVAL_SEED_BASE
-from rsb_maniskill.evaluation.store import safe_name
+from rsb_maniskill.evaluation.store import folder_labels, folder_name
 from rsb_maniskill.outdirs import writable_dir
 from rsb_maniskill.parallel.plan import NO_RENDER_OBS_MODES
 
@@ -226,11 +226,21 @@ def check_data(suites: list[str], data_dir: str | None, color_map: str | None = 
 
 def results_dir(out: str | None, label: str) -> Path:
     """The results directory, made and checked writable now: ``--out``, else ``results/<label>``
-    (the label as a safe name)."""
-    path = Path(out) if out else RESULTS_ROOT / safe_name(label)
-    if path.exists() and not path.is_dir():
-        raise EvalError(f"results directory {path} is a file, not a directory; choose another --out")
+    (the label as a folder name, one way: ``store.folder_name``)."""
+    try:  # the name is checked with --out too: the row's chart and videos are named by it
+        path = RESULTS_ROOT / folder_name(label) if not out else Path(out)
+        folder_name(label)
+    except ValueError as err:
+        raise EvalError(str(err)) from None
+    if not out:  # a folder of one name: another whose folder name is the same ("a:b", "a/b") is refused
+        owners = folder_labels(path)
+        others = [name for name in owners if name != label]
+        if others and label not in owners:
+            raise EvalError(f"{path} holds the runs of {others[0]!r}, whose name makes the same folder name as "
+                            f"{label!r}; give this run its own --out (or another --name)")
     try:
+        if path.exists() and not path.is_dir():
+            raise EvalError(f"results directory {path} is a file, not a directory; choose another --out")
         writable_dir(path)
     except OSError as err:
         raise EvalError(f"cannot write to results directory {path}: {err.strerror or err}; "

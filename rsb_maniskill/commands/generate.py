@@ -121,11 +121,22 @@ def _generate(args: argparse.Namespace, executor: Any) -> int:
             print(f"rsb generate: error: {env_id}: {err}" if len(args.suites) > 1 else f"rsb generate: error: {err}",
                   file=sys.stderr)
             return 2
-        print(describe(summary))
+        print(describe(summary, errors=False))
+        for err in summary.errors:  # one line each, as every error; a worker's traceback with --debug
+            _print_error(f"{env_id}: {err}" if len(args.suites) > 1 else err)
         status = status or summary.exit_code
         if summary.interrupted:
             break
     return status
+
+
+def _print_error(text: str) -> None:
+    from rsb_maniskill.debug import debug_enabled
+
+    first, _, detail = text.partition("\n")
+    if detail.strip() and debug_enabled():
+        print(detail.rstrip(), file=sys.stderr)
+    print(f"rsb generate: error: {first}", file=sys.stderr)
 
 
 def _demos_a_shard(args: argparse.Namespace) -> int | None:

@@ -83,8 +83,10 @@ def cmd_questions(args: argparse.Namespace) -> int:
                 print(f"answer: {spec.correct_letter} (block {spec.target_block}: "
                       f"{spec.block_names[spec.target_block]})")
                 print(f"rationale: {spec.rationale}")
-    except (ValueError, SemanticError) as err:
+    except SemanticError as err:  # the question data: missing or damaged
         return _fail("questions", err)
+    except ValueError as err:  # the arguments (a split, a suite): a usage error, 2 as elsewhere
+        return _fail("questions", err, 2)
     return 0
 
 

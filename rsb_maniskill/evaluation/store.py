@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
 from rsb_maniskill.evaluation.records import VERSION_FIELD, VersionMixError, dedupe, one_version, validate_record
+from rsb_maniskill.outdirs import naming
 
 RECORDS_FILE = "episodes.jsonl"
 MANIFEST_FILE = "run.json"
@@ -44,6 +45,31 @@ def safe_name(label: str) -> str:
     letters, digits, ``_ . -`` becomes one ``_`` (``"oracle (blank)"`` -> ``"oracle_blank"``,
     ``"pkg.mod:make"`` -> ``"pkg.mod_make"``); ``"policy"`` when nothing is left."""
     return _UNSAFE.sub("_", label).strip("_") or "policy"
+
+
+MAX_FOLDER_CHARS = 120  # a results folder's name: far below the 255 bytes of common file systems
+
+
+def folder_name(label: str, strict: bool = True) -> str:
+    """The folder of a row label, one way: :func:`safe_name`, and for a label with characters
+    beyond ASCII (dropped there) a digest of the whole label after it, so two such names never share
+    a folder (``"🤖"`` -> ``"policy-…"``; ASCII names keep their folders). The label is taken in NFC
+    (one spelling of "é"). ValueError, one line, when the name is too long to be a folder (not
+    ``strict``: cut, the digest after it)."""
+    import hashlib
+    import unicodedata
+
+    label = unicodedata.normalize("NFC", label)
+    name = safe_name(label)
+    digest = hashlib.sha256(label.encode()).hexdigest()[:8]
+    if not label.isascii():
+        name = f"{name}-{digest}"
+    if len(name) > MAX_FOLDER_CHARS and not strict:
+        return f"{name[:MAX_FOLDER_CHARS - 9]}-{digest}"
+    if len(name) > MAX_FOLDER_CHARS:
+        raise ValueError(f"the name {label[:30]!r}... is {len(label)} characters: too long for a results folder "
+                         f"(at most {MAX_FOLDER_CHARS}); give a shorter --name, or --out")
+    return name
 
 
 # ---------------------------------------------------------------- writing
@@ -137,9 +163,10 @@ class RecordWriter:
         return json.loads(line)
 
     def _append(self, line: str) -> None:
-        self._f.write(line + "\n")
-        self._f.flush()
-        os.fsync(self._f.fileno())
+        with naming(self.path):  # a full disk names the file (a torn line is cut off on the next open)
+            self._f.write(line + "\n")
+            self._f.flush()
+            os.fsync(self._f.fileno())
 
     def close(self) -> None:
         if not self._f.closed:
@@ -254,6 +281,14 @@ def read_manifest(results_dir: str | os.PathLike) -> dict[str, dict[str, Any]]:
     return _load_manifest(Path(results_dir) / MANIFEST_FILE).get("runs", {})
 
 
+def folder_labels(results_dir: str | os.PathLike) -> list[str]:
+    """The row labels ``MANIFEST_FILE`` of ``results_dir`` names, of every section (policies, backbones)."""
+    path = Path(results_dir) / MANIFEST_FILE
+    if not path.is_file():
+        return []
+    return [label for section in _load_manifest(path).values() for label in section]
+
+
 def _has_records(out: Path, section: str, label: str, records: list[dict]) -> bool:
     """Whether ``out`` holds records of the row ``label`` of ``section``."""
     if section == "runs":
@@ -287,6 +322,19 @@ def _check_record_settings(out: Path, label: str, settings: Mapping[str, Any], k
                                 "for a new run.")
 
 
+CODE_FIELD = "policy_factory"  # in a row of MANIFEST_FILE: where the policy's code lives ("module:attr")
+
+
+def _check_code(out: Path, label: str, old: Mapping[str, Any], settings: Mapping[str, Any], section: str,
+                records: list[dict]) -> None:
+    """A resume extends records made by the same code: a name whose factory changed (a plugin's
+    policy where a built-in was) is refused, one line. Rows of older versions name no factory."""
+    had, now = old.get(CODE_FIELD), settings.get(CODE_FIELD)
+    if had and now and had != now and _has_records(out, section, label, records):
+        raise ManifestError(f"{out} holds episodes of {label!r} made by {had}, and {label!r} is now {now}: a resume "
+                            "would pool two policies' episodes. Use another --out / --name for the new code.")
+
+
 def check_manifest(out: Path, label: str, settings: Mapping[str, Any], *, keys: tuple[str, ...],
                    section: str = "runs") -> str | None:
     """Record this row's settings in ``MANIFEST_FILE`` (under ``section``: ``runs`` for policies,
@@ -308,6 +356,7 @@ def check_manifest(out: Path, label: str, settings: Mapping[str, Any], *, keys: 
     old = manifest.setdefault(section, {}).get(label)
     note = None
     if old is not None:
+        _check_code(out, label, old, settings, section, records)
         diff = [k for k in keys if old.get(k) != settings.get(k)]
         if not diff:
             _check_record_settings(out, label, settings, keys, section, records)

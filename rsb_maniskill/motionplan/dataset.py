@@ -8,8 +8,10 @@ a finished ``X.h5`` always has its ``X.json`` and a failed run leaves no half-wr
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, Sequence
 
@@ -23,6 +25,38 @@ MAX_OPEN_INPUTS = 64  # a merge keeps at most this many input files open
 
 class DatasetError(RuntimeError):
     """A trajectory file pair is missing, inconsistent or cannot be written."""
+
+
+class NoSpaceError(DatasetError):
+    """The device an output is written to is full (or the user's quota is): what is finished is kept."""
+
+
+def is_no_space(err: BaseException) -> bool:
+    """Whether ``err`` is a full disk: an OSError ENOSPC / EDQUOT, or libhdf5's write failure saying so."""
+    if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    text = str(err)
+    return f"errno = {errno.ENOSPC}," in text or "No space left on device" in text or "Disk quota exceeded" in text
+
+
+def no_space(path: str | os.PathLike, then: str = "") -> NoSpaceError:
+    """The one-line error of a full disk under ``path``, with what to do (``then``: what is kept)."""
+    try:
+        free = f" ({shutil.disk_usage(path).free / 2**20:.1f} MiB free)"
+    except OSError:
+        free = ""
+    return NoSpaceError(f"no space left on the device of {path}{free}: free some space or choose another --out"
+                        + (f"; {then}" if then else ""))
+
+
+def check_free_space(directory: str | os.PathLike, needed: int, then: str = "") -> None:
+    """NoSpaceError before a write of ``needed`` bytes into ``directory`` that cannot fit."""
+    try:
+        free = shutil.disk_usage(directory).free
+    except OSError:
+        return
+    if free < needed:
+        raise no_space(directory, then)
 
 
 def json_path_of(h5_path: str | os.PathLike) -> Path:
@@ -125,7 +159,10 @@ def remove_pair(h5_path: str | os.PathLike) -> None:
 
 
 def finalize_pair(tmp_h5: str | os.PathLike, final_h5: str | os.PathLike) -> Path:
-    """Renames a finished temp pair onto its final name (json first, h5 last)."""
+    """Renames a finished temp pair onto its final name (json first, h5 last). A pair it replaces
+    loses its h5 first: a reader never sees the new json beside the old h5 (counts that disagree),
+    only a json whose h5 is not there yet."""
+    Path(final_h5).unlink(missing_ok=True)
     os.replace(json_path_of(tmp_h5), json_path_of(final_h5))
     os.replace(tmp_h5, final_h5)
     return Path(final_h5)

@@ -218,7 +218,7 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
         video_dir = final.parent / "videos" / final.name.split(".")[0]
         video_dir.mkdir(parents=True, exist_ok=True)
     parts = {p.worker: resume / f".work{p.worker}{dataset.TMP_TAG}{os.getpid()}.h5" for p in plans}
-    path, summaries, interrupted = None, [], False
+    path, summaries, interrupted, lost, keep = None, [], False, False, False
     try:
         summaries = _run_workers(cfg, plans, parts, video_dir, requested, executor, resume, sorted(kept_before))
         header = rsb_header(cfg, pool_size, len(plans), requested, summaries)
@@ -226,16 +226,32 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
         interrupted = header["rsb"]["interrupted"] is not None
         demos = dataset.resume_demos(resume)
         completed = len(demos)
-        if completed and not interrupted:
-            errors += _merge_demos(cfg, demos, final, pool_size, header)
-            path = final
+        # a worker process that died (kill -9, the OOM killer) or met a full disk left its share unfinished:
+        # the demos kept so far stay in the resume folder, for the same command to continue, as after Ctrl-C
+        stops = [s["error"] for s in summaries if s.get("resumable")]
+        if completed and not interrupted and not stops:
+            try:
+                errors += _merge_demos(cfg, demos, final, pool_size, header)
+                completed = header["rsb"]["completed"]
+                path = final
+            except (OSError, RuntimeError) as err:
+                if not dataset.is_no_space(err):
+                    raise
+                stops = [str(err) if isinstance(err, dataset.NoSpaceError) else str(dataset.no_space(final.parent))]
+        lost = completed > 0 and bool(stops)
+        if lost:  # one line: what stopped it, what is kept where, what to do
+            errors = [e for e in errors if e not in stops]
+            where = "there" if str(resume) in stops[-1] else f"in {resume}"
+            errors.append(f"{'; '.join(stops)}; the {completed} finished demos of {requested} requested are kept "
+                          f"{where}: rerun the same command to continue")
     finally:
         for part in parts.values():
             dataset.remove_pair(part)
-        if not interrupted:  # done (or failed): the demos are in the final file, or there were none
+        keep = interrupted or lost
+        if not keep:  # done (or failed): the demos are in the final file, or there were none
             shutil.rmtree(resume, ignore_errors=True)
         lock.close()
-        if path is None and not interrupted:
+        if path is None and not keep:
             if video_dir is not None:
                 dataset.remove_empty_dirs([video_dir, video_dir.parent])
             dataset.remove_empty_dirs(created)
@@ -244,7 +260,7 @@ def generate(cfg: GenerateConfig, executor: Executor | None = None) -> GenerateS
                            rsb["interrupted"], errors, time.perf_counter() - t0,
                            sum(s["plan_time"] for s in summaries), sum(s["sim_time"] for s in summaries),
                            sum(s["kept_steps"] for s in summaries),
-                           resume_dir=resume if interrupted and completed else None)
+                           resume_dir=resume if keep and completed else None)
 
 
 def run_plan(task: tuple[GenerateConfig, WorkPlan, str, str | None, str, list[int]], emit: Any) -> dict:
@@ -279,6 +295,9 @@ def _run_workers(cfg: GenerateConfig, plans: list[WorkPlan], parts: dict[int, Pa
             summaries.append(task.result)
         elif task.interrupted is not None:
             summaries.append(worker_summary(k, parts[k], interrupted=signal.Signals(task.interrupted).name))
+        elif task.exit_code is not None:  # the process ended without a word: killed, or it crashed
+            summaries.append(worker_summary(k, parts[k], error=f"worker {k} died before finishing its share "
+                                            f"({_death(task.exit_code)})", resumable=True))
         else:
             summaries.append(worker_summary(k, parts[k], error=f"worker {k}: {task.error}"))
     if outcome.interrupted is not None:  # the signal the user sent this process names the interruption
@@ -287,12 +306,24 @@ def _run_workers(cfg: GenerateConfig, plans: list[WorkPlan], parts: dict[int, Pa
     return summaries
 
 
+def _death(exit_code: int) -> str:
+    """How a worker process ended: ``killed by SIGKILL`` or ``exit code 3``."""
+    if exit_code < 0:
+        try:
+            return f"killed by {signal.Signals(-exit_code).name}"
+        except ValueError:
+            pass
+    return f"exit code {exit_code}"
+
+
 def _merge_demos(cfg: GenerateConfig, demos: dict[int, Path], final: Path, pool_size: int,
                  header: dict) -> list[str]:
     """Merges the kept demos into ``final``; returns errors about demos that are unreadable."""
     from rsb_maniskill.parallel.pool import InterruptGuard
 
     errors = []
+    size = sum(p.stat().st_size + dataset.json_path_of(p).stat().st_size for p in demos.values())
+    dataset.check_free_space(final.parent, size + 2**20)  # the merged copy, before a byte of it is written
     with InterruptGuard() as guard:  # finishing up: a late signal must not cut the merge short
         guard.disarm()
         valid = []
@@ -306,6 +337,9 @@ def _merge_demos(cfg: GenerateConfig, demos: dict[int, Path], final: Path, pool_
             key = lambda ep: (ep["episode_seed"] % pool_size, ep["episode_seed"])  # noqa: E731
         else:
             key = lambda ep: ep["episode_seed"]  # noqa: E731
+        rsb = header["rsb"]  # the counts the file states are those of the demos it holds
+        rsb["completed"] = len(valid)
+        rsb["complete"] = rsb["complete"] and len(valid) == rsb["requested"]
         if valid:
             dataset.merge_pairs(valid, final, overwrite=True, sort_key=key, header=header)
     return errors

@@ -72,8 +72,9 @@ def combine_rsb_blocks(blocks: list[dict | None]) -> dict | None:
     return out
 
 
-def describe(summary: GenerateSummary) -> str:
-    """Human summary printed at the end of ``rsb generate``."""
+def describe(summary: GenerateSummary, errors: bool = True) -> str:
+    """Human summary printed at the end of ``rsb generate`` (``errors``: with its error lines, which
+    the command prints on stderr instead)."""
     lines = []
     tried = summary.completed + len(summary.failures)
     if summary.already:
@@ -81,7 +82,7 @@ def describe(summary: GenerateSummary) -> str:
                 "do (--overwrite makes them again)")
     if summary.path:
         lines.append(f"wrote {summary.completed} demos to {summary.path} (+ {summary.path.with_suffix('.json').name})")
-    elif summary.interrupted:
+    elif summary.interrupted or summary.resume_dir:
         lines.append("no output file yet")
     else:
         lines.append("no demos completed; no output written")
@@ -99,6 +100,6 @@ def describe(summary: GenerateSummary) -> str:
         where = f" in {summary.resume_dir}" if summary.resume_dir else ""
         lines.append(f"interrupted by {summary.interrupted}: kept the {summary.completed} finished demos of "
                      f"{summary.requested} requested{where}; rerun the same command to continue")
-    for err in summary.errors:
+    for err in summary.errors if errors else ():
         lines.append(f"error: {err}")
     return "\n".join(lines)

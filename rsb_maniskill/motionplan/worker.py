@@ -25,9 +25,27 @@ from rsb_maniskill.resolve import resolve
 
 
 class DemoRecorder(RecordEpisode):
-    """ManiSkill's recorder that also keeps the last ``info``: the env's own verdict on the episode."""
+    """ManiSkill's recorder that also keeps the last ``info``: the env's own verdict on the episode.
+
+    Its trajectory file lives in memory: each kept demo is copied out whole (:func:`save_demo`) and
+    dropped, so none of the recorder's own h5 writes can meet a full disk (libhdf5 then printed
+    dozens of tracebacks and crashed the process)."""
 
     last_info: dict = {}  # replaced at every reset and step
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        import h5py
+
+        super().__init__(*args, clean_on_close=False, **kwargs)
+        on_disk = Path(self._h5_file.filename)
+        self._h5_file.close()
+        on_disk.unlink(missing_ok=True)
+        self._h5_file = h5py.File(on_disk.name, "w", driver="core", backing_store=False)
+
+    def drop_last(self) -> None:
+        """Forget the episode just flushed (saved elsewhere): memory holds one demo at a time."""
+        entry = self._json_data["episodes"].pop()
+        del self._h5_file[f"traj_{entry['episode_id']}"]
 
     def reset(self, *args: Any, **kwargs: Any):
         obs, self.last_info = super().reset(*args, **kwargs)
@@ -89,6 +107,7 @@ def run_worker(cfg: GenerateConfig, plan: WorkPlan, part_h5: str | Path, video_d
                 summary["interrupted"] = signal.Signals(signum).name
             else:
                 summary["error"] = f"worker {plan.worker}: {err}"
+                summary["resumable"] = isinstance(err, dataset.NoSpaceError)  # its demos so far are kept
                 if not isinstance(err, RuntimeError):
                     summary["error"] += "\n" + traceback.format_exc()
         finally:
@@ -125,9 +144,15 @@ def _run_share(cfg: GenerateConfig, plan: WorkPlan, env: DemoRecorder, expert_cl
                    sim_time=getattr(result, "sim_time", 0.0), arm=getattr(result, "arm", ""))
         with guard.critical():
             if kept:
-                env.flush_trajectory()
-                meta[seed] = _episode_meta(cfg, spec, msg, env, video_dir)
-                save_demo(env, seed, meta[seed], resume)
+                try:
+                    env.flush_trajectory()
+                    meta[seed] = _episode_meta(cfg, spec, msg, env, video_dir)
+                    save_demo(env, seed, meta[seed], resume)
+                except (OSError, RuntimeError) as err:
+                    if dataset.is_no_space(err):
+                        raise dataset.no_space(resume) from None
+                    raise
+                env.drop_last()
                 summary["kept"] += 1
                 summary["kept_steps"] += msg["steps"]
                 pending_question = None

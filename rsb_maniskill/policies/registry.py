@@ -46,9 +46,15 @@ _USER_SPEC = PolicySpec("")  # what a "package.module:factory" spec is: no env, 
 
 def register_policy(name: str, factory: str | Callable[..., Any], *, needs_env: bool = False,
                     single_env: bool = False, obs_mode: str = "rgb", heavy: bool = False) -> None:
-    """Make ``load_policy(name)`` use ``factory``; names hold no ':' so they never clash with specs."""
+    """Make ``load_policy(name)`` use ``factory``; names hold no ':' so they never clash with specs.
+
+    A name taken already is refused (ValueError): a plugin cannot replace ``oracle`` and have a
+    resume pool its episodes with the real oracle's."""
     if ":" in name:
         raise ValueError(f"built-in policy names cannot contain ':', got {name!r}")
+    if name in POLICIES:
+        raise ValueError(f"policy name {name!r} is taken (by {factory_path(name)}); register the policy under "
+                         "another name")
     POLICIES[name] = PolicySpec(factory, needs_env, single_env, obs_mode, heavy)
 
 
@@ -59,6 +65,15 @@ def is_heavy(spec: str) -> bool:
     if spec in POLICIES:
         return POLICIES[spec].heavy
     return bool(getattr(resolve_factory(spec), "heavy", False))
+
+
+def factory_path(spec: str) -> str:
+    """Where the code of ``spec`` lives, as ``"package.module:attr"`` (a built-in's factory, or the spec
+    itself): what a resume checks its records came from."""
+    factory = POLICIES[spec].factory if spec in POLICIES else spec
+    if callable(factory):
+        return f"{getattr(factory, '__module__', '?')}:{getattr(factory, '__qualname__', type(factory).__name__)}"
+    return factory
 
 
 def builtin_policies() -> tuple[str, ...]:

@@ -499,3 +499,317 @@ def test_a_run_killed_at_its_merge_leaves_nothing_after_a_rerun(demos_reference,
     res = rsb(*GENERATE, "--out", str(out))
     assert res.returncode == 0 and "nothing to do" in res.stdout, res.stderr[-2000:]
     assert final.read_bytes() == before and stray_files(out) == []
+
+
+# ------------------------------------------------------------ second sweep: files, names, plugins
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_generate_with_one_worker_killed_keeps_its_demos_then_resumes(demos_reference, tmp_path):
+    """kill -9 of one worker (not the command): no final file (whose counts would be the survivors'),
+    the finished demos kept, one line on stderr; the same command ends as an uninterrupted run."""
+    out = tmp_path / "demos"
+    run = [*GENERATE, "--num-procs", "2", "--out", str(out)]
+    proc = start(*run)
+    workers: list[int] = []
+    assert wait_until(lambda: len(workers.extend(_workers_of(proc.pid)) or set(workers)) >= 2, proc), \
+        proc.communicate()[1][-2000:]
+    os.kill(workers[0], signal.SIGKILL)
+    out_text, err_text = proc.communicate(timeout=240)
+    assert "Traceback" not in err_text and "error" not in out_text, out_text + err_text[-2000:]
+    if proc.returncode == 1:  # (0: the worker had finished its share as the signal came)
+        errors = error_lines(err_text)
+        assert len(errors) == 1 and errors[0].startswith("rsb generate: error: worker "), err_text[-2000:]
+        assert "died before finishing its share (killed by SIGKILL)" in errors[0]
+        assert "rerun the same command to continue" in errors[0]
+        assert not (out / DEMO_FILE).exists() and not (out / DEMO_FILE).with_suffix(".json").exists()
+    else:
+        assert proc.returncode == 0, err_text[-2000:]
+    res = rsb(*run)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert _demos(out / DEMO_FILE)[0] == _demos(demos_reference)[0]
+    data = json.loads((out / DEMO_FILE).with_suffix(".json").read_text())
+    with h5py.File(out / DEMO_FILE) as f:  # the counts the json states are those of the h5
+        assert data["rsb"]["completed"] == len(data["episodes"]) == len(f.keys()) == 2
+    assert stray_files(out) == []
+
+
+@pytest.fixture
+def small_disk(tmp_path) -> Callable[[str], Path]:
+    """A tmpfs of a given size at tmp_path/disk (resized by calling again): a real full disk.
+    Mounting needs root (CI and this project's machines run tests as root); skipped elsewhere."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+
+    def mount(size: str) -> Path:
+        opts = f"size={size}" if not os.path.ismount(disk) else f"remount,size={size}"
+        res = subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(disk)], capture_output=True, text=True)
+        if res.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip()}")
+        return disk
+
+    yield mount
+    if os.path.ismount(disk):
+        subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def test_generate_on_a_full_disk_says_so_keeps_its_demos_and_resumes(small_disk, demos_reference):
+    """libhdf5 on a full disk printed dozens of tracebacks and crashed (exit 139): one line naming
+    the folder and the fix, the finished demo kept whole, and after space is freed the same command
+    ends as an uninterrupted run."""
+    disk = small_disk("200k")  # one demo (~140 kB) fits, two do not
+    res = rsb(*GENERATE, "--out", str(disk / "d"))
+    assert res.returncode == 1, res.stderr[-3000:]
+    errors = error_lines(res.stderr)
+    assert len(errors) == 1 and "no space left on the device of" in errors[0], res.stderr[-3000:]
+    assert str(_resume_dir(disk / "d")) in errors[0] and "rerun the same command to continue" in errors[0]
+    assert "Traceback" not in res.stderr and "No space left" not in res.stderr
+    assert not (disk / "d" / DEMO_FILE).exists() and len(list(_resume_dir(disk / "d").glob("demo*.h5"))) == 1
+    small_disk("8m")
+    res = rsb(*GENERATE, "--out", str(disk / "d"))
+    assert res.returncode == 0, res.stderr[-3000:]
+    ref_eps, ref_arrays = _demos(demos_reference)
+    eps, arrays = _demos(disk / "d" / DEMO_FILE)
+    assert eps == ref_eps and [k for k in arrays if not np.array_equal(arrays[k], ref_arrays[k])] == []
+    assert stray_files(disk) == []
+
+
+def test_eval_on_a_full_disk_names_the_folder_and_leaves_no_half_file(small_disk):
+    """"OSError: [Errno 28]" naming nothing, and a 0-byte summary_categories.csv: one line naming the
+    folder and the fix, no empty or temp file; the records kept, and the rerun writes the reports."""
+    disk = small_disk("64k")
+    out = disk / "r"
+    res = rsb("eval", "random", *EVAL, "-n", "2", "--max-steps", "3", "--out", str(out))
+    assert res.returncode == 1, res.stderr[-3000:]
+    errors = error_lines(res.stderr)
+    assert len(errors) == 1 and f"cannot write {out}" in errors[0] and "no space left" in errors[0], res.stderr
+    assert "Traceback" not in res.stderr and "OSError" not in res.stderr
+    assert [p.name for p in out.iterdir() if p.stat().st_size == 0] == [] and stray_files(disk) == []
+    small_disk("8m")
+    res = rsb("eval", "random", *EVAL, "-n", "2", "--max-steps", "3", "--out", str(out))
+    assert res.returncode == 0 and (out / "summary_categories.csv").stat().st_size > 0, res.stderr[-3000:]
+    assert lines(out / "episodes.jsonl") == 2
+
+
+def test_names_that_lose_their_letters_get_a_folder_each(tmp_path, monkeypatch):
+    """'模型🤖 é' and '🤖' both became results/policy; "a:b" and "a/b" make one folder name, so the
+    second is refused in one line rather than joining the first's folder."""
+    from rsb_maniskill.commands.eval_args import EvalError, results_dir
+
+    monkeypatch.chdir(tmp_path)
+    folders = {results_dir(None, name) for name in ("模型🤖 é", "🤖", "é", "e\u0301", "policy")}
+    assert len(folders) == 4  # NFC: "é" typed two ways is one name; the others one folder each
+    assert results_dir(None, "oracle").name == "oracle"  # ASCII names keep their folders
+    claimed = results_dir(None, "a:b")
+    (claimed / "run.json").write_text(json.dumps({"runs": {"a:b": {}}}))
+    with pytest.raises(EvalError, match="same folder name"):
+        results_dir(None, "a/b")
+    assert results_dir(None, "a:b") == claimed
+
+
+def _case_name_300_chars(tmp: Path) -> tuple[list[str], str]:
+    return ["eval", "oracle", *EVAL, "-n", "1", "--name", "n" * 300, "--out", str(tmp / "r")], "give a shorter --name"
+
+
+def _case_out_300_chars(tmp: Path) -> tuple[list[str], str]:
+    return ["eval", "oracle", *EVAL, "-n", "1", "--out", str(tmp / ("o" * 300) / "r")], "File name too long"
+
+
+def _case_generate_out_300_chars(tmp: Path) -> tuple[list[str], str]:
+    return [*GENERATE, "--out", str(tmp / ("o" * 300))], "too long"
+
+
+def _case_questions_bad_split(tmp: Path) -> tuple[list[str], str]:
+    return ["questions", SUITE, "--split", "bogus"], "unknown split 'bogus'"
+
+
+USAGE_CASES = [_case_name_300_chars, _case_out_300_chars, _case_generate_out_300_chars, _case_questions_bad_split]
+
+
+@pytest.mark.parametrize("case", USAGE_CASES, ids=[c.__name__[6:] for c in USAGE_CASES])
+def test_long_names_and_usage_errors_exit_2_in_one_line(case, tmp_path):
+    argv, phrase = case(tmp_path)
+    before = tree(tmp_path)
+    res = rsb(*argv, timeout=120)
+    errors = error_lines(res.stderr)
+    assert res.returncode == 2 and len(errors) == 1 and phrase in errors[0], res.stderr[-2000:]
+    assert "Traceback" not in res.stderr and "internal" not in res.stderr
+    assert tree(tmp_path) == before
+
+
+def _plugin(tmp: Path, body: str, name: str = "odd") -> dict:
+    """An installed plugin distribution (module + entry point) on the path of the commands run with the env."""
+    (tmp / f"rsb_{name}_plugin.py").write_text(body)
+    info = tmp / f"rsb_{name}_plugin-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: rsb-{name}-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[rsb_maniskill.plugins]\n{name} = rsb_{name}_plugin\n")
+    return {"PYTHONPATH": os.pathsep.join([str(tmp), str(TESTS), str(REPO)])}
+
+
+PLUGIN_CASES = [  # (plugin module, phrase of its one line)
+    ("import time\ntime.sleep(3600)\n", "its import did not finish within 2 s"),
+    ("import sys\nsys.exit(3)\n", "it called sys.exit(3) while importing"),
+    ("from rsb_maniskill.policies.registry import register_policy\nregister_policy('oracle', 'os:getcwd')\n",
+     "policy name 'oracle' is taken (by rsb_maniskill.policies.reference:oracle)"),
+]
+
+
+@pytest.mark.parametrize("body, phrase", PLUGIN_CASES, ids=["hangs", "sys.exit", "replaces-oracle"])
+def test_a_plugin_that_hangs_exits_or_replaces_a_builtin_is_named_and_skipped(body, phrase, tmp_path):
+    """Every command hung, exited 3 without a word, or ran an impostor as `oracle`: `rsb --version`
+    needs no plugin; others name the plugin and how to go without it in one line, and run."""
+    env = _plugin(tmp_path, body)
+    res = rsb("--version", timeout=60, **env)
+    assert res.returncode == 0 and res.stdout.startswith("rsb_maniskill ") and res.stderr == "", res.stderr
+    check = ("import rsb_maniskill\n"  # reads the suites, which loads the plugins
+             "from rsb_maniskill.policies.registry import factory_path\nprint(factory_path('oracle'))")
+    res = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=120,
+                         env=_env(RSB_PLUGIN_TIMEOUT="2", **env), cwd=tmp_path)
+    assert res.returncode == 0 and res.stdout.strip() == "rsb_maniskill.policies.reference:oracle", res.stderr
+    notes = [line for line in res.stderr.splitlines() if "plugin" in line]
+    assert len(notes) == 1 and "plugin 'odd'" in notes[0] and phrase in notes[0], res.stderr
+    assert "RSB_NO_PLUGINS=odd" in notes[0] and "Traceback" not in res.stderr
+    res = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=120,
+                         env=_env(RSB_NO_PLUGINS="odd", **env), cwd=tmp_path)
+    assert res.returncode == 0 and "plugin" not in res.stderr, res.stderr  # the switch it named
+
+
+def test_a_resume_checks_which_code_made_its_records(tmp_path):
+    """The records of `oracle` made by one factory are not extended by another under the same name."""
+    from rsb_maniskill.evaluation.store import ManifestError, RecordWriter, check_manifest
+
+    settings = {"policy": "oracle", "policy_factory": "rsb_maniskill.policies.reference:oracle"}
+    assert check_manifest(tmp_path, "oracle", settings, keys=("policy",)) is None
+    with RecordWriter(tmp_path / "episodes.jsonl") as writer:
+        writer.write({"policy": "oracle", "suite_id": SUITE, "seed": 0, "instruction_mode": "normal",
+                      "grasped_any": True, "grasped_correct": True, "placed_correct": True, "placed_wrong": False,
+                      "success": True})
+    impostor = {**settings, "policy_factory": "rsb_odd_plugin:Impostor"}
+    with pytest.raises(ManifestError, match="made by rsb_maniskill.policies.reference:oracle"):
+        check_manifest(tmp_path, "oracle", impostor, keys=("policy",))
+    assert check_manifest(tmp_path, "oracle", settings, keys=("policy",)) is None  # the same code resumes
+
+
+# ------------------------------------------------------------ second sweep: eval runs
+# (issue 60) the run's settings reach every process; every output carries one verdict on its
+# episodes; a policy's episode is a function of its seed; Ctrl-C stops a run whatever its policy
+# does; errors name what the user wrote; workers quiet and counted as started.
+
+
+def _gsm8k_copy(root: Path, rows: int | None = None) -> Path:
+    """A data directory holding a copy of the real GSM8K (its first ``rows`` lines: a cut one)."""
+    real = Path(os.environ.get("RSB_DATA_DIR") or "/nonexistent") / "gsm8k"
+    if not (real / "test.jsonl").exists():
+        pytest.skip("needs the real GSM8K in RSB_DATA_DIR")
+    (root / "gsm8k").mkdir(parents=True)
+    for name in ("test.jsonl", "train.jsonl"):
+        text = (real / name).read_text()
+        (root / "gsm8k" / name).write_text("".join(text.splitlines(keepends=True)[:rows]) if rows else text)
+    return root
+
+
+@pytest.mark.data
+def test_data_dir_reaches_the_workers_and_every_output_says_what_ran(tmp_path):
+    """--data-dir alone (no $RSB_DATA_DIR, no hub cache; the episodes run in a worker process): the
+    run uses it and its outputs say the episodes are the version's. On a GSM8K cut to 100 rows the
+    run still ends 0, and summary.md, summary.json, results.json and report.html say they are not
+    (the Markdown on its first line), and so does eval's last line."""
+    alone = dict(RSB_DATA_DIR="", HF_HOME=str(tmp_path / "hf"), HF_HUB_OFFLINE="1")
+    run = ["eval", "random", "--suites", "RSB-HardMath-4", "-o", "state", "-q", "-n", "1", "--max-steps", "5"]
+    verdicts = {}
+    for name, rows in (("full", None), ("cut", 100)):
+        out = tmp_path / name
+        res = rsb(*run, "--data-dir", str(_gsm8k_copy(tmp_path / f"data-{name}", rows)), "--out", str(out), **alone)
+        assert res.returncode == 0, res.stderr[-2000:]
+        verdicts[name] = {json.loads((out / "results.json").read_text())["rows"][0]["episodes"],
+                          json.loads((out / "summary.json").read_text())["episodes"]}
+        said = [line for line in res.stderr.splitlines() if line.strip()]
+        differ = "episodes differ from RSB-MS"
+        assert (differ in said[-1]) == (rows is not None), res.stderr[-2000:]
+        assert ((out / "summary.md").read_text().splitlines()[0].startswith(f"**{differ}")) == (rows is not None)
+        assert (differ in (out / "report.html").read_text()) == (rows is not None)
+    assert verdicts == {"full": {"pinned"}, "cut": {"differ"}}
+
+
+def test_a_policys_episode_is_a_function_of_its_seed(tmp_path):
+    """One env in one process, then two envs in each of two workers (other company, other order):
+    the same records per seed, the policy's draws included (its text names a digest of each chunk)."""
+    runs = []
+    for name, flags in (("k1", []), ("k2p2", ["--num-envs", "2", "--num-procs", "2"])):
+        out = tmp_path / name
+        res = rsb("eval", "bad_policies:draws", *EVAL, "-n", "3", "--max-steps", "10", "--name", "draws", *flags,
+                  "--out", str(out))
+        assert res.returncode == 0, res.stderr[-2000:]
+        runs.append(records(out))
+    assert len({r["text"] for r in runs[0]}) == 3  # each episode drew its own numbers
+    assert runs[0] == runs[1]
+
+
+@pytest.mark.parametrize("reseed", [True, False], ids=["reseeds", "draws-across-episodes"])
+def test_the_seed_check_catches_a_policy_that_draws_across_episodes(reseed):
+    """The check above, in this process on the fake env: a policy with one generator for all its
+    episodes draws other numbers for a seed under K = 2 than under K = 1; one that reseeds does not."""
+    from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop, episode_loop
+
+    from bad_policies import Draws
+    from fake_envs import SEEDS, FakeBatchedEnv, FakeRSBEnv
+
+    seeds = SEEDS[:3]
+    settings = EpisodeSettings(suite_id=SUITE, seeds=seeds, label="draws", max_steps=10)
+    logs = []
+    for run in (lambda: episode_loop(FakeRSBEnv(), Draws(reseed, talk=False), settings, seeds, [].append),
+                lambda: batched_loop(FakeBatchedEnv(2), [Draws(reseed, talk=False), Draws(reseed, talk=False)],
+                                     settings, seeds, [].append)):
+        Draws.log.clear()
+        run()
+        logs.append(dict(Draws.log))
+    assert sorted(logs[0]) == seeds
+    assert (logs[0] == logs[1]) == reseed
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("signals", [[signal.SIGINT], [signal.SIGTERM], [signal.SIGINT, signal.SIGINT]],
+                         ids=["ctrl-c", "sigterm", "ctrl-c-twice"])
+def test_a_run_whose_policy_ignores_signals_stops_at_once(signals, tmp_path):
+    """act blocks with SIGINT / SIGTERM ignored and no --policy-timeout (it would wait forever):
+    the signal stops the run all the same (the worker killed after a short grace, at once on a second
+    Ctrl-C), exit 130, the finished episode kept, the worker gone."""
+    out, marker = tmp_path / "r", tmp_path / "blocked"
+    proc = start("eval", "bad_policies:deaf_hangs", "-a", "after=3", *EVAL, "-n", "2", "--max-steps", "3",
+                 "--policy-timeout", "0", "--out", str(out), RSB_TEST_BLOCKED_MARKER=str(marker))
+    assert wait_until(marker.exists, proc), proc.communicate()[1][-2000:]
+    workers = _workers_of(proc.pid)
+    t0 = time.monotonic()
+    for sig in signals:
+        proc.send_signal(sig)
+        time.sleep(0.5)
+    rc, log = stop(proc, signals[-1])
+    assert time.monotonic() - t0 < 60  # stopped, not waiting on the policy (5 s grace; 0: no policy limit)
+    assert rc == 130 and "Rerun the same command to resume" in log and "Traceback" not in log, log[-2000:]
+    assert lines(out / "episodes.jsonl") == 1
+    assert workers and not [w for w in workers if _alive(w)]
+
+
+def test_an_act_only_policy_on_two_envs_is_blamed_for_its_act_on_its_seed(tmp_path):
+    """A policy with act alone, run two envs a process, raises in the second env's episode: the error
+    names act (not act_batch, which the user never wrote) and that episode's seed (not a range)."""
+    from rsb_maniskill.evaluation.protocol import eval_seeds
+
+    seed = list(eval_seeds(SUITE, 2))[1]
+    res = rsb("eval", "bad_policies:act_fails", "-a", f"on={seed}", *EVAL, "-n", "2", "--max-steps", "3",
+              "--num-envs", "2", "--num-procs", "1", "--out", str(tmp_path / "r"))
+    errors = error_lines(res.stderr)
+    assert res.returncode == 1 and len(errors) == 1, res.stderr[-2000:]
+    assert f"seed {seed} " in errors[0] and "act raised RuntimeError" in errors[0], errors[0]
+    assert "act_batch" not in errors[0] and "seeds" not in errors[0], errors[0]
+
+
+def test_workers_are_quiet_plain_and_counted_as_started(tmp_path):
+    """--num-procs 99 for 2 episodes: the line says the 2 workers that start, and no worker prints
+    ManiSkill's render-device warning (nothing renders) nor colour codes."""
+    res = rsb("eval", "random", *EVAL, "-n", "2", "--max-steps", "2", "--num-procs", "99", "--out",
+              str(tmp_path / "r"), NO_COLOR="1")
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "workers: 2 processes" in res.stderr and "99 processes" not in res.stderr, res.stderr[-2000:]
+    assert "Rendering might be disabled" not in res.stderr and "\x1b[" not in res.stderr, res.stderr[-2000:]

@@ -42,6 +42,8 @@ def register_protocol(name: str, client: str, check: str | None = None) -> None:
     """Add a protocol row: ``client`` and ``check`` as :class:`Protocol` takes them (no check: none)."""
     if ":" in name:
         raise ValueError(f"protocol names cannot contain ':', got {name!r}")
+    if name in PROTOCOLS:  # a plugin cannot replace a built-in (or another plugin's) protocol
+        raise ValueError(f"protocol name {name!r} is taken; register the protocol under another name")
     PROTOCOLS[name] = Protocol(client, check or _NO_CHECK)
 
 

@@ -3,6 +3,7 @@ over a grid of processes x K, and `rsb eval` end to end.
 
     python benchmarks/batched_render.py [--procs 1 2] [--envs 1 4] [--steps 20] [--suite RSB-Math-4]
                                         [--camera-size 320 240] [--eval-episodes 0]
+    python benchmarks/batched_render.py --fake-render [--envs 4] [--steps 30]
 
 For each (P processes, K envs a process) it starts P spawned workers, each with a vector env of K envs
 of SUITE (rgb, three cameras), and prints per batch of K: the physics (a step of every env without
@@ -12,6 +13,14 @@ the group's rebuild after a reset (a CPU reset makes fresh scenes) and the aggre
 of all P workers stepping and rendering every step with the renderer auto picks. With
 ``--eval-episodes N`` it then times ``rsb eval random -o rgb`` (chunks of one action: a render every
 step) with each (P, K) on N episodes of 20 steps, start-up included. Nothing asserts a speed.
+
+``--fake-render``: the pack's own cost around the render, on any machine: one process, a vector env
+whose group is a stand-in returning preallocated pictures of the right shapes (zero-cost render),
+and per batch of K: the physics (steps without observations), the observation (``get_obs(info)``
+with the last step's info, as the eval loop asks: state parts, the pictures handed over, ManiSkill's
+dict) and the loop (``step`` with its observation).
+The workers of the grid start their timed run together at a barrier (every worker's imports and envs
+done), not after a fixed wait.
 """
 from __future__ import annotations
 
@@ -25,8 +34,62 @@ import tempfile
 import time
 
 
+class FakeGroup:
+    """A camera group whose render costs nothing: the pictures of every camera of K envs, preallocated
+    once, of the shapes and dtype the scenes' own render gives (textures the obs mode reads only)."""
+
+    def __init__(self, bases) -> None:
+        import torch
+
+        from rsb_maniskill import compat
+        from rsb_maniskill.sim import camera_group
+
+        needed = getattr(compat, "needed_textures", None)  # absent before issue 57: every texture
+        cams, textures = camera_group.scene_cameras(bases[0])
+        if needed is not None:
+            textures = needed(bases[0])
+        self.pictures = {}
+        for name, comps in cams.items():
+            h, w = comps[0].height, comps[0].width
+            self.pictures[name] = {t: torch.zeros((len(bases), h, w, 4), dtype=torch.uint8) for t in textures[name]}
+
+    def render(self, textures=None):
+        return self.pictures
+
+
+def fake_render(suite: str, k: int, steps: int, size: list[int]) -> None:
+    import torch
+
+    from rsb_maniskill.vector import RSBVectorEnv
+    from rsb_maniskill.vector.env import GroupRenderer
+
+    env = RSBVectorEnv(suite, k, obs_mode="rgb", camera_size=tuple(size), renderer=GroupRenderer(FakeGroup))
+    try:
+        env.reset(seed=list(range(k)))
+        action = torch.zeros(env.action_space.shape)
+
+        def timed(fn):
+            fn()
+            t = time.perf_counter()
+            for _ in range(steps):
+                fn()
+            return 1000 * (time.perf_counter() - t) / steps
+
+        with env.skip_observations():
+            physics = timed(lambda: env.step(action))
+        info = env.step(action)[4]
+        obs = timed(lambda: env.get_obs(info))  # the last step's info, as the eval loop hands it
+        loop = timed(lambda: env.step(action))
+    finally:
+        env.close()
+    print(f"{suite}, rgb, K = {k}, 3 cameras {size[0]}x{size[1]}, zero-cost pictures, {steps} batches (ms per batch)")
+    print("| K | step (physics) | observation (get_obs) | loop (step + observation) |")
+    print("|---|---:|---:|---:|")
+    print(f"| {k} | {physics:.1f} | {obs:.1f} | {loop:.1f} |", flush=True)
+
+
 def _worker(args: tuple) -> dict:
-    suite, k, steps, size, start_at = args
+    suite, k, steps, size, barrier = args
     import torch
 
     from rsb_maniskill.sim.camera_group import group_rendering_unavailable
@@ -62,8 +125,7 @@ def _worker(args: tuple) -> dict:
             out["group_rebuilds"] = group.rebuilds
         else:
             env.renderer = PerSceneRenderer()
-        while time.time() < start_at:  # all workers start the throughput run together
-            time.sleep(0.01)
+        barrier.wait()  # all workers start the throughput run together, once all are ready
         t0 = time.time()
         for _ in range(steps):
             env.step(action)
@@ -84,9 +146,9 @@ def grid(suite: str, procs: list[int], envs: list[int], steps: int, size: list[i
     why = None
     for p in procs:
         for k in envs:
-            with ctx.Pool(p) as pool:
-                start_at = time.time() + 30 + 10 * p  # after every worker's imports and envs
-                res = pool.map(_worker, [(suite, k, steps, size, start_at)] * p)
+            with ctx.Manager() as manager, ctx.Pool(p) as pool:
+                barrier = manager.Barrier(p)  # every worker's imports and envs done: the timed runs start
+                res = pool.map(_worker, [(suite, k, steps, size, barrier)] * p)
             wall = max(r["t1"] for r in res) - min(r["t0"] for r in res)
             rate = p * k * steps / wall
 
@@ -126,8 +188,14 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--camera-size", type=int, nargs=2, default=[320, 240])
     ap.add_argument("--eval-episodes", type=int, default=0)
+    ap.add_argument("--fake-render", action="store_true",
+                    help="one process, zero-cost pictures: the step, observation and loop costs per batch")
     args = ap.parse_args()
     print(json.dumps({"cpus": len(os.sched_getaffinity(0))}))
+    if args.fake_render:
+        for k in args.envs:
+            fake_render(args.suite, k, args.steps, args.camera_size)
+        return
     grid(args.suite, args.procs, args.envs, args.steps, args.camera_size)
     if args.eval_episodes:
         eval_end_to_end(args.suite, args.procs, args.envs, args.eval_episodes)

@@ -13,8 +13,9 @@ scenes, in env order. Measured on an H100 (docs/gpu.md): 3.3 ms per batch at K =
 for the scenes' own renders, the same pixels.
 
 This module is the home of SAPIEN's rendering internals beside ``compat.py`` (which keeps the
-private ManiSkill attributes it reads: ``compat.render_cameras``, ``compat.hidden_objects``, and the
-picture hand-over ``compat.pictures_from``). CUDA rendering only: lavapipe has no CUDA interop, so
+private ManiSkill attributes it reads: ``compat.render_cameras``, ``compat.hidden_objects``,
+``compat.needed_textures``, and the observation of K envs from the pictures, ``compat.batched_obs``).
+CUDA rendering only: lavapipe has no CUDA interop, so
 :func:`group_rendering_unavailable` says why not, and the vector env renders scene by scene there.
 The row mapping and the buffer filling are plain functions over SAPIEN-shaped objects, tested with
 fakes on machines without CUDA.
@@ -144,7 +145,7 @@ class CameraGroup:
         self.bases = list(bases)
         systems = [b.scene.sub_scenes[0].render_system for b in self.bases]
         per_env = [scene_cameras(b) for b in self.bases]
-        self.textures = per_env[0][1]
+        self.textures = compat.needed_textures(self.bases[0])  # rgb: Color only, not PositionSegmentation
         self.rows = assign_rows(systems, [cams for cams, _ in per_env])
         self.rows.apply()
         self.host = np.zeros((len(self.rows.entities), 7), np.float32)
@@ -157,7 +158,8 @@ class CameraGroup:
 
     def render(self) -> dict[str, dict[str, Any]]:
         """Every camera of every scene, now: camera name -> texture name -> (K, H, W, C) tensor on
-        the render device (env order), what ``RenderCamera.get_picture`` gives one env."""
+        the render device (env order), what ``RenderCamera.get_picture`` gives one env; the textures
+        the obs mode reads only (``compat.needed_textures``)."""
         import torch
 
         for base in self.bases:  # as ManiSkill's per-scene render does first

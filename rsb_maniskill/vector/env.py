@@ -13,6 +13,12 @@ camera of every env renders in one call (``sim/camera_group.py``, a SAPIEN ``Ren
 CUDA rendering exists, else each scene renders its own (lavapipe), with the same API and the same
 images (:func:`make_renderer`; ``renderer="group"`` or ``"per_scene"`` forces one). The group is
 built again after any env's reset (its scene is new); :class:`GroupRenderer` counts what that costs.
+
+With the group, the K observations are built once (``compat.batched_obs``): the group's (K, H, W, C)
+pictures go through ManiSkill's texture transforms in one go, the state parts of the K envs are
+joined once, and the envs step and reset computing no observation of their own (obs mode ``none``):
+the same observation, key for key and value for value, as each env's own joined (measured with a
+zero-cost stand-in group, ``benchmarks/batched_render.py --fake-render``: docs/gpu.md).
 """
 from __future__ import annotations
 
@@ -28,7 +34,9 @@ from rsb_maniskill.env_ids import CPU_SIM_BACKEND
 
 RENDERERS = ("auto", "group", "per_scene")  # make_renderer's choices
 NO_CAMERA_MODES = ("none", "state", "state_dict")  # ManiSkill obs modes that read no camera
-STATE_MODE = "state_dict"  # what a sub-env computes while its cameras wait for the group
+# What a sub-env's step or reset computes while its cameras wait for the render: nothing (the
+# observation is built afterwards for all K; ManiSkill's reward and info never read it).
+STATE_MODE = "none"
 PER_ENV_OPTIONS = ("variant",)  # reset options the RSB tasks read per env (a sequence: one per env reset)
 
 
@@ -215,6 +223,7 @@ class RSBVectorEnv:
         self.held: set[int] = set()  # envs whose episode ended: not stepped until their next reset
         self._held_obs: list[Any] = [None] * self.num_envs  # a held env's observation, rendered once
         self._skipping = False
+        self._info: Any = None  # the joined info of the last step or reset (get_obs reads the envs' own)
         self.spec = self.envs[0].spec
 
     # ------------------------------------------------------------------ gym
@@ -237,8 +246,8 @@ class RSBVectorEnv:
             with self._state_only(self.bases[i]):
                 _, self._infos[i] = self.envs[i].reset(seed=s, options=env_options(options, position, len(idx)))
         self.renderer.scenes_changed()  # a CPU reset builds a fresh scene
-        info = _cat(self._infos)
-        return self.get_obs(info), info
+        info = self._info = _cat(self._infos)
+        return (self._no_obs() if self._skipping and self.cameras else self.get_obs(info)), info
 
     def step(self, action: Any) -> tuple[Any, Any, Any, Any, dict]:
         """One control step of every env: ``action`` (K, action_dim). Like a ManiSkill env of K, no
@@ -261,19 +270,28 @@ class RSBVectorEnv:
             rewards.append(r)
             terms.append(term)
             truncs.append(trunc)
-        info = _cat(self._infos)
-        if self._skipping:
+        info = self._info = _cat(self._infos)
+        if not self.cameras:
             out = _cat(obs)
         else:
-            out = self.get_obs(info) if self.cameras else _cat(obs)
+            out = self._no_obs() if self._skipping else self.get_obs(info)
         return out, _cat(rewards), _cat(terms), _cat(truncs), info
 
+    def _no_obs(self) -> dict:
+        return {}  # skip_observations: a camera env's step or reset computed no observation
+
     def get_obs(self, info: Mapping[str, Any] | None = None) -> Any:
-        """The observation of every env now (cameras rendered now: in one call with the group); without
-        ``info``, each env's is computed now, as ManiSkill's ``get_obs()`` does."""
-        infos = ([base.get_info() for base in self.bases] if info is None
-                 else [_row(info, i) for i in range(self.num_envs)])
+        """The observation of every env now (cameras rendered now: in one call with the group, and then
+        built once for all K); without ``info``, each env's is computed now, as ManiSkill's ``get_obs()`` does."""
+        if info is None:
+            infos = [base.get_info() for base in self.bases]
+        elif info is self._info:  # the last step's or reset's: each env's own, not cut out again
+            infos = list(self._infos)
+        else:
+            infos = [_row(info, i) for i in range(self.num_envs)]
         pictures = self.renderer.render(self.bases) if self.cameras else None
+        if pictures is not None and self.obs_mode != "pointcloud":
+            return compat.batched_obs(self.bases, infos, pictures, _cat, self._sensor_hook())
         obs = []
         for i, base in enumerate(self.bases):
             if i in self.held and self._held_obs[i] is not None:  # not stepped since: the same observation
@@ -286,6 +304,13 @@ class RSBVectorEnv:
             self._held_obs[i] = obs[-1] if i in self.held else None
         return _cat(obs)
 
+    def _sensor_hook(self) -> Callable[[int, dict], dict] | None:
+        """The RSB tasks' own step on camera data (``_get_obs_sensor_data``: image noise of the
+        ``noise`` robustness axis, drawn per env and step), for env i's rows; None where no env adds any."""
+        if not any(getattr(base, "axes", None) is not None and base.axes.level("noise") for base in self.bases):
+            return None
+        return lambda i, rows: self.bases[i].axes.add_noise(rows) if self.bases[i].axes.level("noise") else rows
+
     def hold(self, i: int) -> None:
         """Stop stepping env ``i`` until its next reset (its episode ended and its record is taken):
         later steps give its last step's values again and cost no physics, nor (per scene) a render."""
@@ -293,8 +318,9 @@ class RSBVectorEnv:
 
     @contextmanager
     def skip_observations(self) -> Iterator[None]:
-        """Steps inside the block return the state part only and render nothing; :meth:`get_obs`
-        renders when asked (the evaluator's render on demand)."""
+        """Steps and resets inside the block render nothing; a camera env's return no observation (an
+        empty dict), a state env's its state as usual; :meth:`get_obs` renders when asked (the
+        evaluator's render on demand)."""
         old, self._skipping = self._skipping, True
         try:
             yield

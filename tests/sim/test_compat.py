@@ -53,6 +53,9 @@ def test_no_module_outside_compat_touches_the_internals():
         if path.name == "compat.py":
             continue
         for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Call) and \
+                    getattr(node.value.func, "id", None) == "super":
+                continue  # a task's override of a ManiSkill hook calling the base's: ManiSkill's task API
             # obj._name, or getattr(obj, "_name")
             name = node.attr if isinstance(node, ast.Attribute) else getattr(node, "value", None)
             if isinstance(name, str) and name in private:

@@ -28,7 +28,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "RESULTS_DIR may also be a `vla-eval run` output directory (or its *_aggregate.json) of "
                     "RSBBenchmark: then the paper's tables are printed and written to summary.* beside it too. "
                     "With --compare A B: the two runs' GSR / TSR / nSG per suite side by side, B - A, and whether "
-                    "their 95 % intervals separate (Markdown). Records of two benchmark versions never pool.")
+                    "their 95 % intervals separate; with both runs' episode records, paired tests that count "
+                    "scenes (counterfactual runs: follow and switch too) (Markdown). Records of two benchmark "
+                    "versions never pool.")
     p.add_argument("results_dir", metavar="RESULTS_DIR", nargs="?")
     p.add_argument("--out", default=None, help="page to write (default: RESULTS_DIR/report.html)")
     add_old_spelling(p, "-o", "--out")
@@ -56,7 +58,7 @@ def report_vla_eval(path: str | os.PathLike, out: str | os.PathLike | None = Non
 
 def run_report(args: argparse.Namespace) -> int:
     from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
-    from rsb_maniskill.reporting.results import RESULTS_FILE, compare, load_results
+    from rsb_maniskill.reporting.results import RESULTS_FILE, compare
     from rsb_maniskill.reporting.summary import results_from_records
     from rsb_maniskill.reporting.vla_eval_results import is_vla_eval_results
     from rsb_maniskill.reporting.writer import ReportError, page_path, writable, write_html_report, write_report
@@ -64,8 +66,11 @@ def run_report(args: argparse.Namespace) -> int:
     try:
         if args.compare:
             a, b = args.compare
-            side = compare(load_results(a), load_results(b), (a, b))
-            if all((Path(d) / RECORDS_FILE).exists() for d in (a, b)):
+            check_compare_args(args.results_dir, a, b)
+            docs = [checked_results(d) for d in (a, b)]
+            both_records = all((Path(d) / RECORDS_FILE).exists() for d in (a, b))
+            side = compare(*docs, (a, b), rows_optional=both_records)
+            if both_records:
                 from rsb_maniskill.reporting.paired import compare_paired
 
                 paired = compare_paired(read_records(Path(a) / RECORDS_FILE), read_records(Path(b) / RECORDS_FILE),
@@ -105,21 +110,57 @@ def run_report(args: argparse.Namespace) -> int:
     if not args.compare and not is_vla_eval_results(args.results_dir):
         from rsb_maniskill.evaluation.provenance import check_records
 
-        print(check_records(records).text())
+        print(check_records(records, runs=read_manifest(args.results_dir)).text())
     return 0
+
+
+def check_compare_args(results_dir: str | None, a: str, b: str) -> None:
+    """``--compare A B`` takes no RESULTS_DIR, and two different runs: ReportError (one line) otherwise."""
+    from rsb_maniskill.reporting.writer import ReportError
+
+    if results_dir:
+        raise ReportError(f"give RESULTS_DIR ({results_dir}) or --compare DIR_A DIR_B, not both: --compare reads "
+                          "only its two directories")
+    if Path(a).resolve() == Path(b).resolve():
+        raise ReportError(f"--compare {a} {b} compares a run with itself (every difference is 0): give two runs")
+
+
+def checked_results(results_dir: str) -> dict:
+    """The results document of a directory (``results.load_results``); one read from a results.json
+    alone is checked field by field first: ReportError naming the file and the field."""
+    import json
+
+    from rsb_maniskill.evaluation.store import RECORDS_FILE
+    from rsb_maniskill.reporting.results import RESULTS_FILE, document_problem, load_results
+    from rsb_maniskill.reporting.writer import ReportError
+
+    d = Path(results_dir)
+    try:
+        doc = load_results(d)
+    except json.JSONDecodeError as err:
+        raise ReportError(f"{d / RESULTS_FILE}: not a results document ({err})") from None
+    if (d / RECORDS_FILE).exists():
+        return doc
+    if not isinstance(doc, dict) or not isinstance(doc.get("rows"), list) or "benchmark_version" not in doc:
+        raise ReportError(f"{d / RESULTS_FILE}: not a results document (a JSON object with benchmark_version and "
+                          "rows): give an `rsb eval` --out directory or its results.json")
+    problem = document_problem(doc)
+    if problem:
+        raise ReportError(f"{d / RESULTS_FILE}: {problem}")
+    return doc
 
 
 def episodes_lines(*dirs: str) -> str:
     """Per run: whether its episodes are the benchmark version's (``evaluation/provenance.py``), from
     its records, else its results.json's rows."""
     from rsb_maniskill.evaluation.provenance import UNVERIFIED, check_records
-    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_records
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
     from rsb_maniskill.reporting.results import load_results
 
     out = []
     for d in dirs:
         if (Path(d) / RECORDS_FILE).exists():
-            out.append(f"{d}: {check_records(read_records(Path(d) / RECORDS_FILE)).text()}")
+            out.append(f"{d}: {check_records(read_records(Path(d) / RECORDS_FILE), runs=read_manifest(d)).text()}")
         else:
             verdicts = sorted({r.get("episodes", UNVERIFIED) for r in load_results(d)["rows"]})
             out.append(f"{d}: episodes {'/'.join(verdicts)} (its results.json)")

@@ -70,10 +70,25 @@ class Entry:
     differs: bool | None = None  # TSR differs significantly from the best row's (None: not tested, or the best)
     p_best: float | None = None  # the p-value of that test ("intervals": None, the intervals do or do not separate)
     test_best: str | None = None  # how it was tested: PAIRED or INTERVALS
+    also: tuple[str, ...] = ()  # other runs given that hold this same row (listed once)
 
     @property
     def random(self) -> bool:
         return self.run is None
+
+    @property
+    def tsr_mde(self) -> float | None:
+        """The smallest TSR difference from this row that a paired run on its episodes (pooled over its
+        Avg suites, else all of its suites) detects with 80 % power at 5 % (``stats``)."""
+        from rsb_maniskill.evaluation.stats import minimum_detectable_difference
+
+        if self.random:
+            return None
+        present = self.avg.present if self.avg else ()
+        over = [s for s in present if s in self.row["suites"]] or list(self.row["suites"])
+        rate = _pooled_tsr(self.row, over)
+        n = sum(self.row["suites"][s]["n"] for s in over if self.row["suites"][s]["tsr"]["value"] is not None)
+        return None if rate.value is None else minimum_detectable_difference(rate.value, n)
 
     @property
     def episodes(self) -> tuple[int, int] | None:
@@ -132,7 +147,10 @@ def load_run(path: str | os.PathLike) -> Run:
         raise LeaderboardError(f"{p}: holds no episode records yet")
     problem = document_problem(doc)
     if problem:
-        raise LeaderboardError(f"{p}: {problem}")
+        from rsb_maniskill.evaluation.store import RECORDS_FILE
+
+        where = p / RESULTS_FILE if p.is_dir() and not (p / RECORDS_FILE).exists() else p
+        raise LeaderboardError(f"{where}: {problem}")
     return Run(str(path), doc)
 
 
@@ -357,25 +375,48 @@ def check_episodes(pairs: Sequence[tuple[Run, Mapping[str, Any]]], version: str,
                                    "--allow-other-episodes to show it, marked")
 
 
+def _fingerprint(run: Run, row: Mapping[str, Any]) -> str:
+    """What makes two rows the same run's: the benchmark version, protocol and the row itself."""
+    keep = {k: v for k, v in run.doc.items() if k in ("benchmark_version", "protocol")}
+    return json.dumps([keep, row], sort_keys=True, default=str)
+
+
+def one_each(pairs: Sequence[tuple[Run, Mapping[str, Any]]],
+             ) -> tuple[list[tuple[Run, Mapping[str, Any]]], dict[int, list[str]]]:
+    """``pairs`` with a row that several runs hold (a folder copied, a results.json beside its own
+    directory's copy) kept once, at its first run; and, by the kept pair's index, the other runs."""
+    seen: dict[str, int] = {}
+    kept: list[tuple[Run, Mapping[str, Any]]] = []
+    also: dict[int, list[str]] = defaultdict(list)
+    for run, row in pairs:
+        key = _fingerprint(run, row)
+        if key in seen:
+            also[seen[key]].append(run.source)
+            continue
+        seen[key] = len(kept)
+        kept.append((run, row))
+    return kept, also
+
+
 def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, perturb: str | None = None,
                       allow_other_episodes: bool = False) -> Leaderboard:
     """The leaderboard of ``runs``' rows of one protocol (``instruction_mode`` / ``perturb`` pick
     one), by Avg TSR, the Random line last. LeaderboardError for two versions or protocols, or a
     row whose episodes differ from the version's (unless ``allow_other_episodes``: then marked)."""
-    pairs = select_rows(runs, instruction_mode, perturb)
+    pairs, also = one_each(select_rows(runs, instruction_mode, perturb))
     version, protocol = check_one_protocol(pairs)
     check_episodes(pairs, version, allow_other_episodes)
     suites = suite_order({s for _, row in pairs for s in row["suites"]})
     over = avg_suites(suites)
     labels = told_apart([(row["policy"], run.source, row.get("checkpoint")) for run, row in pairs])
     entries = []
-    for label, (run, row) in zip(labels, pairs):
+    for i, (label, (run, row)) in enumerate(zip(labels, pairs)):
         views = {s: _SuiteView.of(v) for s, v in row["suites"].items()}
         entries.append(Entry(
             label, row, run, average(views, over) if over else None,
             short=any(v["n"] < EPISODES_PER_SUITE for v in row["suites"].values()),
             off_seeds=any(not v["protocol_seeds"] or v["n"] > EPISODES_PER_SUITE for v in row["suites"].values()),
-            provenance=row.get("episodes", "unverified")))
+            provenance=row.get("episodes", "unverified"), also=tuple(also.get(i, ()))))
     entries.sort(key=_sort_key)
     entries = mark_differences(entries, suites)
     entries.append(Entry(RANDOM, random_row(suites), None, random_average(suites, over) if over else None))

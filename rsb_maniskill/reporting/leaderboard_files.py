@@ -37,8 +37,8 @@ UNDEFINED = "not defined"  # the Random line's GSR
 CSV_FIELDS = (
     "model", "suite_id", "n_choices", "n_episodes", "protocol_seeds", "gsr", "gsr_low", "gsr_high", "tsr", "tsr_low",
     "tsr_high", "nsg", "nsg_low", "nsg_high", "avg_complete", "short", "off_seeds", "episodes", "differs_from_best",
-    "vs_best_test", "vs_best_p", "checkpoint", "instruction_mode", "perturb", "split", "instructions",
-    "benchmark_version", "run",
+    "vs_best_test", "vs_best_p", "tsr_detectable_difference", "checkpoint", "instruction_mode", "perturb", "split",
+    "instructions", "benchmark_version", "run",
 )
 
 
@@ -46,12 +46,19 @@ def short_suite(suite_id: str) -> str:
     return suite_id.removeprefix("RSB-")
 
 
-def marks(e: Entry) -> str:
-    """``" †‡§"``: fewer episodes than the protocol's, other seeds than the protocol's, TSR significantly
-    different from the best row's."""
-    m = (SHORT if e.short else "") + (OFF_SEEDS if e.off_seeds else "") + (DIFFERS if e.differs else "") + (
+def marks(e: Entry, metric: str | None = "tsr") -> str:
+    """``" †‡§"``: fewer episodes than the protocol's, other seeds than the protocol's, and, on the
+    TSR table only (``metric``: the one tested), TSR significantly different from the best row's."""
+    m = (SHORT if e.short else "") + (OFF_SEEDS if e.off_seeds else "") + (
+        DIFFERS if e.differs and metric == "tsr" else "") + (
         OTHER_EPISODES if not e.random and e.provenance == "differ" else "")
     return f" {m}" if m else ""
+
+
+def mde_text(e: Entry) -> str:
+    """The TSR difference the row's episodes can detect, in points (``"±12.3"``)."""
+    mde = e.tsr_mde
+    return MISSING if e.random else NA if mde is None else f"\u00b1{100 * mde:.1f}"
 
 
 def protocol_tag(board: Leaderboard) -> tuple[str, str]:
@@ -121,6 +128,12 @@ def notes(board: Leaderboard) -> list[str]:
         out.append(f"Episodes unverified (records without episode digests, written before them): "
                    f"{', '.join(unverified)}.")
     out += difference_notes(board)
+    out.append("Detectable TSR difference: the smallest difference from a row's TSR (pooled over its Avg suites) that "
+               "a paired comparison on its episodes (the same seeds, McNemar's test at p < 0.05) finds 4 times in "
+               "5; a smaller one needs more episodes (`rsb plan`).")
+    twice = [f"{e.label} ({e.run.source}; also in {', '.join(e.also)})" for e in board.entries if e.also]
+    if twice:
+        out.append("The same run given twice, listed once: " + "; ".join(twice) + ".")
     return out if board.avg_suites else [n for n in out if not n.startswith(PARTIAL)]
 
 
@@ -162,8 +175,10 @@ def leaderboard_markdown(board: Leaderboard, title: str) -> str:
                 extra += [episodes_text(e), _md(e.row.get("checkpoint") or MISSING),
                           MISSING if e.random else tag, MISSING if e.random else version,
                           _md(e.run.source) if e.run else MISSING]
-            rows.append([_md(e.label) + marks(e), *cells, *extra])
-        more = ["Episodes / suite", "Checkpoint", "Protocol", "Benchmark", "Run"] if key == "tsr" else []
+                extra.append(mde_text(e))
+            rows.append([_md(e.label) + marks(e, key), *cells, *extra])
+        more = (["Episodes / suite", "Checkpoint", "Protocol", "Benchmark", "Run", "Detectable TSR difference"]
+                if key == "tsr" else [])
         out += [f"### {name} (%): {what}", "", markdown_table([*head, *more], rows), ""]
     return "\n".join(out + [f"- {_md(n)}" for n in notes(board)]) + "\n"
 
@@ -174,7 +189,7 @@ def csv_rows(board: Leaderboard) -> list[dict[str, Any]]:
     for e in board.entries:
         common = {"model": e.label, "checkpoint": e.row.get("checkpoint"), "short": e.short, "off_seeds": e.off_seeds,
                   "episodes": None if e.random else e.provenance, "differs_from_best": e.differs,
-                  "vs_best_test": e.test_best, "vs_best_p": e.p_best,
+                  "vs_best_test": e.test_best, "vs_best_p": e.p_best, "tsr_detectable_difference": e.tsr_mde,
                   "instruction_mode": p["instruction_mode"], "perturb": p["perturb"], "split": p["split"],
                   "instructions": p["instructions"], "benchmark_version": board.benchmark_version,
                   "run": e.run.source if e.run else None}
@@ -219,7 +234,8 @@ def page_rows(board: Leaderboard) -> list[dict[str, Any]]:
         avg = {"missing": e.avg is None, "n": None,
                "sort": {k: _sort_value(getattr(e.avg, k) if e.avg else None) for k, _, _ in METRICS},
                "text": {k: (avg_text(e, k), "") for k, _, _ in METRICS}}
-        rows.append({"label": e.label, "marks": marks(e).strip(), "random": e.random,
+        rows.append({"label": e.label, "marks": marks(e, None).strip(), "tsr_marks": DIFFERS if e.differs else "",
+                     "random": e.random,
                      "cells": [_cell(e, s) for s in board.suites], "avg": avg,
                      "episodes": episodes_text(e), "episodes_sort": e.episodes[0] if e.episodes else "",
                      "checkpoint": e.row.get("checkpoint") or "", "tag": "" if e.random else protocol_tag(board),

@@ -17,7 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate, SuiteMetrics, average, summarize
+from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate, SuiteMetrics, average, num_choices, summarize
 from rsb_maniskill.evaluation.provenance import check_records
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, one_version, perturb_label, row_label
 from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
@@ -72,7 +72,7 @@ def results_document(records: Iterable[Mapping[str, Any]], runs: Mapping[str, Ma
             "code_commit": run.get("code_commit"), "suites": suites,
             "average": {"suites": list(avg.present), "complete": avg.complete, "gsr": avg.gsr, "tsr": avg.tsr,
                         "nsg": avg.nsg},
-            "episodes": check_records(recs).verdict,  # pinned / differ / unverified (evaluation/provenance.py)
+            "episodes": check_records(recs, runs=runs).verdict,  # pinned / differ / unverified (provenance.py)
             "full_protocol": all(s in suites and suites[s]["n"] == EPISODES_PER_SUITE and suites[s]["protocol_seeds"]
                                  for s in PAPER_SUITES),
         })
@@ -92,8 +92,13 @@ def write_results(results_dir: str | os.PathLike, records: Iterable[Mapping[str,
     """Write ``results_dir/results.json`` for ``records`` (whole: a reader never sees half of it)."""
     path = Path(results_dir) / RESULTS_FILE
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(results_document(records, read_manifest(results_dir)), indent=1) + "\n")
-    os.replace(tmp, path)
+    text = json.dumps(results_document(records, read_manifest(results_dir)), indent=1) + "\n"
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except BaseException:  # a full disk: no half-written temp file left beside it
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
@@ -128,15 +133,23 @@ def _pairs(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[tuple[Mapping[str
     return [(r, rb[r["row"]]) for r in a["rows"] if r["row"] in rb]
 
 
-def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] = ("A", "B")) -> str:
+def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] = ("A", "B"),
+            rows_optional: bool = False) -> str:
     """Markdown: two runs' rows side by side, per suite and metric, with B - A and whether the
-    Wilson intervals separate. ValueError (one line) when their benchmark versions differ."""
+    Wilson intervals separate. ValueError (one line) when their benchmark versions differ, or when
+    no row pairs (unless ``rows_optional``: runs of counterfactual scenes alone have no row, their
+    paired comparison of records is all there is; a line says so)."""
     from rsb_maniskill.version import benchmark_label
 
     if a["benchmark_version"] != b["benchmark_version"]:
         raise ValueError(f"cannot compare {benchmark_label(a['benchmark_version'])} ({names[0]}) with "
                          f"{benchmark_label(b['benchmark_version'])} ({names[1]}): their episodes differ")
     pairs = _pairs(a, b)
+    if not pairs and rows_optional:
+        return (f"Benchmark: {benchmark_label(a['benchmark_version'])}. A = {names[0]}, B = {names[1]}. No rows "
+                f"to put side by side ({names[0]}: {[r['row'] for r in a['rows']]}, {names[1]}: "
+                f"{[r['row'] for r in b['rows']]}; counterfactual scenes are a diagnosis, not rows of "
+                "results.json): the paired comparison of their episodes follows.\n")
     if not pairs:
         raise ValueError(f"no row to compare: {names[0]} has {[r['row'] for r in a['rows']]}, "
                          f"{names[1]} has {[r['row'] for r in b['rows']]} (rows pair by label, or one row each)")
@@ -183,13 +196,44 @@ def _number_problem(x: Any, low: float, high: float) -> str | None:
     return None
 
 
+def shape_problem(doc: Any) -> str | None:
+    """The first place where a results document is not the shape its readers walk (a mapping where one
+    is due, a list of rows, a suite id this code knows), as ``"field: what"``; None if none. Checked
+    in code, so that a hand-edited file is refused in one line even without jsonschema."""
+    if not isinstance(doc, Mapping):
+        return f"document: {type(doc).__name__} where a JSON object is due"
+    rows = doc.get("rows")
+    if not isinstance(rows, list):
+        return f"rows: {type(rows).__name__} where a list of rows is due"
+    for i, row in enumerate(rows):
+        if not isinstance(row, Mapping):
+            return f"rows[{i}]: {type(row).__name__} where a row (a JSON object) is due"
+        for key in ("row", "policy", "instruction_mode", "perturb"):
+            if not isinstance(row.get(key), str):
+                return f"rows[{i}].{key}: {row.get(key)!r} where a string is due"
+        suites = row.get("suites")
+        if not isinstance(suites, Mapping):
+            return f"rows[{i}].suites: {type(suites).__name__} where a mapping of suite ids is due"
+        for suite, value in suites.items():
+            try:
+                num_choices(suite)
+            except (ValueError, KeyError, IndexError):
+                return f"rows[{i}].suites: {suite!r} is not a suite id of this benchmark"
+            if not isinstance(value, Mapping):
+                return f"rows[{i}].suites.{suite}: {type(value).__name__} where a suite's rates are due"
+        if not isinstance(row.get("average", {}), Mapping):
+            return f"rows[{i}].average: {type(row.get('average')).__name__} where a JSON object is due"
+    return None
+
+
 def document_problem(doc: Mapping[str, Any]) -> str | None:
     """The first thing wrong with a results document, as ``"field: what"`` (None if none): episode
     counts and the rates' types and ranges (finite, within [0, 1], nSG within [-1, 1], low <= value
     <= high), checked in code; then the shipped schema, where jsonschema is installed."""
+    shape = shape_problem(doc)
+    if shape:
+        return shape
     for i, row in enumerate(doc.get("rows") or []):
-        if not isinstance(row, Mapping):
-            continue
         for suite, s in (row.get("suites") or {}).items():
             where = f"rows[{i}].suites.{suite}"
             n = s.get("n") if isinstance(s, Mapping) else None

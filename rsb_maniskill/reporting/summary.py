@@ -26,7 +26,7 @@ from rsb_maniskill.evaluation.metrics import (
 from rsb_maniskill.evaluation.records import dedupe, one_version, record_row
 from rsb_maniskill.objects.family import OBJECTS_SUFFIX
 from rsb_maniskill.reporting.blocks import Block, Grid, Heading, Inline, Note, Strong, to_markdown
-from rsb_maniskill.reporting.cells import ci, pct
+from rsb_maniskill.reporting.cells import NA, ci, pct
 
 Results = Mapping[str, Mapping[str, SuiteMetrics]]
 # The heading of paper Table 7 (the last table): the page shows it in its error analysis section.
@@ -49,15 +49,39 @@ def suite_columns(results: Results) -> list[str]:
     return suite_order({s for row in results.values() for s in row})
 
 
+def detectable(m: SuiteMetrics) -> dict[str, float | None]:
+    """Per metric, the smallest difference from this suite's value that a paired comparison on the
+    same episodes detects with 80 % power at p < 0.05 (``stats.minimum_detectable_difference``);
+    nSG's through its share of grasps on the target (TSR / GSR over the grasped episodes), scaled
+    like nSG. None where no difference within [0, 1] can be told at this n."""
+    from rsb_maniskill.evaluation.stats import minimum_detectable_difference as mdd
+
+    out: dict[str, float | None] = {
+        "gsr": None if m.gsr.value is None else mdd(m.gsr.value, m.n_episodes),
+        "tsr": None if m.tsr.value is None else mdd(m.tsr.value, m.n_episodes), "nsg": None}
+    if m.n_grasped:
+        cond = mdd(m.n_success / m.n_grasped, m.n_grasped)
+        out["nsg"] = None if cond is None else cond / (1 - 1 / m.n_choices)
+    return out
+
+
+DETECTABLE_NOTE = Note("Detectable difference (TSR, points): the smallest TSR difference from this run that a paired "
+                       "comparison on the same episodes (McNemar's test, p < 0.05) finds 4 times in 5; summary.json "
+                       "holds it for GSR and nSG too (detectable_difference). `rsb plan` gives the episodes another "
+                       "claim needs.")
+
+
 def summary_dict(results: Results, benchmark_version: str | None = None) -> dict[str, Any]:
-    """Everything as plain JSON-able data: per-suite metrics with intervals, and Avg per row
-    (with the benchmark version of the episodes, when given)."""
+    """Everything as plain JSON-able data: per-suite metrics with intervals and the differences the
+    run can detect, and Avg per row (with the benchmark version of the episodes, when given)."""
     return {
         **({"benchmark_version": benchmark_version} if benchmark_version else {}),
         "avg_suites": list(PAPER_SUITES),
+        "detectable_difference": "the smallest difference from the value that a paired comparison on the same "
+                                 "episodes detects with 80 % power at p < 0.05 (fractions; null: none at this n)",
         "rows": {
             label: {
-                "suites": {s: m.to_dict() for s, m in row.items()},
+                "suites": {s: {**m.to_dict(), "detectable_difference": detectable(m)} for s, m in row.items()},
                 "avg": average(row).to_dict(),
             }
             for label, row in results.items()
@@ -152,9 +176,11 @@ def summary_blocks(results: Results, benchmark_version: str | None = None) -> li
         row = results[label]
         detail = [[s, str(m.n_episodes), ci(m.gsr.value, m.gsr.low, m.gsr.high),
                    ci(m.tsr.value, m.tsr.low, m.tsr.high), ci(m.nsg.value, m.nsg.low, m.nsg.high),
-                   f"{100 / m.n_choices:.1f}"] for s, m in row.items()]
+                   f"{100 / m.n_choices:.1f}", _points(detectable(m)["tsr"])] for s, m in row.items()]
         out += [Heading(f"{label}: per suite with Wilson 95% intervals (%)"),
-                Grid(["Suite", "Episodes", "GSR", "TSR", "nSG", "Random TSR (1/N)"], detail)]
+                Grid(["Suite", "Episodes", "GSR", "TSR", "nSG", "Random TSR (1/N)", "Detectable TSR difference"],
+                     detail)]
+    out.append(DETECTABLE_NOTE)
 
     err_rows = []
     for key, name in (("not_placed", "Grasped correct block but not placed"),
@@ -177,6 +203,10 @@ def summary_blocks(results: Results, benchmark_version: str | None = None) -> li
 
         out.insert(0, Note(f"Benchmark: {benchmark_label(benchmark_version)} (docs/versions.md)"))
     return out
+
+
+def _points(x: float | None) -> str:
+    return NA if x is None else f"\u00b1{100 * x:.1f}"
 
 
 def markdown_tables(results: Results, benchmark_version: str | None = None) -> str:

@@ -54,7 +54,6 @@ def test_a_policy_that_follows():
     m = metrics(scenes(lambda rng, t, pick: t))
     assert (m.follow.value, m.follow_all.value, m.switch.value, m.stuck.value) == (1.0, 1.0, 1.0, 0.0)
     assert m.counts.pairs == 50 * 6 and m.counts.full_scenes == 50 and m.variants_per_scene == 4
-    assert m.counts.disjoint_pairs == 50 * 2  # the switch interval's sample: pairs sharing no variant
     assert m.follow_by_kind["remap"].value == m.follow_by_kind["requestion"].value == 1.0
     assert (m.chance_follow, m.chance_switch, m.chance_stuck) == (0.25, 0.75, 0.25 ** 3)
 
@@ -107,7 +106,6 @@ def test_denominators_without_a_grasp():
     assert m.follow_grasped.value == 3 / 4 and m.follow_all.value == 3 / 6
     assert m.follow.value == 1 / 2  # changed variants grasped: scene 1 variant 2 (followed), scene 2 variant 1
     assert m.counts.pairs == 2 and m.switch.value == 0.5  # (0, 2) of scene 1 stuck on 0; scene 2 switched
-    assert m.counts.disjoint_pairs == 2
     assert m.counts.full_scenes == 1 and m.stuck.value == 0.0  # only scene 2 was grasped in every variant
     assert m.variants_per_scene is None  # scenes of 4 and 2 variants
     assert m.chance_stuck == 0.25  # scene 2: K = 2

@@ -1,10 +1,13 @@
-"""`rsb report --compare A B` pairs episodes: exact McNemar for GSR / TSR (and follow), a paired
-bootstrap for nSG, the paired and unpaired counts, and a refusal when nothing pairs."""
+"""`rsb report --compare A B` pairs episodes: tests that count scenes for GSR / TSR (McNemar's exact test when
+every scene is one episode) and, for counterfactual runs, the headline follow and switch; a paired bootstrap
+for nSG whose marks do not depend on its seed; the paired and unpaired counts; a refusal when nothing pairs;
+type I error at most alpha with clustered variants (simulated)."""
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import numpy as np
 from scipy.stats import binomtest
 
 from rsb_maniskill.cli import main
@@ -18,7 +21,7 @@ def rec(policy, suite, seed, grasped, success, mode="normal", variant=None):
          "grasped_correct": success, "placed_correct": success, "placed_wrong": False, "success": success,
          "steps": 5, "benchmark_version": "1.1"}
     if variant is not None:
-        r.update(variant=variant, variant_kind="remap")
+        r.update(variant=variant, variant_kind="remap" if variant else "protocol")
     return r
 
 
@@ -35,12 +38,12 @@ def test_compare_prints_exact_mcnemar_on_the_discordant_pairs(tmp_path, capsys):
     assert main(["report", "--compare", str(a), str(b)]) == 0
     out = capsys.readouterr().out
     assert "Paired: 20 episodes" in out and "unpaired: 0 of A, 2 of B" in out
-    row = next(ln for ln in out.splitlines() if ln.startswith("| RSB-Math-4 | TSR | 20 |"))
+    row = next(ln for ln in out.splitlines() if ln.startswith("| RSB-Math-4 | TSR | 20 / 20 |"))
     p = binomtest(0, 10, 0.5).pvalue
     assert "| 0 / 10 |" in row and "McNemar" in row and f"{p:.3f} *" in row and "+50.0" in row
-    gsr = next(ln for ln in out.splitlines() if ln.startswith("| RSB-Math-4 | GSR | 20 |"))
+    gsr = next(ln for ln in out.splitlines() if ln.startswith("| RSB-Math-4 | GSR | 20 / 20 |"))
     assert "| 0 / 0 |" in gsr and "1.000" in gsr
-    nsg = next(ln for ln in out.splitlines() if ln.startswith("| RSB-Math-4 | nSG | 20 |"))
+    nsg = next(ln for ln in out.splitlines() if ln.startswith("| RSB-Math-4 | nSG | 20 / 20 |"))
     assert "paired bootstrap" in nsg and nsg.rstrip(" |").endswith("*")
 
 
@@ -64,7 +67,13 @@ def test_counterfactual_rows_get_follow_and_pair_by_variant():
     assert all(x["variant"] == y["variant"] and x["seed"] == y["seed"] for x, y in pairs)
     out = compare_paired(a, b)
     follow = next(ln for ln in out.splitlines() if "| Follow |" in ln)
-    assert "RSB-Math-4 (counterfactual)" in follow and "| 0 / 12 |" in follow
+    # the section's headline follow: changed variants (k > 0) with a grasp, 12 in each run; 6 scenes
+    assert "RSB-Math-4 (counterfactual)" in follow and "| 18 / 6 |" in follow and "| of 12 / 12 |" in follow
+    assert "| 0.0 | 100.0 | +100.0 |" in follow
+    # all 6 scenes went B's way: the exact scene permutation's p is 2 / 2^6, not McNemar's 2 / 2^12 over variants
+    assert "scene permutation (exact)" in follow and "0.031 *" in follow
+    tsr = next(ln for ln in out.splitlines() if "| TSR |" in ln)
+    assert "| 0 / 12 |" in tsr and "0.031 *" in tsr
 
 
 def test_no_pairs_is_a_value_error():
@@ -84,3 +93,82 @@ def test_same_seed_other_question_is_not_a_pair():
     assert [p[0]["seed"] for p in pairs] == [0, 1] and (only_a, only_b) == (2, 2)
     old = [{k: v for k, v in r.items() if k != "episode_digest"} for r in b]  # no digest: paired by seed
     assert len(pair_records(a, old)[0]) == 4
+
+
+def test_compare_reaches_counterfactual_runs_from_the_command_line(tmp_path, capsys):
+    """Issue 59: two counterfactual-only runs have no results.json row; --compare pairs their records."""
+    def cf(policy, s, v, grasp):  # variant v's target is candidate v; the policy grasps `grasp`
+        return rec(policy, "RSB-Math-4", s, True, grasp == v, mode="counterfactual", variant=v) | {
+            "target_block": v, "first_grasped": grasp}
+
+    a = run_dir(tmp_path / "cf_blind", [cf("leftmost", s, v, 0) for s in range(8) for v in range(4)])
+    b = run_dir(tmp_path / "cf_oracle", [cf("oracle", s, v, v) for s in range(8) for v in range(4)])
+    assert main(["report", "--compare", str(a), str(b)]) == 0
+    out = capsys.readouterr().out
+    assert "No rows to put side by side" in out and "### Paired comparison" in out
+    for metric in ("GSR", "TSR", "Follow", "Switch", "nSG"):
+        assert f"| RSB-Math-4 (counterfactual) | {metric} | 32 / 8 |" in out, metric
+    follow = next(ln for ln in out.splitlines() if "| Follow |" in ln)
+    assert "| 0.0 | 100.0 | +100.0 |" in follow and follow.rstrip(" |").endswith("*")
+    switch = next(ln for ln in out.splitlines() if "| Switch |" in ln)
+    assert "| 0.0 | 100.0 | +100.0 |" in switch and "of 48 / 48" in switch  # 6 pairs a scene
+    assert "0.008 *" in switch  # 2 / 2^8: the 8 scenes, every flip enumerated
+
+
+def _clustered_pairs(rng: np.random.Generator, scenes: int, k: int, icc: float, rate: float):
+    """A and B alike (the null hypothesis): each run's success probability in a scene drawn from one beta law
+    of intraclass correlation ``icc`` (a policy knows a scene's question or not), each variant from it."""
+    s = 1 / icc - 1
+    qa, qb = (np.repeat(rng.beta(rate * s, (1 - rate) * s, scenes), k) for _ in range(2))
+    return rng.random(scenes * k) < qa, rng.random(scenes * k) < qb
+
+
+def test_scene_tests_hold_their_type_one_error_with_clustered_variants():
+    """20 scenes x 4 variants, ICC 0.8, A and B alike: McNemar over variants (the old test) rejects far more
+    than 5 % of the time; the scene permutation at most 5 % (plus Monte Carlo slack: 2,000 runs, SE 0.5)."""
+    from rsb_maniskill.evaluation.stats import mcnemar, scene_permutation
+
+    rng = np.random.default_rng(5)
+    scenes, k, runs = 20, 4, 2000
+    scene_rejects = naive_rejects = 0
+    for _ in range(runs):
+        a, b = _clustered_pairs(rng, scenes, k, 0.8, 0.4)
+        per_a, per_b = a.reshape(scenes, k).sum(1), b.reshape(scenes, k).sum(1)
+        scene_rejects += scene_permutation(per_a, np.full(scenes, k), per_b, np.full(scenes, k)).p < 0.05
+        naive_rejects += mcnemar(a, b).p < 0.05
+    assert scene_rejects / runs <= 0.05 + 2 * np.sqrt(0.05 * 0.95 / runs), scene_rejects / runs
+    assert naive_rejects / runs > 0.15, naive_rejects / runs
+
+
+def test_follow_test_holds_its_type_one_error_when_grasps_differ():
+    """Follow's denominators differ between runs (each run's own grasps): the ratio's scene permutation
+    (every flip of 10 scenes enumerated) stays at most 5 % when A and B are alike."""
+    from rsb_maniskill.evaluation.stats import scene_permutation
+
+    rng = np.random.default_rng(6)
+    scenes, k, runs, rejects = 10, 3, 600, 0
+    for _ in range(runs):
+        fa, fb = _clustered_pairs(rng, scenes, k, 0.8, 0.5)
+        ga, gb = rng.random(scenes * k) < 0.8, rng.random(scenes * k) < 0.8  # grasped: the denominators
+        sums = [x.reshape(scenes, k).sum(1) for x in (fa & ga, ga, fb & gb, gb)]
+        rejects += (scene_permutation(*sums).p or 1.0) < 0.05
+    assert rejects / runs <= 0.05 + 2 * np.sqrt(0.05 * 0.95 / runs), rejects / runs
+
+
+def test_the_bootstrap_mark_does_not_flip_with_the_seed_on_a_borderline_case():
+    """Issue 59's borderline case: at a fixed 2,000 draws seeds 0-9 gave p from 0.038 to 0.062. Drawing until
+    the p-value's 99.9 % Monte Carlo interval leaves 0.05 gives one decision under every seed."""
+    from rsb_maniskill.evaluation.stats import ALPHA, paired_bootstrap
+
+    n = 120  # B alone succeeds on 20 episodes, A alone on 9, both on 40: p near 0.05
+    a, b = np.zeros(n), np.zeros(n)
+    b[:20], a[20:29], a[29:69], b[29:69] = 1, 1, 1, 1
+    mean = lambda m: m[..., 0]  # noqa: E731
+    fixed = [paired_bootstrap(b, a, mean, resamples=2000, seed=s, max_resamples=2000).p for s in range(10)]
+    assert min(fixed) < ALPHA <= max(fixed), fixed  # at a fixed 2,000 draws the seed decides the mark
+    runs = [paired_bootstrap(b, a, mean, seed=s) for s in range(10)]
+    marks = {r.p < ALPHA for r in runs if r.decided}
+    # never "*" under one seed and no mark under another
+    assert marks == {True}, [(r.p, r.p_low, r.p_high, r.decided) for r in runs]
+    assert all(r.decided or r.resamples >= 60000 for r in runs)  # undecided only at the most draws: printed "?"
+    assert all(r.p_low <= r.p <= r.p_high for r in runs)

@@ -35,8 +35,10 @@ def test_follow_intervals_over_scenes_hold_their_coverage():
 
 
 def test_independent_variants_keep_wilsons_coverage():
+    """Independent variants: at least 95 %; Student's t over the 40 scenes (the variance is estimated from
+    them) makes it a little conservative (97 %), never short."""
     covered, _ = _coverage(knows=0.0, seed=1)
-    assert abs(covered - 0.95) <= 0.02, covered
+    assert 0.93 <= covered <= 0.98, covered
 
 
 def test_switch_intervals_over_scenes_hold_their_coverage_for_a_half_stuck_policy():

@@ -126,7 +126,7 @@ def test_compare_two_runs(tmp_path, capsys):
     out = capsys.readouterr().out
     row = next(ln for ln in out.splitlines()[::-1] if ln.startswith("| RSB-Math-4 | TSR |") and "[" in ln)
     assert row.endswith("| overlap |")  # the intervals overlap, yet the paired test sees 5 of 5 discordant pairs
-    paired = next(ln for ln in out.splitlines()[::-1] if ln.startswith("| RSB-Math-4 | TSR | 500 |"))
+    paired = next(ln for ln in out.splitlines()[::-1] if ln.startswith("| RSB-Math-4 | TSR | 500 / 500 |"))
     assert "| 0 / 5 |" in paired and "McNemar" in paired
     old = write_dir(tmp_path / "old", records("pi0", "RSB-Math-4", 5, 5, 0, version="0.9"))
     assert main(["report", "--compare", str(a), str(old)]) == 2

@@ -19,13 +19,14 @@ every variant: follow 1/N; switch 1 - 1/N; stuck (1/N)^(K-1) for a scene of K va
 chances are the per-suite chances averaged with the weights of the pooled denominator, so they are
 what such a policy would score on the same episodes.
 
-The intervals are Wilson 95 % over the denominator's units, except for switch: the K(K-1)/2 pairs
-of a scene share variants, so a scene's pairs hang together for most policies (a scene the policy
-is stuck in has all of its pairs unswitched). The switch rate is the mean over all pairs, its
-interval Wilson's for that rate over floor(m/2) pairs a scene (m: its grasped variants), the pairs
-a scene has that share no variant: the mean over all pairs varies no more than the mean over
-disjoint ones, so the interval is a conservative one. (The variants of a scene in the follow rate
-may hang together too, as the episodes of one question would in TSR.)
+The intervals count scenes: a scene's variants (and the K(K-1)/2 pairs of its variants) are not
+independent (three of four ask the same question; a scene the policy is stuck in has all its pairs
+unswitched). Follow and switch are the means over all variants / pairs, their intervals Wilson's at
+the effective number of them (``stats.clustered_rate``: Kish's design effect over scenes, the
+scenes' sizes where it cannot be estimated, at 0 % or 100 %, and Student's t over the scenes);
+stuck counts one a scene. Each rate's ``detectable`` difference is the smallest one a paired
+comparison on the same scenes finds 4 times in 5 (``stats.minimum_detectable_difference`` at the
+same design effect).
 """
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import Rate, num_choices
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, record_row
-from rsb_maniskill.evaluation.stats import clustered_rate
+from rsb_maniskill.evaluation.stats import clustered_rate, design_effect, minimum_detectable_difference
 from rsb_maniskill.reporting.blocks import Block, Grid, Heading, Inline, Note, Strong, to_markdown
 from rsb_maniskill.reporting.cells import NA, pct, rate_cell
 from rsb_maniskill.reporting.figures import png_uri, png_with_legend_below, rate_bars
@@ -60,7 +61,6 @@ class Counts:
     kind_followed: Mapping[str, int] = field(default_factory=dict)
     pairs: int = 0
     switched: int = 0
-    disjoint_pairs: int = 0  # floor(m / 2) a scene: the switch interval's sample size
     full_scenes: int = 0  # scenes whose every variant was grasped (K >= 2)
     stuck: int = 0
     chance_followed: float = 0.0  # expected numerators of a uniform random grasper
@@ -77,7 +77,7 @@ class Counts:
                       kind_followed={k: self.kind_followed.get(k, 0) + o.kind_followed.get(k, 0) for k in kinds})
 
 
-_SUMMED = ("scenes", "variants", "grasped", "followed", "pairs", "switched", "disjoint_pairs", "full_scenes", "stuck",
+_SUMMED = ("scenes", "variants", "grasped", "followed", "pairs", "switched", "full_scenes", "stuck",
            "chance_followed", "chance_switched", "chance_stuck")
 
 
@@ -99,6 +99,7 @@ class CounterfactualMetrics:
     follow_grasped: Rate = Rate(None, None, None)  # over every variant with a grasp, the protocol's (k = 0) too
     switched_and_followed: Rate = Rate(None, None, None)  # pairs with different targets, both grasps on target
     spread: Mapping[str, int] = field(default_factory=dict)  # scenes: all / some / none of their changed variants
+    detectable: Mapping[str, float | None] = field(default_factory=dict)  # follow, switch: see scene_detectable
 
     @classmethod
     def of(cls, counts: Counts, n_choices: int | None, k: int | None) -> "CounterfactualMetrics":
@@ -111,7 +112,9 @@ class CounterfactualMetrics:
                    scene_rate(c, "switched", "pairs"), Rate.of(c.stuck, c.full_scenes),
                    _ratio(chance_changed, changed), _ratio(c.chance_switched, c.pairs),
                    _ratio(c.chance_stuck, c.full_scenes), scene_rate(c, "followed", "grasped"),
-                   scene_rate(c, "both_followed", "pairs"), spread(c))
+                   scene_rate(c, "both_followed", "pairs"), spread(c),
+                   {"follow": scene_detectable(c, "changed_followed", "changed_grasped"),
+                    "switch": scene_detectable(c, "switched", "pairs")})
 
     def to_dict(self) -> dict[str, Any]:
         def rate(r: Rate) -> dict[str, float | None]:
@@ -119,13 +122,12 @@ class CounterfactualMetrics:
 
         c = self.counts
         return {"n_choices": self.n_choices, "variants_per_scene": self.variants_per_scene, "scenes": c.scenes,
-                "variants": c.variants, "grasped": c.grasped, "pairs": c.pairs, "disjoint_pairs": c.disjoint_pairs,
-                "full_scenes": c.full_scenes,
+                "variants": c.variants, "grasped": c.grasped, "pairs": c.pairs, "full_scenes": c.full_scenes,
                 "follow": rate(self.follow), "follow_all": rate(self.follow_all),
                 "follow_by_kind": {k: rate(r) for k, r in self.follow_by_kind.items()},
                 "switch": rate(self.switch), "stuck": rate(self.stuck),
                 "follow_grasped": rate(self.follow_grasped), "switched_and_followed": rate(self.switched_and_followed),
-                "spread": dict(self.spread),
+                "spread": dict(self.spread), "detectable_difference": dict(self.detectable),
                 "chance": {"follow": self.chance_follow, "switch": self.chance_switch, "stuck": self.chance_stuck}}
 
 
@@ -144,19 +146,35 @@ def spread(counts: Counts) -> dict[str, int]:
     return out
 
 
-def scene_rate(counts: Counts, hits: str, of: str) -> Rate:
-    """``sum(hits) / sum(of)`` over the scenes of ``counts``, with Wilson's 95 % interval at the
-    effective sample size (Kish's design effect over scenes, ``stats.clustered_rate``): a scene whose
-    variants all went the same way counts about once, not K times."""
+def scene_values(counts: Counts, hits: str, of: str) -> tuple[list[int], list[int]]:
+    """The 0/1 outcomes behind ``sum(hits) / sum(of)`` over the scenes of ``counts``, and each one's scene."""
     values: list[int] = []
     clusters: list[int] = []
     for i, scene in enumerate(counts.per_scene):
         n, k = scene.get(of, 0), scene.get(hits, 0)
         values += [1] * k + [0] * (n - k)
         clusters += [i] * n
+    return values, clusters
+
+
+def scene_rate(counts: Counts, hits: str, of: str) -> Rate:
+    """``sum(hits) / sum(of)`` over the scenes of ``counts``, with Wilson's 95 % interval at the
+    effective sample size (the design effect over scenes, ``stats.clustered_rate``): a scene whose
+    variants all went the same way counts about once, not K times."""
+    values, clusters = scene_values(counts, hits, of)
     if not values:
         return Rate(None, None, None)
     return clustered_rate(values, clusters)
+
+
+def scene_detectable(counts: Counts, hits: str, of: str) -> float | None:
+    """The smallest difference from ``sum(hits) / sum(of)`` that a paired comparison on the same
+    scenes detects with 80 % power at p < 0.05, at this run's design effect over scenes."""
+    values, clusters = scene_values(counts, hits, of)
+    if not values:
+        return None
+    return minimum_detectable_difference(sum(values) / len(values), len(values),
+                                         design=design_effect(values, clusters))
 
 
 def grasped(record: Mapping[str, Any]) -> int | None:
@@ -194,7 +212,7 @@ def scene_counts(variants: Sequence[Mapping[str, Any]], n_choices: int) -> Count
         scenes=1, variants=len(picks), grasped=n_grasped,
         followed=sum(g == t for g, t in zip(picks, targets) if g is not None),
         kind_grasped=dict(kind_grasped), kind_followed=dict(kind_followed),
-        pairs=len(pairs), switched=sum(a != b for a, b in pairs), disjoint_pairs=min(n_grasped // 2, len(pairs)),
+        pairs=len(pairs), switched=sum(a != b for a, b in pairs),
         full_scenes=int(full), stuck=int(full and len(set(picks)) == 1),
         chance_followed=n_grasped / n_choices, chance_switched=len(pairs) * (1 - 1 / n_choices),
         chance_stuck=(1 / n_choices) ** (len(picks) - 1) if full else 0.0, per_scene=(own,))
@@ -255,7 +273,8 @@ RATES = ("follow", "switch", "stuck")  # the plotted rates, each beside its chan
 COLORS = {"follow": "#2171b5", "switch": "#41ab5d", "stuck": "#d94801"}
 LABELS = {"follow": "follow (changed, of grasped)", "switch": "switch", "stuck": "stuck"}
 HEADER = ["Suite", "N", "K", "Scenes", "Follow", "chance", "Follow (all)", "remap", "requestion", "Switch",
-          "chance", "Switched & followed", "Stuck", "chance", "Scenes followed: all / some / none"]
+          "chance", "Switched & followed", "Stuck", "chance", "Scenes followed: all / some / none",
+          "Detectable: follow / switch"]
 NOTE = ("Follow: the grasped candidate is the variant's target, over the changed variants (k > 0: the answer "
         "moved) with a grasp (Follow (all): over every variant, the protocol's k = 0 too; remap / requestion: by "
         "the kind of variant). Switched & followed: pairs of variants with different targets, both grasps on "
@@ -267,7 +286,9 @@ NOTE = ("Follow: the grasped candidate is the variant's target, over the changed
         f"follow {CHANCE_FORMULAS['follow']}, switch {CHANCE_FORMULAS['switch']}, stuck "
         f"{CHANCE_FORMULAS['stuck']}. %, Wilson 95% intervals over scenes: a scene's variants (and its pairs) are "
         "not independent, so follow and switch are counted at their effective number of scenes (Kish's design "
-        "effect); stuck counts one a scene.")
+        "effect; at 0 % or 100 % the scenes' sizes: a scene counts once) with Student's t over the scenes; stuck "
+        "counts one a scene. Detectable: the smallest difference in follow / switch a paired comparison on the "
+        "same scenes finds 4 times in 5 (points).")
 
 
 def _n(value: int | None) -> str:
@@ -279,7 +300,9 @@ def _cells(suite: Inline, m: CounterfactualMetrics) -> list[Inline]:
             pct(m.chance_follow), rate_cell(m.follow_all), rate_cell(m.follow_by_kind["remap"]),
             rate_cell(m.follow_by_kind["requestion"]), rate_cell(m.switch), pct(m.chance_switch),
             rate_cell(m.switched_and_followed), rate_cell(m.stuck), pct(m.chance_stuck),
-            " / ".join(str(m.spread.get(k, 0)) for k in ("all", "some", "none"))]
+            " / ".join(str(m.spread.get(k, 0)) for k in ("all", "some", "none")),
+            " / ".join(NA if m.detectable.get(k) is None else f"\u00b1{100 * m.detectable[k]:.1f}"
+                       for k in ("follow", "switch"))]
 
 
 def counterfactual_blocks(table: Table) -> list[Block]:
@@ -303,7 +326,8 @@ def counterfactual_rows(table: Table) -> list[dict[str, Any]]:
             d = m.to_dict()
             flat: dict[str, Any] = {"row": row, "suite_id": suite}
             flat.update({k: d[k] for k in ("n_choices", "variants_per_scene", "scenes", "variants", "grasped",
-                                           "pairs", "disjoint_pairs", "full_scenes")})
+                                           "pairs", "full_scenes")})
+            flat.update({f"{k}_detectable_difference": v for k, v in d["detectable_difference"].items()})
             for name in ("follow", "follow_all", "follow_grasped", "switch", "switched_and_followed", "stuck"):
                 flat.update({f"{name}{suffix}": d[name][key] for suffix, key in (("", "value"), ("_low", "low"),
                                                                                   ("_high", "high"))})

@@ -33,6 +33,7 @@ _COMMAND_MODULES = (
     "rsb_maniskill.commands.report",
     "rsb_maniskill.commands.leaderboard",
     "rsb_maniskill.commands.export",
+    "rsb_maniskill.commands.plan",
     "rsb_maniskill.commands.serve",
 )
 

@@ -187,7 +187,8 @@ def run_eval(args: argparse.Namespace) -> int:
 
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
-        return _run_eval(args)
+        with _data_dir_for_the_run(args.data_dir):
+            return _run_eval(args)
     except (EvalError, ManifestError, RecordsError) as err:
         print(f"rsb eval: error: {err}", file=sys.stderr)
         return 2
@@ -236,6 +237,36 @@ def _shared_server(args: argparse.Namespace, stack: contextlib.ExitStack, num_pr
         return None
     return stack.enter_context(SharedServer(args.policy, policy_kwargs, start_timeout=args.policy_timeout or None,
                                             request_timeout=args.policy_timeout or None))
+
+
+def _say_episodes(records: list[dict], out: Path) -> None:
+    """The run's episodes not the version's (other question data): said at the end, as the summaries do."""
+    from rsb_maniskill.evaluation.provenance import PINNED, check_records
+    from rsb_maniskill.evaluation.store import read_manifest
+
+    found = check_records(records, runs=read_manifest(out))
+    if found.verdict != PINNED:
+        print(f"rsb eval: warning: {found.text()}", file=sys.stderr)
+
+
+@contextlib.contextmanager
+def _data_dir_for_the_run(data_dir: str | None) -> Any:
+    """``--data-dir`` as the run's question data in every process (this one, its workers: they inherit
+    it), for whatever reads the data without being handed it: $RSB_DATA_DIR for the run, then restored."""
+    import os
+
+    if not data_dir:
+        yield
+        return
+    old = os.environ.get("RSB_DATA_DIR")
+    os.environ["RSB_DATA_DIR"] = str(Path(data_dir).expanduser().absolute())
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop("RSB_DATA_DIR", None)
+        else:
+            os.environ["RSB_DATA_DIR"] = old
 
 
 def _print_counterfactual(records: list[dict]) -> None:
@@ -340,7 +371,9 @@ def _run_eval(args: argparse.Namespace) -> int:
         if executor is not None:
             stack.enter_context(executor)  # a local Ray cluster lives for the whole run
         executor, num_procs = resolve_workers(args.num_procs, executor, obs_mode_renders(obs_mode) or args.videos > 0,
-                                              num_envs=args.num_envs, episodes=args.num_episodes,
+                                              num_envs=args.num_envs, episodes=args.num_episodes * max(
+                                                  episodes_per_scene(s, m, args.variants)
+                                                  for s in suites for m in args.instruction),
                                               gpu_physics=gpu_physics)
         server = None
         try:
@@ -383,6 +416,7 @@ def _run_eval(args: argparse.Namespace) -> int:
         print(reasoning_markdown(reasoning_table(all_records)), end="")  # nothing unless a policy talked
         print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\n"
               f"results: {paths['results']}\nreport: {page}")
+        _say_episodes(asked, out)
     if interrupted:
         print(f"rsb eval: interrupted; finished episodes are in {records_path}. "
               "Rerun the same command to resume.", file=sys.stderr)

@@ -8,9 +8,18 @@ verify`` proves the install's episodes are the version's pinned ones). A run on 
 (a GSM8K cut to 100 rows, another ``RSB_DATA_DIR``) asked other questions: its records differ and
 every report says so. Records without a digest (written before it existed, or by another version)
 are *unverified*.
+
+The data a record is checked on must itself be the version's: a record that matches a GSM8K cut to
+100 rows is that cut's episode, not the benchmark's. So a suite's evaluation question pool on the
+data at hand is compared with its pinned digest (:data:`PINNED_POOLS`) first; the data tried are
+the run's own (``--data-dir``, from run.json), then ``$RSB_DATA_DIR`` / the hub cache. A record is
+*pinned* where pinned data makes its episode, *differs* where pinned data makes another or where
+only unpinned data makes it, *unverified* where no data at hand can tell.
 """
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import os
 from collections import Counter
 from dataclasses import dataclass, field
@@ -20,6 +29,40 @@ from typing import Any, Iterable, Mapping
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, DIGEST_FIELD, VERSION_FIELD, perturb_label
 
 PINNED, DIFFER, UNVERIFIED = "pinned", "differ", "unverified"  # a record's or a run's verdict
+# The evaluation split's question pools of the sources that read data, on the version's pinned
+# GSM8K / MMLU-Pro (semantic/data.py's revisions): :func:`pool_digest`. A source without a pin here
+# (a plugin's) is taken as its data makes it. tests/evaluation/test_episode_provenance.py checks
+# them against the pinned episodes (audit/golden_episodes.json) on the real data.
+PINNED_POOLS = {
+    "HardMath": "15f0b4cad29dd736f51c60122201bcab351df54d21f13cfb461d5c5e4ea4c6c3",
+    "General": "9b50b3536eec680d6487831c3ba9d7c029f2e0f7dd0422c7cc11fdb76bab87c2",
+}
+POOL_SPLIT = "test"  # the evaluation's split (protocol.EVAL_ENV_KWARGS)
+
+
+def pool_digest(pool: Any) -> str:
+    """The sha256 of a question pool: each question's fields but its origin (a file path), in order."""
+    from rsb_maniskill.semantic.digest import canonical_line
+
+    h = hashlib.sha256()
+    for q in pool.questions:
+        h.update(canonical_line({k: v for k, v in dataclasses.asdict(q).items() if k != "origin"}))
+    return h.hexdigest()
+
+
+@lru_cache(maxsize=64)
+def data_pinned(suite_id: str, data_dir: str | None, env_data_dir: str | None = None) -> bool:
+    """Whether the data at hand (``data_dir``, else $RSB_DATA_DIR or the hub: ``env_data_dir`` keys the
+    cache) makes ``suite_id``'s pinned evaluation pool; raises the data's error when it is missing."""
+    from rsb_maniskill.objects.family import split_env_id
+    from rsb_maniskill.semantic.pools import get_pool
+    from rsb_maniskill.semantic.suites import parse_suite_id, suite_source
+
+    name = parse_suite_id(split_env_id(suite_id)[0])[0]
+    source = suite_source(name)
+    if not source.reads_data or name not in PINNED_POOLS:
+        return True
+    return pool_digest(get_pool(name, POOL_SPLIT, data_dir)) == PINNED_POOLS[name]
 
 
 @lru_cache(maxsize=64)
@@ -71,16 +114,27 @@ def check_question_pool(records: Iterable[Mapping[str, Any]], label: str, data_d
     return None
 
 
-def record_verdict(record: Mapping[str, Any]) -> str:
-    """:data:`PINNED`, :data:`DIFFER` or :data:`UNVERIFIED` (no digest, or another version's record)."""
+def record_verdict(record: Mapping[str, Any], data_dir: str | os.PathLike | None = None) -> str:
+    """:data:`PINNED`, :data:`DIFFER` or :data:`UNVERIFIED` (no digest, another version's record, or
+    no data at hand to check it on); ``data_dir``: the data the run was given (tried first)."""
+    from rsb_maniskill.semantic.errors import SemanticError
     from rsb_maniskill.version import BENCHMARK_VERSION
 
     if DIGEST_FIELD not in record or record.get(VERSION_FIELD) != BENCHMARK_VERSION:
         return UNVERIFIED
-    try:
-        return PINNED if expected_digest(record) == record[DIGEST_FIELD] else DIFFER
-    except (KeyError, ValueError, IndexError):  # a seed or suite this install cannot make: not this version's
-        return DIFFER
+    made_by_unpinned = False
+    for data in ([str(data_dir)] if data_dir else []) + [None]:  # the run's data, then the default's
+        try:
+            same = expected_digest(record, data) == record[DIGEST_FIELD]
+            pinned = data_pinned(str(record["suite_id"]), data, os.environ.get("RSB_DATA_DIR"))
+        except (SemanticError, OSError):  # this data is not at hand or not readable (a --data-dir gone, no hub cache)
+            continue
+        except (KeyError, ValueError, IndexError):  # a seed or suite this install cannot make: not this version's
+            return DIFFER
+        if pinned:
+            return PINNED if same else DIFFER
+        made_by_unpinned = made_by_unpinned or same
+    return DIFFER if made_by_unpinned else UNVERIFIED
 
 
 @dataclass(frozen=True)
@@ -108,16 +162,25 @@ class Provenance:
             return (f"episodes differ from {label} ({', '.join(self.differ_suites)}: {self.counts[DIFFER]} of {n} "
                     "episodes are not the version's: other question data? check RSB_DATA_DIR and `rsb verify`)")
         if self.verdict == UNVERIFIED:
-            return f"episodes unverified ({self.counts[UNVERIFIED]} of {n} records carry no episode digest of {label})"
+            return (f"episodes unverified ({self.counts[UNVERIFIED]} of {n} records: no episode digest of {label}, or "
+                    "no question data at hand to check them on; set RSB_DATA_DIR to the data they ran on)")
         return f"episodes: {n} of {label}, each checked against its digest"
 
 
-def check_records(records: Iterable[Mapping[str, Any]]) -> Provenance:
-    """The :class:`Provenance` of ``records``."""
+def run_data_dir(runs: Mapping[str, Mapping[str, Any]] | None, policy: Any) -> str | None:
+    """The ``--data-dir`` the run of ``policy`` was given: ``runs`` is run.json's settings per policy."""
+    env_kwargs = ((runs or {}).get(str(policy)) or {}).get("env_kwargs") or {}
+    return env_kwargs.get("data_dir") if isinstance(env_kwargs, Mapping) else None
+
+
+def check_records(records: Iterable[Mapping[str, Any]], data_dir: str | os.PathLike | None = None,
+                  runs: Mapping[str, Mapping[str, Any]] | None = None) -> Provenance:
+    """The :class:`Provenance` of ``records``, each checked on the data its run was given first
+    (``runs``: run.json's settings per policy, or one ``data_dir`` for all), then on the default's."""
     counts: Counter[str] = Counter()
     differ: set[str] = set()
     for r in records:
-        v = record_verdict(r)
+        v = record_verdict(r, run_data_dir(runs, r.get("policy")) if runs else data_dir)
         counts[v] += 1
         if v == DIFFER:
             differ.add(str(r.get("suite_id")))

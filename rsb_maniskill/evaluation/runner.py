@@ -42,7 +42,7 @@ from rsb_maniskill.evaluation.store import safe_name
 from rsb_maniskill.parallel.pool import watched
 from rsb_maniskill.perturb import label as perturb_label
 from rsb_maniskill.perturb import parse_perturb
-from rsb_maniskill.policies.errors import blame_policy, episode_where, policy_call_label
+from rsb_maniskill.policies.errors import PolicyError, blame_policy, episode_where, policy_call_label
 from rsb_maniskill.policies.interface import (
     PerEnvPolicies,
     as_chunk,
@@ -50,6 +50,8 @@ from rsb_maniskill.policies.interface import (
     env_action_space,
     is_batched,
     obs_rows,
+    reset_policies,
+    reset_policy,
     split_output,
     split_outputs,
 )
@@ -272,7 +274,7 @@ def episode_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         frames = [_render(env)[0]] if seed in episodes.filmed else None
 
         with _blamed(settings, "reset", [seed]):
-            policy.reset(given, single_env_obs(obs))
+            reset_policy(policy, given, single_env_obs(obs), seed)
         steps, finished, said = 0, False, EpisodeText()
         while not finished and steps < settings.max_steps:
             current = single_env_obs(observations.current())
@@ -301,7 +303,13 @@ def _blamed(settings: EpisodeSettings, call: str, seeds: Sequence[int]) -> Itera
     where = episode_where(settings.suite_id, seeds, settings.instruction_mode)
     with watched(policy_call_label(call, where), settings.policy_timeout), \
             blame_policy(call, policy=settings.label, where=where):
-        yield
+        try:
+            yield
+        except PolicyError as err:  # one env's call of PerEnvPolicies: its seed
+            row = getattr(err, "row", None)
+            if err.where is None and row is not None and row < len(seeds):
+                err.where = episode_where(settings.suite_id, [seeds[row]], settings.instruction_mode)
+            raise
 
 
 def _row_info(info: Mapping[str, Any], i: int) -> dict[str, Any]:
@@ -324,11 +332,12 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
 
     base = env.unwrapped
     b = base.num_envs
+    episodes = _Episodes(env, settings, resets_allowed=False)
+    resets, acts = "reset_batch", "act_batch"  # the calls an error or a hang names: the ones the user wrote
     if not is_batched(policy):
         if len(policy) != b:
             raise ValueError(f"need one policy per env: {b} envs, {len(policy)} policies")
-        policy = PerEnvPolicies(policy)
-    episodes = _Episodes(env, settings, resets_allowed=False)
+        policy, resets, acts = PerEnvPolicies(policy, episodes.action_dim), "reset", "act"
     observations = Observations(env, settings.render_every_step)
     hold = getattr(base, "hold", None)
 
@@ -348,8 +357,8 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                 extra.update(variant_fields(env, i))
             given.append(text)
             extras.append(extra)
-        with _blamed(settings, "reset_batch", wave):
-            policy.reset_batch(given, obs_rows(obs, range(n)))
+        with _blamed(settings, resets, wave):
+            reset_policies(policy, given, obs_rows(obs, range(n)), wave)
         frames = {i: [] for i, s in enumerate(wave) if s in episodes.filmed}
         _collect_frames(env, frames)
         pending: list[list[np.ndarray]] = [[] for _ in range(b)]
@@ -364,7 +373,7 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
             need = [i for i in range(b) if active[i] and not pending[i]]
             if need:  # one call for all envs whose chunk ran out (in step when chunks are of equal length)
                 current = obs_rows(observations.current(), need)
-                with _blamed(settings, "act_batch", [wave[i] for i in need]):
+                with _blamed(settings, acts, [wave[i] for i in need]):
                     actions, texts = split_outputs(policy.act_batch(current, need), len(need))
                     chunks = as_chunks(actions, len(need), episodes.action_dim)
                 for i, chunk, text in zip(need, chunks, texts):

@@ -148,6 +148,14 @@ def plan_num_envs(gpus: int, renders: bool, requested: int | None = None) -> tup
                                   "envs a process in one call (H100: 16 processes x 4 envs, 3,210 rgb env-steps/s)")
 
 
+def _started(n: int, why: str, requested: int | None, episodes: int | None) -> tuple[int, str]:
+    """An explicit ``--num-procs N`` over more workers than episodes: the workers that start (one an
+    episode at most; the seeds are dealt one a worker), said so, not the N asked for."""
+    if requested is not None and episodes is not None and max(1, episodes) < n:
+        return max(1, episodes), f"{why}; {_plural(episodes, 'episode')}: one worker each at most"
+    return n, why
+
+
 def plan_workers(cpus: int, gpus: int, renders: bool, executor: str = "local", *,
                  requested: int | None = None, num_envs: int = 1, episodes: int | None = None,
                  gpu_physics: bool = True) -> WorkerPlan:
@@ -182,6 +190,7 @@ def plan_workers(cpus: int, gpus: int, renders: bool, executor: str = "local", *
         if requested is None and episodes is not None and -(-max(1, episodes) // num_envs) < n:
             n = -(-max(1, episodes) // num_envs)
             why += f"; {_plural(episodes, 'episode')}, at least {num_envs} a worker"
+        n, why = _started(n, why, requested, episodes)
         if not (renders and gpus):
             return WorkerPlan(n, executor, why=why)
         if ray:
@@ -205,6 +214,7 @@ def plan_workers(cpus: int, gpus: int, renders: bool, executor: str = "local", *
     if requested is None and episodes is not None and -(-max(1, episodes) // per) < n:
         n = -(-max(1, episodes) // per)
         why += f"; {_plural(episodes, 'episode')}, at least {per} a worker"
+    n, why = _started(n, why, requested, episodes)
     if not (renders and gpus):
         return WorkerPlan(n, executor, why=why)
     if ray:  # a share that lets all n run at once, rounded down to Ray's resource precision

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 import traceback
@@ -45,6 +46,11 @@ class Interrupted(KeyboardInterrupt):
 
 
 RESEND_S = 0.05  # how soon a signal held back in a finalizer is sent again
+# How long workers may take to stop after Ctrl-C / SIGTERM before they are killed: a worker stops
+# between two critical sections (a record or an episode is written whole), so a well-behaved one is
+# out in a second or two; one blocked in a call that ignores signals (a policy in native code) is
+# killed, its finished records already sent. Ctrl-C stops any run within ~10 s, whatever it runs.
+STOP_GRACE_S = 5.0
 
 
 def _in_finalizer(frame: Any) -> bool:
@@ -66,6 +72,7 @@ class InterruptGuard:
 
     def __init__(self) -> None:
         self.received: int | None = None
+        self.count = 0  # signals received: a second one while stopping means "stop now"
         self.armed = True
         self._depth = 0
         self._resend: threading.Timer | None = None  # a signal held back in a finalizer, sent again
@@ -87,6 +94,8 @@ class InterruptGuard:
         self._cancel_resend()
 
     def _handler(self, signum: int, frame: Any) -> None:
+        if self._resend is None:
+            self.count += 1
         if self.received is not None and self._resend is None:
             return
         self.received = signum
@@ -168,7 +177,8 @@ class ProcessPool:
     """One spawned process per task (spawned: SAPIEN and torch state must not be forked).
 
     ``target`` and the tasks must be picklable (a module-level function and plain data).
-    ``grace_s``: how long stopping workers may take after a signal before they are killed.
+    ``grace_s``: how long stopping workers may take after a signal before they are killed (a
+    second signal kills them at once).
     ``devices``: GPUs as ``CUDA_VISIBLE_DEVICES`` names them; worker k starts with
     ``CUDA_VISIBLE_DEVICES=devices[k % len(devices)]``, so it renders (and runs CUDA) on that one
     GPU: set in its environment before its interpreter starts, hence before the simulator loads.
@@ -181,7 +191,7 @@ class ProcessPool:
     names the block; a worker that dies inside one (``os._exit`` in a policy) names it too.
     """
 
-    def __init__(self, grace_s: float = 120.0, poll_s: float = 0.5, devices: Sequence[str] = ()) -> None:
+    def __init__(self, grace_s: float = STOP_GRACE_S, poll_s: float = 0.5, devices: Sequence[str] = ()) -> None:
         self.grace_s = grace_s
         self.poll_s = poll_s
         self.devices = tuple(devices)
@@ -232,7 +242,7 @@ class ProcessPool:
                             if i not in done and not (i in readers and readers[i].poll()):
                                 done[i] = self._died(i, procs[i], watches[i], labels[i])
                         self._check_watches(procs, done, watches, labels)
-                        if deadline is not None and time.monotonic() > deadline:
+                        if deadline is not None and (time.monotonic() > deadline or guard.count > 1):
                             self._kill(procs, done, "killed: did not stop in time after the interruption")
                     except Interrupted:
                         guard.disarm()
@@ -240,6 +250,9 @@ class ProcessPool:
                             if k not in done and p.is_alive():
                                 os.kill(p.pid, signal.SIGTERM)
                         deadline = time.monotonic() + self.grace_s
+                        if any(k not in done for k in range(len(procs))):
+                            print(f"stopping the workers (killed in {self.grace_s:g} s; Ctrl-C again: now)",
+                                  file=sys.stderr, flush=True)
             finally:
                 guard.disarm()
                 for k, p in enumerate(procs):
@@ -314,7 +327,6 @@ def watched(label: str, limit_s: float | None) -> Iterator[None]:
 def die_with_parent(parent_pid: int) -> None:
     """This process is killed when ``parent_pid`` dies (even by kill -9): ``PR_SET_PDEATHSIG`` on
     Linux, else a thread that watches the parent's pid."""
-    import sys
     import threading
 
     if sys.platform.startswith("linux"):

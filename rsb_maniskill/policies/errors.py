@@ -38,15 +38,27 @@ def _policy_error(message: str, policy: str | None, where: str | None, detail: s
     return PolicyError(message, policy=policy, where=where, detail=detail)
 
 
+SEEDS_LISTED = 4  # an error lists up to this many seeds of a call; more: the first ones and the count
+
+
 def episode_where(suite_id: str, seeds: Sequence[Any], instruction_mode: str) -> str:
-    """How an error names the episode(s) it happened in: ``"RSB-Math-4 seed 10000003 (normal instruction)"``."""
+    """How an error names the episode(s) it happened in: ``"RSB-Math-4 seed 10000003 (normal instruction)"``;
+    the exact seeds of a call on several envs (a worker's are dealt round-robin: not a range), a range
+    only where they are one (``"seeds 10000000..10000063"``)."""
     seeds = list(seeds)
-    shown = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}..{seeds[-1]}"
+    if len(seeds) == 1:
+        shown = f"seed {seeds[0]}"
+    elif len(seeds) <= SEEDS_LISTED:
+        shown = "seeds " + ", ".join(map(str, seeds))
+    elif all(isinstance(s, int) for s in seeds) and seeds == list(range(seeds[0], seeds[0] + len(seeds))):
+        shown = f"seeds {seeds[0]}..{seeds[-1]}"
+    else:
+        shown = f"seeds {', '.join(map(str, seeds[:SEEDS_LISTED]))}, ... ({len(seeds)} seeds)"
     return f"{suite_id} {shown} ({instruction_mode} instruction)"
 
 
 @contextmanager
-def blame_policy(call: str, *, policy: str, where: str) -> Iterator[None]:
+def blame_policy(call: str, *, policy: str | None, where: str | None) -> Iterator[None]:
     """The block calls the policy (``call``: "reset", "act", ...) and checks its output: a
     :class:`PolicyError` raised in it gets the policy and the episode named, any other exception
     becomes one (the policy raised it), keeping its traceback; so does ``sys.exit()`` (SystemExit).

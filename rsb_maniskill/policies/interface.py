@@ -16,17 +16,26 @@ action_dim)``, observations keeping their leading env dim. A policy that has it 
 client: one request per step for all envs) is built once; one without it is built once per env
 and batched by :class:`PerEnvPolicies`. The single-env form is what everything else uses.
 
+A policy's episode must be a function of its seed: the same seed gives the same actions whatever
+``--num-envs``, ``--num-procs`` and the order the episodes run in (a worker runs any share of the
+seeds, and a resumed run starts mid-way). A policy that draws random numbers therefore reseeds per
+episode: ``reset`` may take a keyword ``seed`` (``reset_batch``: ``seeds``, one per env), the
+episode's seed, and the runner passes it where the method accepts it (:func:`reset_policy`); a
+generator seeded once at construction and drawn across episodes breaks the rule (the reference
+policies reseed; ``tests/acceptance/test_faults.py`` checks K = 1 against K = 2).
+
 A policy that misbehaves (raises in ``reset`` / ``act``, or returns what the env cannot take)
 raises :class:`~rsb_maniskill.policies.errors.PolicyError`: one line naming the policy,
 the episode and what came back, its traceback kept for ``rsb --debug``.
 """
 from __future__ import annotations
 
-from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
+from contextlib import contextmanager
+from typing import Any, Iterator, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from rsb_maniskill.policies.errors import PolicyError, shown
+from rsb_maniskill.policies.errors import PolicyError, blame_policy, shown
 
 
 @runtime_checkable
@@ -34,7 +43,8 @@ class Policy(Protocol):
     """What ``rsb eval`` needs from a policy. An optional ``name`` attribute labels its records."""
 
     def reset(self, instruction: str, obs: dict) -> None:
-        """Start an episode: ``instruction`` is the text the policy may use ("" in blank mode)."""
+        """Start an episode: ``instruction`` is the text the policy may use ("" in blank mode). It may
+        also take ``seed`` (a keyword: the episode's seed), to reseed what it draws at random."""
 
     def act(self, obs: dict) -> Any:
         """Action chunk of shape (T, action_dim), T >= 1, executed in order before the next call;
@@ -46,7 +56,8 @@ class BatchedPolicy(Protocol):
     """The optional batched form: one object for B parallel envs (rows of batched observations)."""
 
     def reset_batch(self, instructions: Sequence[str], obs: dict) -> None:
-        """Start B episodes: env i gets ``instructions[i]``; ``obs`` rows are the envs' first observations."""
+        """Start B episodes: env i gets ``instructions[i]``; ``obs`` rows are the envs' first observations.
+        It may also take ``seeds`` (a keyword: env i's episode seed ``seeds[i]``)."""
 
     def act_batch(self, obs: dict, envs: Sequence[int]) -> Any:
         """Chunks for the envs ``envs`` (indices into the reset's B), ``obs`` holding their rows in that
@@ -56,6 +67,34 @@ class BatchedPolicy(Protocol):
 
 def is_batched(policy: Any) -> bool:
     return callable(getattr(policy, "reset_batch", None)) and callable(getattr(policy, "act_batch", None))
+
+
+def takes_keyword(method: Any, name: str) -> bool:
+    """Whether ``method`` accepts the keyword ``name`` (by name, or through ``**kwargs``)."""
+    import inspect
+
+    try:
+        params = inspect.signature(method).parameters.values()
+    except (TypeError, ValueError):  # a builtin or a C method without a signature: not given
+        return False
+    return any(p.name == name and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) or p.kind == p.VAR_KEYWORD
+               for p in params)
+
+
+def reset_policy(policy: Any, instruction: str, obs: Any, seed: int) -> None:
+    """``policy.reset(instruction, obs)``, with ``seed=`` (the episode's) where ``reset`` takes it."""
+    if takes_keyword(policy.reset, "seed"):
+        policy.reset(instruction, obs, seed=seed)
+    else:
+        policy.reset(instruction, obs)
+
+
+def reset_policies(policy: Any, instructions: Sequence[str], obs: Any, seeds: Sequence[int]) -> None:
+    """``policy.reset_batch(instructions, obs)``, with ``seeds=`` where ``reset_batch`` takes it."""
+    if takes_keyword(policy.reset_batch, "seeds"):
+        policy.reset_batch(instructions, obs, seeds=list(seeds))
+    else:
+        policy.reset_batch(instructions, obs)
 
 
 def obs_rows(obs: Any, rows: Sequence[int]) -> Any:
@@ -68,20 +107,48 @@ def obs_rows(obs: Any, rows: Sequence[int]) -> Any:
 
 
 class PerEnvPolicies:
-    """The batched form over one single-env policy per env (``--num-envs`` for a policy without it)."""
+    """The batched form over one single-env policy per env (``--num-envs`` for a policy without it).
 
-    def __init__(self, policies: Sequence[Any]) -> None:
+    What goes wrong in one env's call is the user's ``reset`` / ``act`` (the methods they wrote), in
+    that env: the :class:`PolicyError` says so and carries ``row``, the env's position in the call,
+    which the loop turns into its seed. ``action_dim``: each chunk is checked as ``act``'s."""
+
+    def __init__(self, policies: Sequence[Any], action_dim: int | None = None) -> None:
         self.policies = list(policies)
         self.name = policy_name(self.policies[0]) if self.policies else "policy"
+        self.action_dim = action_dim
 
-    def reset_batch(self, instructions: Sequence[str], obs: dict) -> None:
+    def reset_batch(self, instructions: Sequence[str], obs: dict, seeds: Sequence[int] | None = None) -> None:
         if len(instructions) > len(self.policies):
             raise ValueError(f"need one policy per env: {len(instructions)} envs, {len(self.policies)} policies")
         for i, text in enumerate(instructions):
-            self.policies[i].reset(text, _row(obs, i))
+            with _in_row("reset", i):
+                if seeds is None:
+                    self.policies[i].reset(text, _row(obs, i))
+                else:
+                    reset_policy(self.policies[i], text, _row(obs, i), seeds[i])
 
     def act_batch(self, obs: dict, envs: Sequence[int]) -> Any:
-        return join_outputs([self.policies[e].act(_row(obs, k)) for k, e in enumerate(envs)])
+        outs = []
+        for k, e in enumerate(envs):
+            with _in_row("act", k):
+                out = self.policies[e].act(_row(obs, k))
+                actions, text = split_output(out)
+                outs.append({"actions": as_chunk(actions, self.action_dim), "text": text} if text is not None
+                            else as_chunk(actions, self.action_dim))
+        return join_outputs(outs)
+
+
+@contextmanager
+def _in_row(call: str, row: int) -> Iterator[None]:
+    """One env's ``call`` of :class:`PerEnvPolicies`: its error names ``call`` and carries ``row``
+    (the policy and the episode are named by the loop around it)."""
+    try:
+        with blame_policy(call, policy=None, where=None):
+            yield
+    except PolicyError as err:
+        err.row = row if getattr(err, "row", None) is None else err.row
+        raise
 
 
 def _row(obs: Any, i: int) -> Any:

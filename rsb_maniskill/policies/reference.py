@@ -26,8 +26,15 @@ from rsb_maniskill.policies.interface import env_action_space
 
 HOLD_STEPS = 10  # chunk length once the expert's plan is over
 BLIND_SALT = 0xB11D  # separates the blind draw from the task's own use of the episode seed
+RANDOM_SALT = 0x7A2D  # separates the random policy's draws from the task's own use of the episode seed
 HEAD_CAMERA_LINK = "head_camera_link"  # the head camera's mount (ManiSkill camera frame: x forward, y left)
 PICKS = ("oracle", "blind", "leftmost")  # how an ExpertPolicy chooses the candidate it places
+
+
+def episode_key(salt: int, policy_seed: int, episode_seed: int) -> list[int]:
+    """The seed of a policy's draws in one episode: its own seed and the episode's, apart from
+    other users of the episode seed (``salt``); numpy and torch generators take it as it is."""
+    return [int(salt), int(policy_seed), int(episode_seed)]
 
 
 def blind_target(episode_seed: int, n_choices: int, variant: int = 0) -> int:
@@ -112,7 +119,11 @@ def leftmost(env: Any) -> ExpertPolicy:
 
 
 class RandomPolicy:
-    """Uniform random actions in [low, high]: the floor of the benchmark (no grasp expected)."""
+    """Uniform random actions in [low, high]: the floor of the benchmark (no grasp expected).
+
+    The draws of an episode are a function of ``seed`` and the episode's seed (reseeded at each
+    ``reset``): the same actions under any ``--num-envs``, ``--num-procs`` or resume. Without an
+    episode seed (a caller that gives none) it keeps drawing from the generator it has."""
 
     name = "random"
 
@@ -122,6 +133,7 @@ class RandomPolicy:
         if self.low.shape != self.high.shape or self.low.ndim != 1:
             raise ValueError(f"low and high must be 1-D of equal shape, got {self.low.shape} and {self.high.shape}")
         self.chunk_size = int(chunk_size)
+        self.seed = int(seed)
         self.rng = np.random.default_rng(seed)
 
     @classmethod
@@ -135,8 +147,9 @@ class RandomPolicy:
         """Over the action space of one env of ``env`` (the ``random`` policy's factory)."""
         return cls.from_action_space(env_action_space(env), chunk_size=chunk_size, seed=seed)
 
-    def reset(self, instruction: str, obs: dict) -> None:
-        pass
+    def reset(self, instruction: str, obs: dict, seed: int | None = None) -> None:
+        if seed is not None:
+            self.rng = np.random.default_rng(episode_key(RANDOM_SALT, self.seed, seed))
 
     def act(self, obs: dict) -> np.ndarray:
         return self.rng.uniform(self.low, self.high, size=(self.chunk_size, self.low.shape[0])).astype(np.float32)

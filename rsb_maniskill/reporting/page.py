@@ -243,9 +243,19 @@ def default_title(policies: Sequence[str], shown: int = 3) -> str:
     return "RSB evaluation: " + ", ".join(policies[:shown]) + more
 
 
+def _version_line(records: Sequence[Mapping[str, Any]], results_dir: Path) -> str:
+    """The page's benchmark line: the version, and the records' verdict where they are not its episodes."""
+    from rsb_maniskill.evaluation.provenance import PINNED, check_records
+    from rsb_maniskill.version import benchmark_label
+
+    found = check_records(records, runs=read_manifest(results_dir))
+    version = benchmark_label(one_version(records) or "")
+    return version if found.verdict == PINNED else found.text()
+
+
 def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: str | None = None) -> str:
     """The report page for ``records`` (episode files of ``results_dir`` feed the thumbnails)."""
-    from rsb_maniskill.version import benchmark_label, code_label
+    from rsb_maniskill.version import code_label
 
     records = dedupe(records)
     results = results_from_records(records)
@@ -264,7 +274,7 @@ def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: s
     nav = [{"anchor": s.anchor, "label": s.nav} for s in shown if s.nav]
     return templates().get_template(PAGE_TEMPLATE).render(
         title=title or default_title(policies),
-        version=benchmark_label(one_version(records) or ""), n_episodes=len(cards), n_rows=len(results),
+        version=_version_line(records, results_dir), n_episodes=len(cards), n_rows=len(results),
         n_suites=len(suites), n_videos=sum(1 for c in cards if c["video"]), code=code_label(),
         stamp=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         rows=_summary_rows(results, {c["row"]: c["policy"] for c in cards}, read_manifest(results_dir)),

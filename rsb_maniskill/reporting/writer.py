@@ -55,6 +55,8 @@ def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summ
     if partial:
         mark_partial(paths, partial)
     if records:
+        mark_episodes(paths, records, out)
+    if records:
         paths["results"] = write_results(out, records)
     for section in sections.SECTIONS:  # each appends to summary.{json,md} and writes its own files
         table = section.compute(records, out)
@@ -75,6 +77,20 @@ def mark_partial(paths: Mapping[str, Path], partial: str) -> None:
     paths["json"].write_text(json.dumps({"partial": partial, **summary}, indent=2) + "\n", encoding="utf-8")
     paths["markdown"].write_text(f"**{partial}**\n\n" + paths["markdown"].read_text(encoding="utf-8"),
                                  encoding="utf-8")
+
+
+def mark_episodes(paths: Mapping[str, Path], records: Sequence[Mapping[str, Any]], out: Path) -> None:
+    """The records' verdict (``evaluation/provenance.py``) as results.json and the page give it: the
+    JSON's ``episodes``; a run whose episodes are not the version's says so on the Markdown's first line."""
+    from rsb_maniskill.evaluation.provenance import PINNED, check_records
+    from rsb_maniskill.evaluation.store import read_manifest
+
+    found = check_records(records, runs=read_manifest(out))
+    summary = json.loads(paths["json"].read_text(encoding="utf-8"))
+    paths["json"].write_text(json.dumps({"episodes": found.verdict, **summary}, indent=2) + "\n", encoding="utf-8")
+    if found.verdict != PINNED:
+        paths["markdown"].write_text(f"**{found.text()}**\n\n" + paths["markdown"].read_text(encoding="utf-8"),
+                                     encoding="utf-8")
 
 
 def append_section(paths: Mapping[str, Path], key: str, data: Any, markdown: str) -> None:

@@ -16,11 +16,18 @@ keeps it for the life of the process, so every later render object reuses its in
 Software rendering shares the CPUs: lavapipe starts one raster thread per CPU in every process, so
 local worker processes each cap it to their share (:func:`limit_lavapipe_threads`).
 
+Library log lines (:func:`library_log_policy`, set at import, before ManiSkill loads, in every
+process: workers import the package first): shown once per process, as plain text, only when
+they matter. ManiSkill's "Requested to use render device sapien_cuda ... Rendering might be
+disabled" is not shown: it comes at every env made on a machine without CUDA, also where nothing
+renders (``-o state``), and where rendering fails the env's error says so, with the fix.
+
 Stdlib only at import: ``rsb doctor`` loads this file on its own, without the package.
 """
 from __future__ import annotations
 
 import glob
+import logging
 import os
 import subprocess
 import sys
@@ -35,6 +42,8 @@ FIX = ("Install a Vulkan driver: an NVIDIA driver on GPU machines, or Mesa lavap
        "`bash scripts/setup.sh` does this). State-only use needs no renderer: pass "
        "obs_mode='state' and render_backend='none'. `rsb doctor` shows what this machine has.")
 _HELD: dict[str, object] = {}  # "engine" -> the process's render system (None: none could be made)
+MANISKILL_LOGGER = "mani_skill "  # the name of ManiSkill's logger (mani_skill.utils.logging_utils), its space too
+NOT_SHOWN = ("Rendering might be disabled",)  # library log lines that never matter here (see the module doc)
 
 
 class RendererUnavailableError(RuntimeError):
@@ -150,4 +159,35 @@ def hold_render_engine(device: object | None = None) -> bool:
     return _HELD["engine"] is not None
 
 
+class _LogPolicy(logging.Filter):
+    """Drops the lines of :data:`NOT_SHOWN` and any line this process has shown already."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: set[str] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        if any(phrase in message for phrase in NOT_SHOWN) or message in self.seen:
+            return False
+        self.seen.add(message)
+        return True
+
+
+def library_log_policy() -> None:
+    """ManiSkill's log lines as :class:`_LogPolicy` lets them through, plain (``ManiSkill WARNING:
+    ...``: no colour codes, no time stamp). Set before ManiSkill loads, its logger then has a handler
+    and ManiSkill adds no coloured one of its own; set after, its handlers lose the colour."""
+    logger = logging.getLogger(MANISKILL_LOGGER)
+    if any(isinstance(f, _LogPolicy) for f in logger.filters):
+        return
+    logger.addFilter(_LogPolicy())
+    plain = logging.Formatter("ManiSkill %(levelname)s: %(message)s")
+    if not logger.handlers:
+        logger.addHandler(logging.StreamHandler())
+    for handler in logger.handlers:
+        handler.setFormatter(plain)
+
+
+library_log_policy()
 select_vulkan_driver()

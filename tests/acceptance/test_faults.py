@@ -784,7 +784,8 @@ def test_a_run_whose_policy_ignores_signals_stops_at_once(signals, tmp_path):
     for sig in signals:
         proc.send_signal(sig)
         time.sleep(0.5)
-    rc, log = stop(proc, signals[-1])
+    out_text, err_text = proc.communicate(timeout=240)
+    rc, log = proc.returncode, out_text + err_text
     assert time.monotonic() - t0 < 60  # stopped, not waiting on the policy (5 s grace; 0: no policy limit)
     assert rc == 130 and "Rerun the same command to resume" in log and "Traceback" not in log, log[-2000:]
     assert lines(out / "episodes.jsonl") == 1
@@ -813,3 +814,46 @@ def test_workers_are_quiet_plain_and_counted_as_started(tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     assert "workers: 2 processes" in res.stderr and "99 processes" not in res.stderr, res.stderr[-2000:]
     assert "Rendering might be disabled" not in res.stderr and "\x1b[" not in res.stderr, res.stderr[-2000:]
+
+
+@pytest.fixture
+def read_only(tmp_path) -> Path:
+    """An empty read-only file system at tmp_path/ro (root ignores file modes, not a read-only mount)."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(ro)], capture_output=True,
+                         text=True)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip()}")
+    yield ro
+    subprocess.run(["umount", "-l", str(ro)], check=False)
+
+
+READ_ONLY_CASES = [  # (argv with {ro} for the read-only folder, phrase of the one line)
+    ([*GENERATE, "--out", "{ro}/d"], "Read-only file system"),
+    (["eval", "oracle", *EVAL, "-n", "1", "--out", "{ro}/r"], "Read-only file system"),
+    (["merge", "{pair}", "--out", "{ro}/m.h5"], "Read-only file system"),
+    (["audit", SUITE, "-n", "5", "--out", "{ro}/a"], "Read-only file system"),
+]
+
+
+@pytest.mark.parametrize("argv, phrase", READ_ONLY_CASES, ids=[c[0][0] for c in READ_ONLY_CASES])
+def test_a_read_only_folder_is_one_line_naming_it(argv, phrase, read_only, tmp_path):
+    pair = _pair(tmp_path / "a.h5", [0, 1])
+    argv = [a.replace("{ro}", str(read_only)).replace("{pair}", str(pair)) for a in argv]
+    res = rsb(*argv, timeout=120)
+    errors = error_lines(res.stderr)
+    assert res.returncode == 2 and len(errors) == 1, res.stderr[-2000:]
+    assert phrase in errors[0] and str(read_only) in errors[0] and "Traceback" not in res.stderr
+
+
+def test_a_merge_killed_before_its_rename_leaves_nothing_after_a_rerun(tmp_path):
+    """kill -9 of `rsb merge` leaves its temp pair (named by its pid): the same command removes it."""
+    a, b = _pair(tmp_path / "a.h5", [0, 1]), _pair(tmp_path / "b.h5", [2])
+    gone = subprocess.Popen(["true"])
+    gone.wait()  # a pid no process has now: a killed merge's
+    for suffix in (".h5", ".json"):
+        (tmp_path / f".m.tmp{gone.pid}.merge{suffix}").write_bytes(b"half")
+    res = rsb("merge", str(a), str(b), "--out", str(tmp_path / "m.h5"), timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert stray_files(tmp_path) == [] and len(json.loads((tmp_path / "m.json").read_text())["episodes"]) == 3

@@ -368,7 +368,7 @@ def test_the_errors_pickle_whole():
 
 
 def test_a_batched_policy_is_blamed_for_its_wave():
-    """The parallel-env loop names the policy and the envs' seeds of the call that went wrong."""
+    """The parallel-env loop names the policy and the env's seed of the call that went wrong."""
     from rsb_maniskill.evaluation.runner import EpisodeSettings, batched_loop
     from rsb_maniskill.policies.errors import PolicyError
 
@@ -381,8 +381,9 @@ def test_a_batched_policy_is_blamed_for_its_wave():
     settings = EpisodeSettings(suite_id=SUITE, seeds=SEEDS, label="nan-policy")
     with pytest.raises(PolicyError) as caught:
         batched_loop(FakeBatchedEnv(2), [Nan(), Nan()], settings, SEEDS, list().append)
-    assert str(caught.value).startswith(f"policy 'nan-policy' on {SUITE} seeds {SEEDS[0]}..{SEEDS[1]} (normal "
-                                        "instruction): act_batch returned NaN or inf actions (42 of 42 numbers")
+    # one act-only policy per env: the user's act, on its env's seed (not act_batch on the wave)
+    assert str(caught.value).startswith(f"policy 'nan-policy' on {SUITE} seed {SEEDS[0]} (normal "
+                                        "instruction): act returned NaN or inf actions (42 of 42 numbers")
 
 
 def test_the_obs_modes_checked_without_the_simulator_are_every_suites():

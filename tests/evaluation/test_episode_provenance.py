@@ -107,3 +107,23 @@ def test_the_pinned_eval_digest_is_unchanged():
     from rsb_maniskill.audit import golden
 
     assert golden.suite_digests("RSB-Math-4")["eval"] == golden.load()["suites"]["RSB-Math-4"]["eval"]
+
+
+def test_the_pinned_pools_are_those_of_the_pinned_episodes():
+    """provenance.PINNED_POOLS (the data a record is checked on must be the version's) hold the pools
+    of the data whose evaluation episodes audit/golden_episodes.json pins."""
+    import hashlib
+
+    from rsb_maniskill.audit import golden
+    from rsb_maniskill.evaluation.provenance import PINNED_POOLS, data_pinned, pool_digest
+    from rsb_maniskill.semantic.pools import get_pool
+
+    if not (Path(os.environ.get("RSB_DATA_DIR") or "/nonexistent") / "gsm8k" / "test.jsonl").exists():
+        pytest.skip("needs the real GSM8K and MMLU-Pro in RSB_DATA_DIR")
+    for name, suite in (("HardMath", "RSB-HardMath-4"), ("General", "RSB-General-4")):
+        h = hashlib.sha256()
+        for episode in golden.iter_episodes(suite, "eval"):
+            h.update(golden.canonical_line(episode))
+        assert h.hexdigest() == golden.load()["suites"][suite]["eval"]  # this data is the pinned one
+        assert pool_digest(get_pool(name, "test")) == PINNED_POOLS[name]
+        assert data_pinned(suite, None, os.environ.get("RSB_DATA_DIR"))

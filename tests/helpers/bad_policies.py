@@ -133,3 +133,77 @@ class Hangs(Exits):
 
 def hangs(how: str = "sleep", where: str = "act", after: int = 0) -> Hangs:
     return Hangs(how, where, after)
+
+
+class Draws:
+    """The ``random`` reference policy (tiny actions) that says what it drew: each ``act`` returns its
+    chunk with a text naming a digest of it, so that a record shows the episode's draws. With
+    ``reseed=False`` it ignores the episode seed, as a policy whose one generator is seeded at
+    construction does: its episodes then depend on K, P and order (the flaw the tests must catch)."""
+
+    log: dict = {}  # episode seed -> the digests of the chunks drawn in it (this process's instances)
+
+    def __init__(self, reseed: bool = True, talk: bool = True) -> None:
+        from rsb_maniskill.policies.reference import RandomPolicy
+
+        self.inner = RandomPolicy(np.full(14, -1e-3), np.full(14, 1e-3), chunk_size=5)
+        self.reseed, self.talk, self.seed = reseed, talk, None
+
+    def reset(self, instruction, obs, seed=None) -> None:
+        self.seed = seed
+        self.inner.reset(instruction, obs, seed=seed if self.reseed else None)
+
+    def act(self, obs):
+        import hashlib
+
+        chunk = self.inner.act(obs)
+        said = f"drew {hashlib.sha256(chunk.tobytes()).hexdigest()[:12]}"
+        Draws.log.setdefault(self.seed, []).append(said)
+        return {"actions": chunk, "text": said} if self.talk else chunk
+
+
+def draws(reseed: bool = True) -> Draws:
+    return Draws(reseed)
+
+
+class DeafHangs(Exits):
+    """Blocks in ``act`` after ``after`` calls with SIGINT and SIGTERM ignored (a native library
+    that masks them): only SIGKILL ends it."""
+
+    def leave(self) -> None:
+        import os
+        import signal
+        import time
+
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        marker = os.environ.get("RSB_TEST_BLOCKED_MARKER")  # the test signals once this is there
+        if marker:
+            open(marker, "w").close()
+        while True:
+            time.sleep(3600)
+
+
+def deaf_hangs(after: int = 0) -> DeafHangs:
+    return DeafHangs("sleep", "act", after)
+
+
+class ActFails(Returns):
+    """An ``act``-only policy whose ``act`` raises in episode ``on`` (its seed, as given at reset)."""
+
+    def __init__(self, on: int) -> None:
+        super().__init__("width")
+        self.output = np.zeros((1, 14), dtype=np.float32)
+        self.on, self.seed = on, None
+
+    def reset(self, instruction, obs, seed=None) -> None:
+        self.seed = seed
+
+    def act(self, obs):
+        if self.seed == self.on:
+            raise RuntimeError(f"no action for seed {self.seed}")
+        return self.output
+
+
+def act_fails(on: int) -> ActFails:
+    return ActFails(on)

@@ -20,6 +20,8 @@ from rsb_maniskill.baselines.diffusion_policy import checkpoint
 from rsb_maniskill.baselines.diffusion_policy.data import Normalizer, camera_stack, proprio_vector
 from rsb_maniskill.baselines.diffusion_policy.model import DiffusionPolicyNet, ModelConfig, make_scheduler
 
+NOISE_SALT = 0xD1F5  # separates the sampling noise's seed from other users of the episode seed
+
 
 class DiffusionPolicy:
     """A trained checkpoint as an ``rsb eval`` policy (``reset(instruction, obs)``, ``act(obs)``)."""
@@ -39,7 +41,8 @@ class DiffusionPolicy:
         self.net.eval()
         self.sched = make_scheduler(self.cfg, scheduler)
         self.sched.set_timesteps(self.cfg.num_train_steps if scheduler == "ddpm" else int(inference_steps))
-        self.gen = torch.Generator().manual_seed(int(seed))
+        self.seed = int(seed)
+        self.gen = torch.Generator().manual_seed(self.seed)
         self.text = None
         if self.cfg.language:
             from rsb_maniskill.baselines.diffusion_policy.text import TextEncoder
@@ -50,7 +53,9 @@ class DiffusionPolicy:
         self.pending: np.ndarray | None = None
         self.text_emb: torch.Tensor | None = None
 
-    def reset(self, instruction: str, obs: dict) -> None:
+    def reset(self, instruction: str, obs: dict, seed: int | None = None) -> None:
+        if seed is not None:  # the episode's noise is a function of its seed, under any --num-envs / order
+            self.gen.manual_seed(int(np.random.SeedSequence([NOISE_SALT, self.seed, int(seed)]).generate_state(1)[0]))
         self.history.clear()
         self.pending = None
         if self.text is not None:

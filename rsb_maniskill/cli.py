@@ -12,6 +12,7 @@ import argparse
 import contextlib
 import errno
 import importlib
+import os
 import signal
 import sys
 from typing import Any, Iterator, NoReturn
@@ -79,8 +80,9 @@ def main(argv: list[str] | None = None) -> int:
     import too: ``startup.py``; only Python's own first ~50 ms are not ours); a
     reader that stops reading (``rsb questions ... | head``) ends it quietly with 0, as unix tools do."""
     release_startup_guard()  # from here on Ctrl-C is a KeyboardInterrupt, caught below
+    _text_in_any_locale()
     try:
-        return _main(argv)
+        return _main(sys.argv[1:] if argv is None else argv)
     except KeyboardInterrupt:
         print("rsb: interrupted", file=sys.stderr)
         return 130
@@ -110,10 +112,24 @@ def _noting_sigint() -> Iterator[list[int]]:
         signal.signal(signal.SIGINT, previous)
 
 
+def _text_in_any_locale() -> None:
+    """A locale that is not UTF-8 (``LC_ALL=POSIX`` with ``PYTHONUTF8=0``, a Latin-1 one) must not turn a
+    name typed in UTF-8 into an error: the arguments' bytes are read as UTF-8 where they are, and what
+    the console cannot show is written escaped, not raised."""
+    for i, arg in enumerate(sys.argv):
+        if any("\udc80" <= ch <= "\udcff" for ch in arg):  # bytes the locale's codec could not decode
+            try:
+                sys.argv[i] = os.fsencode(arg).decode("utf-8")
+            except UnicodeDecodeError:
+                pass
+    for stream in (sys.stdout, sys.stderr):
+        if (getattr(stream, "encoding", None) or "").lower().replace("-", "") != "utf8":
+            with contextlib.suppress(AttributeError, ValueError):
+                stream.reconfigure(errors="backslashreplace")
+
+
 def _quiet_stdout() -> None:
     """stdout's reader is gone: point it at /dev/null, so the exit's flush raises nothing more."""
-    import os
-
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())

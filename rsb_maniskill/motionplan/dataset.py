@@ -33,7 +33,7 @@ class NoSpaceError(DatasetError):
 
 def is_no_space(err: BaseException) -> bool:
     """Whether ``err`` is a full disk: an OSError ENOSPC / EDQUOT, or libhdf5's write failure saying so."""
-    if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+    if isinstance(err, NoSpaceError) or isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
         return True
     text = str(err)
     return f"errno = {errno.ENOSPC}," in text or "No space left on device" in text or "Disk quota exceeded" in text
@@ -240,6 +240,19 @@ def _env_signature(env_info: dict | None) -> tuple:
     return env_info.get("env_id"), json.dumps(kwargs, sort_keys=True)
 
 
+def _remove_stale_merges(output: Path) -> None:
+    """The temp pair of a merge into ``output`` killed before its rename (kill -9): removed once its
+    process is gone (its pid is in the name), so a rerun leaves no stray file."""
+    for stale in output.parent.glob(f".{output.stem}{TMP_TAG}*.merge.*"):
+        pid = stale.name[len(f".{output.stem}{TMP_TAG}"):].split(".")[0]
+        try:
+            os.kill(int(pid), 0)
+        except (ValueError, ProcessLookupError):
+            stale.unlink(missing_ok=True)
+        except PermissionError:  # another user's live process
+            pass
+
+
 def merge_pairs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike, *,
                 overwrite: bool = False, sort_key: Callable[[dict], object] | None = None,
                 header: dict | None = None) -> int:
@@ -287,7 +300,10 @@ def merge_pairs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike, 
     merged = {k: v for k, v in first.items() if k != "episodes"}
     merged.update(header or {})
     merged["episodes"] = []
-    output.parent.mkdir(parents=True, exist_ok=True)
+    check_writable_dir(output.parent)  # a read-only or full folder: one line naming it, before the copy
+    _remove_stale_merges(output)
+    size = sum(Path(p).stat().st_size + json_path_of(p).stat().st_size for p in dict.fromkeys(map(str, inputs)))
+    check_free_space(output.parent, size + 2**20)  # libhdf5 meeting a full disk may crash the process
     tmp = temp_h5_path(output, ".merge")
     handles: dict[Path, h5py.File] = {}
     try:

@@ -322,8 +322,6 @@ def _merge_demos(cfg: GenerateConfig, demos: dict[int, Path], final: Path, pool_
     from rsb_maniskill.parallel.pool import InterruptGuard
 
     errors = []
-    size = sum(p.stat().st_size + dataset.json_path_of(p).stat().st_size for p in demos.values())
-    dataset.check_free_space(final.parent, size + 2**20)  # the merged copy, before a byte of it is written
     with InterruptGuard() as guard:  # finishing up: a late signal must not cut the merge short
         guard.disarm()
         valid = []

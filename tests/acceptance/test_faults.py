@@ -857,3 +857,43 @@ def test_a_merge_killed_before_its_rename_leaves_nothing_after_a_rerun(tmp_path)
     res = rsb("merge", str(a), str(b), "--out", str(tmp_path / "m.h5"), timeout=120)
     assert res.returncode == 0, res.stderr[-2000:]
     assert stray_files(tmp_path) == [] and len(json.loads((tmp_path / "m.json").read_text())["episodes"]) == 3
+
+def test_a_unicode_name_under_a_non_utf8_locale_is_the_same_name(tmp_path):
+    """LC_ALL=POSIX without Python's UTF-8 mode: '模型🤖 é' ended in "surrogates not allowed"; it is
+    read as the text typed, and its row and folder are those of a UTF-8 locale."""
+    name = "模型🤖 é"
+    out = tmp_path / "r"
+    res = rsb("eval", "oracle", *EVAL, "-n", "1", "--max-steps", "2", "--name", name, "--out", str(out),
+              LC_ALL="POSIX", LANG="POSIX", PYTHONUTF8="0", PYTHONIOENCODING="")
+    assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr[-2000:]
+    from rsb_maniskill.evaluation.store import folder_name
+
+    assert {r["policy"] for r in records(out)} == {name}
+    assert (out / f"summary_{folder_name(name)}.png").exists()
+
+
+LOUD_BACKBONE = '''
+from huggingface_hub.utils import tqdm
+
+
+class Loud:
+    """Loads "weights" behind a progress bar, as a transformers model does."""
+
+    def __init__(self):
+        for _ in tqdm(range(3), desc="Loading weights"):
+            pass
+
+    def answer(self, instruction, images):
+        return "A"
+'''
+
+
+def test_backbone_quiet_draws_no_library_progress_bar(tmp_path):
+    """`rsb backbone ... -q` drew the "Loading weights" bar of the model it loads."""
+    (tmp_path / "rsb_loud_backbone.py").write_text(LOUD_BACKBONE)
+    path = os.pathsep.join([str(tmp_path), str(TESTS), str(REPO)])
+    runs = {flags: rsb("backbone", "rsb_loud_backbone:Loud", "--suites", SUITE, "-n", "1", *flags, "--out",
+                       str(tmp_path / f"r{len(flags)}"), timeout=120, PYTHONPATH=path) for flags in ((), ("-q",))}
+    assert all(res.returncode == 0 for res in runs.values()), [r.stderr[-2000:] for r in runs.values()]
+    assert "Loading weights" in runs[()].stderr  # the bar the library draws, unless told not to
+    assert "Loading weights" not in runs[("-q",)].stderr and "it/s" not in runs[("-q",)].stderr

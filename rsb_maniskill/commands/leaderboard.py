@@ -69,10 +69,21 @@ def _check_args(args: argparse.Namespace) -> None:
                                                            if Path(r).is_file()}
         if out in inputs:
             raise LeaderboardError(f"--out {args.out} is a run given: write the leaderboard to another directory")
+    if args.vla_eval:
+        target = Path(args.vla_eval)
+        if target.is_dir() or not target.name:
+            raise LeaderboardError(f"--vla-eval {args.vla_eval!r} is a folder: give a file to write, e.g. "
+                                   f"{target / 'leaderboard.json'}")
 
 
 def run_leaderboard(args: argparse.Namespace) -> int:
-    from rsb_maniskill.reporting.leaderboard import LeaderboardError, build_leaderboard, load_run, select_rows
+    from rsb_maniskill.reporting.leaderboard import (
+        LeaderboardError,
+        build_leaderboard,
+        load_run,
+        one_each,
+        select_rows,
+    )
     from rsb_maniskill.reporting.leaderboard_files import render_leaderboard, write_leaderboard, write_text
     from rsb_maniskill.reporting.vla_eval_leaderboard import vla_eval_document
 
@@ -84,22 +95,27 @@ def run_leaderboard(args: argparse.Namespace) -> int:
             board = build_leaderboard(runs, args.protocol, args.perturb, args.allow_other_episodes)
             contents = render_leaderboard(board, args.title)
         if args.vla_eval:
-            doc = vla_eval_document(select_rows(runs, args.protocol, args.perturb), args.weight_type,
+            doc = vla_eval_document(one_each(select_rows(runs, args.protocol, args.perturb))[0], args.weight_type,
                                     args.curated_by)
             export = json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
     except LeaderboardError as err:
         print(f"rsb leaderboard: error: {err}", file=sys.stderr)
         return 2
+    target = args.out
     try:
         if board is not None:
             paths = write_leaderboard(contents, args.out)
             models = len(board.entries) - 1
             print(f"leaderboard: {models} model(s) on {len(board.suites)} suite(s): {paths['html']}, "
                   f"{paths['markdown']}, {paths['csv']}")
+            for e in board.entries:
+                if e.also:
+                    print(f"  {e.label}: the same run in {e.run.source} and {', '.join(e.also)}: listed once")
         if export is not None:
+            target = args.vla_eval
             Path(args.vla_eval).parent.mkdir(parents=True, exist_ok=True)
             print(f"vla-eval records: {write_text(Path(args.vla_eval), export)}")
-    except OSError as err:
-        print(f"rsb leaderboard: error: cannot write: {err}", file=sys.stderr)
+    except OSError as err:  # named by the user's path, never the temporary file written beside it
+        print(f"rsb leaderboard: error: cannot write {target}: {err.strerror or err}", file=sys.stderr)
         return 1
     return 0

@@ -46,9 +46,12 @@ def report_vla_eval(path: str | os.PathLike, out: str | os.PathLike | None = Non
     results and print the paper's tables; returns the page."""
     from rsb_maniskill.reporting.summary import markdown_tables, results_from_records
     from rsb_maniskill.reporting.vla_eval_results import read_vla_eval_records
-    from rsb_maniskill.reporting.writer import write_html_report, write_report
+    from rsb_maniskill.reporting.writer import ReportError, write_html_report, write_report
 
     records = read_vla_eval_records(path)
+    if not records:
+        raise ReportError(f"{path}: holds no episode of RSBBenchmark (an empty or unfinished vla-eval results "
+                          "file?): give the results of a finished `vla-eval run`")
     results_dir = Path(path) if Path(path).is_dir() else Path(path).parent
     results = results_from_records(records)
     write_report(results, results_dir, records=records)

@@ -87,4 +87,13 @@ def read_vla_eval_records(path: str | os.PathLike) -> list[dict[str, Any]]:
     files = results_files(path)
     if not files:
         raise FileNotFoundError(f"{path}: no vla-eval results ({AGGREGATE_GLOB}) there")
-    return [r for f in files for r in records_from_results(json.loads(f.read_text(encoding="utf-8")), str(f))]
+    out = []
+    for f in files:
+        try:
+            doc = json.loads(f.read_text(encoding="utf-8"))
+        except ValueError as err:  # an empty or cut file: named, with where it breaks
+            raise ValueError(f"{f}: not a vla-eval results file (JSON: {err})") from None
+        if not isinstance(doc, dict):
+            raise ValueError(f"{f}: not a vla-eval results file (a JSON object is due, not a {type(doc).__name__})")
+        out += records_from_results(doc, str(f))
+    return out

@@ -897,3 +897,92 @@ def test_backbone_quiet_draws_no_library_progress_bar(tmp_path):
     assert all(res.returncode == 0 for res in runs.values()), [r.stderr[-2000:] for r in runs.values()]
     assert "Loading weights" in runs[()].stderr  # the bar the library draws, unless told not to
     assert "Loading weights" not in runs[("-q",)].stderr and "it/s" not in runs[("-q",)].stderr
+
+
+# ------------------------------------------------------------ second sweep: reports and leaderboard
+# Issue 60's report / leaderboard cases (issue 59's owner): hand-edited or malformed results, the same
+# run twice, a run compared with itself, a RESULTS_DIR beside --compare, an empty vla-eval file.
+
+
+def _report_run(path: Path, policy: str, successes: int, n: int = 10) -> Path:
+    """A results directory of ``n`` RSB-Math-4 episodes (records and results.json)."""
+    from rsb_maniskill.reporting.results import results_document
+
+    recs = [{"policy": policy, "suite_id": SUITE, "seed": 10_000_000 + i, "question_id": i, "instruction": "x",
+             "instruction_mode": "normal", "target_block": 0, "correct_letter": "A",
+             "first_grasped": 0 if i < successes else 1, "grasped_any": True, "grasped_correct": i < successes,
+             "placed_correct": i < successes, "placed_wrong": False, "success": i < successes, "steps": 5,
+             "benchmark_version": "1.1"} for i in range(n)]
+    path.mkdir(parents=True)
+    (path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    (path / "results.json").write_text(json.dumps(results_document(recs)))
+    return path
+
+
+def _hand_edited(tmp: Path, edit: Callable[[dict], None]) -> Path:
+    run = _report_run(tmp / "edited", "p", 3)
+    (run / "episodes.jsonl").unlink()  # a results.json shared alone
+    doc = json.loads((run / "results.json").read_text())
+    edit(doc)
+    (run / "results.json").write_text(json.dumps(doc))  # NaN is written as JSON's NaN literal
+    return run
+
+
+def _suite(doc: dict) -> dict:
+    return doc["rows"][0]["suites"][SUITE]
+
+
+REPORT_CASES = {
+    "compare a TSR of 750 %": (lambda tmp: ["report", "--compare", str(_report_run(tmp / "a", "q", 2)), str(
+        _hand_edited(tmp, lambda d: _suite(d)["tsr"].update(value=7.5)))], "suites.RSB-Math-4.tsr.value"),
+    "compare a NaN GSR": (lambda tmp: ["report", "--compare", str(_report_run(tmp / "a", "q", 2)), str(
+        _hand_edited(tmp, lambda d: _suite(d)["gsr"].update(low=float("nan"))))], "not a finite number"),
+    "compare n = -5": (lambda tmp: ["report", "--compare", str(_report_run(tmp / "a", "q", 2)), str(
+        _hand_edited(tmp, lambda d: _suite(d).update(n=-5)))], "RSB-Math-4.n: -5"),
+    "leaderboard rows as a list of lists": (lambda tmp: ["leaderboard", str(
+        _hand_edited(tmp, lambda d: d.update(rows=[[1, 2]]))), "--out", str(tmp / "board")], "rows[0]: list"),
+    "leaderboard suites as a list": (lambda tmp: ["leaderboard", str(
+        _hand_edited(tmp, lambda d: d["rows"][0].update(suites=[1]))), "--out", str(tmp / "board")],
+        "rows[0].suites: list"),
+    "leaderboard an unknown suite": (lambda tmp: ["leaderboard", str(_hand_edited(
+        tmp, lambda d: d["rows"][0].update(suites={"RSB-Foo-4": _suite(d)}))), "--out", str(tmp / "board")],
+        "'RSB-Foo-4' is not a suite id"),
+    "compare a run with itself": (lambda tmp: ["report", "--compare", str(_report_run(tmp / "a", "q", 2)),
+                                               str(tmp / "a") + "/"], "compares a run with itself"),
+    "RESULTS_DIR beside --compare": (lambda tmp: ["report", str(_report_run(tmp / "c", "r", 1)), "--compare", str(
+        _report_run(tmp / "a", "q", 2)), str(_report_run(tmp / "b", "p", 3))], "not both"),
+    "an empty vla-eval results file": (lambda tmp: (tmp / "run_aggregate.json").write_text("") and None or [
+        "report", str(tmp / "run_aggregate.json")], "run_aggregate.json: not a vla-eval results file"),
+    "--vla-eval naming a folder": (lambda tmp: (tmp / "folder").mkdir() or [
+        "leaderboard", str(_report_run(tmp / "a", "q", 2)), "--vla-eval", str(tmp / "folder"), "--weight-type",
+        "shared"], "is a folder"),
+}
+
+
+@pytest.mark.parametrize("case", list(REPORT_CASES))
+def test_reports_refuse_bad_results_in_one_line_naming_file_and_field(case, tmp_path):
+    """Hand-edited values were printed as valid and exited 0; malformed files went through the
+    internal-error path (AttributeError, ValueError); an empty vla-eval file named no file."""
+    make, phrase = REPORT_CASES[case]
+    argv = make(tmp_path)
+    before = tree(tmp_path)
+    res = rsb(*argv, timeout=120)
+    errors = error_lines(res.stderr)
+    assert res.returncode == 2, (res.returncode, res.stdout[-1000:], res.stderr[-2000:])
+    assert len(errors) == 1 and phrase in errors[0], res.stderr[-2000:]
+    assert "Traceback" not in res.stderr and "Error:" not in res.stderr  # no exception class names
+    assert res.stdout == "" and tree(tmp_path) == before
+
+
+def test_leaderboard_lists_the_same_run_in_two_folders_once(tmp_path):
+    a = _report_run(tmp_path / "a", "pi0", 4)
+    shutil.copytree(a, tmp_path / "copy")
+    other = _report_run(tmp_path / "b", "act", 2)
+    res = rsb("leaderboard", str(a), str(tmp_path / "copy"), str(other), "--out", str(tmp_path / "board"),
+              timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "2 model(s)" in res.stdout and f"the same run in {a} and {tmp_path / 'copy'}" in res.stdout
+    md = (tmp_path / "board" / "leaderboard.md").read_text()
+    tsr = md.split("### TSR")[1].split("###")[0]
+    assert sum(line.startswith("| pi0") for line in tsr.splitlines()) == 1
+    assert f"also in {tmp_path / 'copy'}" in md

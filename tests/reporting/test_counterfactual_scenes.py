@@ -56,3 +56,20 @@ def test_switch_intervals_over_scenes_hold_their_coverage_for_a_half_stuck_polic
         rate = scene_rate(Counts(per_scene=tuple(scenes)), "switched", "pairs")
         hits += rate.low <= truth <= rate.high
     assert abs(hits / REPS - 0.95) <= 0.02, hits / REPS
+
+
+def test_follow_and_switch_say_the_difference_their_scenes_can_detect():
+    """The detectable difference of follow / switch is the stats module's at the run's design effect
+    over scenes: scenes whose variants all went one way detect less than independent variants would."""
+    from rsb_maniskill.evaluation.stats import design_effect, minimum_detectable_difference
+    from rsb_maniskill.reporting.sections.counterfactual import CounterfactualMetrics
+
+    alike = tuple({"changed_followed": 3 if i % 2 else 0, "changed_grasped": 3, "switched": 0, "pairs": 3}
+                  for i in range(20))
+    m = CounterfactualMetrics.of(Counts(per_scene=alike), N, K)
+    values = [1 if i % 2 else 0 for i in range(20) for _ in range(3)]
+    clusters = [i for i in range(20) for _ in range(3)]
+    assert design_effect(values, clusters) == 3.0  # every scene all one way: a scene counts once
+    assert m.detectable["follow"] == minimum_detectable_difference(0.5, 60, design=3.0)
+    assert m.detectable["follow"] > minimum_detectable_difference(0.5, 60)
+    assert m.to_dict()["detectable_difference"]["switch"] == minimum_detectable_difference(0.0, 60, design=3.0)

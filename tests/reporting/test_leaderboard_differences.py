@@ -56,3 +56,23 @@ def test_from_the_intervals_without_shared_seeds(tmp_path, capsys):
     md, avg, _ = board(tmp_path, capsys, best, other)
     assert avg["poor"]["differs_from_best"] == "True" and avg["poor"]["vs_best_test"] == "intervals"
     assert avg["poor"]["vs_best_p"] == "" and "poor §: intervals" in md
+
+
+def test_the_mark_stands_on_tsr_only_and_each_row_says_what_it_can_detect(tmp_path, capsys):
+    """Issue 59: § stood beside the model in the GSR and nSG tables too (GSR 100 vs 100), though only TSR was
+    tested. Each row's detectable TSR difference is the stats module's at its episodes."""
+    from rsb_maniskill.evaluation.stats import minimum_detectable_difference
+
+    best = write_dir(tmp_path / "best", records("good", 14, 6))
+    far = write_dir(tmp_path / "far", records("poor", 4, 16))
+    md, avg, out = board(tmp_path, capsys, best, far)
+    tsr, gsr, nsg = (md.split(f"### {name}")[1].split("###")[0].split("\n- ")[0] for name in ("TSR", "GSR", "nSG"))
+    assert "| poor †§ |" in tsr and "| poor † |" in gsr and "| poor † |" in nsg and "§" not in gsr + nsg
+    page = (out / "index.html").read_text()
+    assert '<span class="marks m tsr"' in page  # shown when the page shows TSR only
+    mde = minimum_detectable_difference(4 / 20, 20)
+    assert f"±{100 * mde:.1f} |" in tsr.split("| poor")[1].splitlines()[0]
+    rows = list(csv.DictReader(io.StringIO((out / "leaderboard.csv").read_text())))
+    poor = next(r for r in rows if r["model"] == "poor" and r["suite_id"] == "RSB-Math-4")
+    assert float(poor["tsr_detectable_difference"]) == mde
+    assert "Detectable TSR difference" in md and "`rsb plan`" in md

@@ -138,6 +138,10 @@ def _run(shards: list[tuple[Path, dict, int, Any]], num_procs: int, executor: An
     bar = _Progress(sum(s.size for *_, s in shards), progress)
     # one task per worker, its shards dealt round-robin (they may span suites)
     tasks = [{"items": [(str(w), settings, k, s) for w, settings, k, s in part]} for part in deal(shards, num_procs)]
+    if 0 < len(tasks) < num_procs:
+        # the plan's line said the workers asked for; fewer start where there are fewer shards
+        print(f"workers: {len(tasks)} started, one a shard ({len(shards)} shards for --num-procs {num_procs})",
+              file=sys.stderr, flush=True)
     if len(tasks) > 1 and executor is None:  # local worker processes: each its share of the cores
         for t in tasks:
             t["lp_threads"] = lavapipe_share(len(tasks))

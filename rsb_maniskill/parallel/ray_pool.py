@@ -15,7 +15,15 @@ import time
 import traceback
 from typing import Any, Sequence
 
-from rsb_maniskill.parallel.pool import Emit, Interrupted, InterruptGuard, RunOutcome, Target, TaskOutcome
+from rsb_maniskill.parallel.pool import (
+    STOP_GRACE_S,
+    Emit,
+    Interrupted,
+    InterruptGuard,
+    RunOutcome,
+    Target,
+    TaskOutcome,
+)
 
 RAY_HINT = "the Ray executor needs `pip install 'rsb_maniskill[ray]'` (ray on every machine of the cluster)"
 CONNECT_TIMEOUT_S = 10.0  # a cluster's head answers in milliseconds; Ray itself retries for minutes
@@ -56,7 +64,7 @@ class RayExecutor:
     """
 
     def __init__(self, address: str | None = None, num_cpus: int = 2, cpus_per_task: float = 1,
-                 gpus_per_task: float = 0, grace_s: float = 120.0, poll_s: float = 0.2) -> None:
+                 gpus_per_task: float = 0, grace_s: float = STOP_GRACE_S, poll_s: float = 0.2) -> None:
         self.address = address
         self.num_cpus = num_cpus
         self.cpus_per_task = cpus_per_task
@@ -134,7 +142,7 @@ class RayExecutor:
                         self._drain(q, on_message, guard)
                         for ref in ready:
                             done[index[ref]] = self._outcome(ray, ref, index[ref])
-                        if deadline is not None and time.monotonic() > deadline:
+                        if deadline is not None and (time.monotonic() > deadline or guard.count > 1):
                             for ref in pending:
                                 ray.cancel(ref, force=True)
                             deadline = None

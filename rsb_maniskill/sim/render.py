@@ -43,7 +43,7 @@ FIX = ("Install a Vulkan driver: an NVIDIA driver on GPU machines, or Mesa lavap
        "obs_mode='state' and render_backend='none'. `rsb doctor` shows what this machine has.")
 _HELD: dict[str, object] = {}  # "engine" -> the process's render system (None: none could be made)
 MANISKILL_LOGGER = "mani_skill "  # the name of ManiSkill's logger (mani_skill.utils.logging_utils), its space too
-NOT_SHOWN = ("Rendering might be disabled",)  # library log lines that never matter here (see the module doc)
+NOT_SHOWN = ("Rendering might be disabled", "is not installed with git")  # log lines that never matter here
 
 
 class RendererUnavailableError(RuntimeError):

@@ -87,13 +87,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="extra gym.make keyword, e.g. camera_size=[224,224] (VALUE as JSON, else a string)")
     p.add_argument("--data-dir", default=None,
                    help="GSM8K / MMLU-Pro directory (else $RSB_DATA_DIR, else the hub cache)")
-    p.add_argument("--num-envs", type=_num_envs, default=1, metavar="auto|K",
+    p.add_argument("--num-envs", type=_num_envs, default=NUM_ENVS_NOT_GIVEN, metavar="auto|K",
                    help=f"envs a process, driven by one batched policy (reset_batch / act_batch; e.g. remote: "
-                        "one request per step) or one policy instance each (default 1). On the CPU backend, a "
+                        "one request per step) or one policy instance each. On the CPU backend, a "
                         "vector of K CPU envs whose cameras render in one call where CUDA rendering exists "
-                        "(the same episodes and records as K = 1); auto: 4 on NVIDIA GPUs when cameras render, "
-                        f"else 1, printed with why. With -b {GPU_SIM_BACKEND}: ManiSkill's parallel envs on GPU "
-                        "physics, in one process")
+                        "(the same episodes and records as K = 1); auto (default): 4 on NVIDIA GPUs when cameras "
+                        f"render, else 1, printed with why. With -b {GPU_SIM_BACKEND}: ManiSkill's parallel envs on "
+                        "GPU physics, in one process (default 1)")
     p.add_argument("-b", "--sim-backend", default=CPU_SIM_BACKEND, choices=(CPU_SIM_BACKEND, GPU_SIM_BACKEND),
                    help=f"physics: {CPU_SIM_BACKEND} (default; the paper's) or {GPU_SIM_BACKEND} (GPU-parallel envs, "
                         "with --num-envs K > 1)")
@@ -167,6 +167,9 @@ def check_policy_spec(spec: str, num_envs: int = 1) -> None:
         raise EvalError(str(err)) from err
 
 
+NUM_ENVS_NOT_GIVEN = object()  # --num-envs left out: auto on the CPU backend, 1 with GPU physics
+
+
 def _num_envs(text: str) -> int | None:
     """A ``--num-envs`` value: ``auto`` (None: decided from the machine) or a count >= 1."""
     if text.strip().lower() == "auto":
@@ -183,8 +186,9 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
 
 def run_eval(args: argparse.Namespace) -> int:
     # SIGTERM (a scheduler's stop) ends the run like Ctrl-C: workers stopped, summary written.
-    from rsb_maniskill.evaluation.jobs import JobError
+    from rsb_maniskill.evaluation.jobs import PACE, JobError
 
+    PACE.start()  # the start-up of the throughput line is timed from here
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         with _data_dir_for_the_run(args.data_dir):
@@ -297,6 +301,8 @@ def _run_eval(args: argparse.Namespace) -> int:
 
     suites = args.suites
     gpu_physics = args.sim_backend == GPU_SIM_BACKEND
+    if args.num_envs is NUM_ENVS_NOT_GIVEN:
+        args.num_envs = 1 if gpu_physics else None
     for flag, value, low in (("--num-episodes", args.num_episodes, 1), ("--num-envs", args.num_envs, 1),
                              ("--videos", args.videos, 0)):
         if value is not None and value < low:
@@ -417,6 +423,9 @@ def _run_eval(args: argparse.Namespace) -> int:
         print(f"records: {records_path}\nsummary: {paths['markdown']}, {paths['json']}, {paths['csv']}\n"
               f"results: {paths['results']}\nreport: {page}")
         _say_episodes(asked, out)
+        from rsb_maniskill.evaluation.jobs import PACE
+
+        print(PACE.line())  # start-up seconds, then steady env-steps/s
     if interrupted:
         print(f"rsb eval: interrupted; finished episodes are in {records_path}. "
               "Rerun the same command to resume.", file=sys.stderr)

@@ -385,17 +385,24 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
             action = torch.as_tensor(last, device=base.device)
             _, terminated, truncated, info = observations.step(action)
             _collect_frames(env, frames, active)
+            ended = _flags(terminated) | _flags(truncated)  # one host copy a step, not two an env
             for i in range(n):
                 if not active[i]:
                     continue
                 steps[i] += 1
-                if (bool(first_value(terminated[i:i + 1])) or bool(first_value(truncated[i:i + 1]))
-                        or steps[i] >= settings.max_steps):
+                if ended[i] or steps[i] >= settings.max_steps:
                     active[i] = False
                     if callable(hold):  # a vector of CPU envs stops stepping it (no physics for nothing)
                         hold(i)
                     write(episodes.record(seed=wave[i], spec=specs[i], given=given[i], info=_row_info(info, i),
                                           steps=steps[i], extra=extras[i], frames=frames.pop(i, None), said=said[i]))
+
+
+def _flags(x: Any) -> np.ndarray:
+    """A batched flag (torch or numpy, leading env dim) as a numpy bool row per env."""
+    if hasattr(x, "detach"):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x, dtype=bool).reshape(-1)
 
 
 def _collect_frames(env: Any, frames: dict[int, list], active: Sequence[bool] | None = None) -> None:

@@ -900,6 +900,16 @@ def test_backbone_quiet_draws_no_library_progress_bar(tmp_path):
 
 
 # ------------------------------------------------------------ second sweep: reports and leaderboard
+def test_merge_onto_a_full_disk_is_refused_before_it_writes(small_disk, tmp_path):
+    """libhdf5 meeting a full disk may crash the process: the free space is checked first."""
+    a, b = _pair(tmp_path / "a.h5", [0, 1]), _pair(tmp_path / "b.h5", [2])
+    disk = small_disk("16k")
+    res = rsb("merge", str(a), str(b), "--out", str(disk / "m.h5"), timeout=120)
+    errors = error_lines(res.stderr)
+    assert res.returncode == 2 and len(errors) == 1, res.stderr[-2000:]
+    assert f"no space left on the device of {disk}" in errors[0] and "choose another --out" in errors[0]
+    assert list(disk.iterdir()) == []
+
 # Issue 60's report / leaderboard cases (issue 59's owner): hand-edited or malformed results, the same
 # run twice, a run compared with itself, a RESULTS_DIR beside --compare, an empty vla-eval file.
 

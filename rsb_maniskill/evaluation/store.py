@@ -62,8 +62,8 @@ def folder_name(label: str, strict: bool = True) -> str:
     label = unicodedata.normalize("NFC", label)
     name = safe_name(label)
     digest = hashlib.sha256(label.encode()).hexdigest()[:8]
-    if not label.isascii():
-        name = f"{name}-{digest}"
+    if not label.isascii() or not name.strip("."):  # ("." and ".." are folders already: results/.. is ./)
+        name = f"{name.strip('.') or 'policy'}-{digest}"
     if len(name) > MAX_FOLDER_CHARS and not strict:
         return f"{name[:MAX_FOLDER_CHARS - 9]}-{digest}"
     if len(name) > MAX_FOLDER_CHARS:

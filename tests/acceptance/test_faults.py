@@ -600,6 +600,8 @@ def test_names_that_lose_their_letters_get_a_folder_each(tmp_path, monkeypatch):
     folders = {results_dir(None, name) for name in ("模型🤖 é", "🤖", "é", "e\u0301", "policy")}
     assert len(folders) == 4  # NFC: "é" typed two ways is one name; the others one folder each
     assert results_dir(None, "oracle").name == "oracle"  # ASCII names keep their folders
+    inside = {results_dir(None, name).resolve().parent for name in ("..", ".", "...")}  # not ./ nor results/
+    assert inside == {(tmp_path / "results").resolve()}
     claimed = results_dir(None, "a:b")
     (claimed / "run.json").write_text(json.dumps({"runs": {"a:b": {}}}))
     with pytest.raises(EvalError, match="same folder name"):

@@ -2,6 +2,7 @@
 
     python benchmarks/eval_throughput.py [--suites RSB-Math-4] [-n 40] [--procs 1 2] [--policy oracle]
     python benchmarks/eval_throughput.py --rgb [-n 3] [--chunk 10] [--max-steps 100]
+    python benchmarks/eval_throughput.py --loop-cost [--envs 1 4] [-n 8] [--max-steps 300]
 
 Default: a built-in policy with state observations (what oracle / blind / random read) with 1 and
 2 worker processes. ``--rgb``: render on demand, in one run: the random policy with chunks of
@@ -11,6 +12,12 @@ No video, into a temporary directory. Wall time includes building the env (what 
 for; with --rgb the first build also compiles shaders, so there episodes/min are taken from the
 time inside the loop); the time per episode is measured inside the loop (reset, policy, steps).
 Also prints the TSR reached, so that a fast but broken run cannot pass for a fast one.
+
+``--loop-cost``: the eval loop's own cost, in this process: the random policy, state observations,
+the loop of one env (K = 1, ``episode_loop``) and of a vector of K (``batched_loop``), with the
+env's ``reset`` / ``step`` and the policy's calls timed inside the same run. Prints per env-step the
+loop's wall time, the env's own (simulation), the policy's, and the rest (the loop's bookkeeping),
+and loop / env: the ratio issue 57 asks to bring within 1.15 (the env's own step, same actions).
 """
 from __future__ import annotations
 
@@ -38,6 +45,57 @@ def run(job: EvalJob, procs: int = 1, executor=None) -> dict:
                 tsr=sum(r["success"] for r in records) / len(records), records=records)
 
 
+def loop_cost(suite: str, envs: list[int], episodes: int, max_steps: int) -> None:
+    from rsb_maniskill.evaluation.jobs import _load_policies, make_env
+    from rsb_maniskill.evaluation.runner import batched_loop, episode_loop
+
+    seeds = tuple(eval_seeds(suite, episodes))
+    print(f"random on {suite}, state obs, {episodes} episodes of at most {max_steps} steps, 1 process, "
+          f"{os.cpu_count()} CPUs visible; ms per env-step")
+    print("| K | loop | env (reset + step) | policy | rest | loop / env |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for k in envs:
+        job = EvalJob(suite_id=suite, seeds=seeds, policy="random", label="random", obs_mode="state", num_envs=k,
+                      max_steps=max_steps)
+        env = make_env(job)
+        policy = _load_policies(job, env)
+        spent = {"env": 0.0, "policy": 0.0}
+
+        def timed(obj, name, kind):
+            fn = getattr(obj, name)
+
+            def call(*args, **kwargs):
+                t = time.perf_counter()
+                try:
+                    return fn(*args, **kwargs)
+                finally:
+                    spent[kind] += time.perf_counter() - t
+            setattr(obj, name, call)
+
+        timed(env, "reset", "env")
+        timed(env, "step", "env")
+        for p in policy if isinstance(policy, list) else [policy]:
+            for name in ("reset", "act", "reset_batch", "act_batch"):
+                if callable(getattr(p, name, None)):
+                    timed(p, name, "policy")
+        records: list = []
+        loop = batched_loop if k > 1 else episode_loop
+        try:
+            loop(env, policy, job, list(seeds[:k]), records.append)  # warm: first reset, imports
+            spent.update(env=0.0, policy=0.0)
+            records = []
+            t = time.perf_counter()
+            loop(env, policy, job, list(seeds), records.append)
+            wall = time.perf_counter() - t
+        finally:
+            env.close()
+        steps = sum(r["steps"] for r in records)
+        ms = {key: 1000 * v / steps for key, v in (("loop", wall), *spent.items())}
+        rest = ms["loop"] - ms["env"] - ms["policy"]
+        print(f"| {k} | {ms['loop']:.2f} | {ms['env']:.2f} | {ms['policy']:.2f} | {rest:.2f} | "
+              f"{ms['loop'] / ms['env']:.2f} |", flush=True)
+
+
 def show(rows: list[tuple[str, dict]]) -> None:
     print(f"{'run':>22} {'episodes':>8} {'wall s':>7} {'episodes/min':>12} {'s/episode':>9} {'steps/ep':>8} {'TSR':>6}")
     for name, r in rows:
@@ -54,8 +112,17 @@ def main() -> None:
     p.add_argument("--procs", type=int, nargs="+", default=[1, 2])
     p.add_argument("--rgb", action="store_true", help="render on demand vs every step, rgb cameras")
     p.add_argument("--chunk", type=int, default=10, help="--rgb: actions per chunk (default 10)")
-    p.add_argument("--max-steps", type=int, default=100, help="--rgb: steps per episode (default 100)")
+    p.add_argument("--max-steps", type=int, default=None, help="--rgb: steps per episode (default 100; "
+                   "--loop-cost: the task's limit)")
+    p.add_argument("--loop-cost", action="store_true", help="the eval loop's own cost against the env's step")
+    p.add_argument("--envs", type=int, nargs="+", default=[1, 4], help="--loop-cost: K envs a loop")
     args = p.parse_args()
+    if args.loop_cost:
+        from rsb_maniskill.evaluation.runner import DEFAULT_MAX_STEPS
+
+        loop_cost(args.suite, args.envs, args.num or 8, args.max_steps or DEFAULT_MAX_STEPS)
+        return
+    args.max_steps = args.max_steps or 100
     seeds = tuple(eval_seeds(args.suite, args.num or (3 if args.rgb else 40)))
     if args.rgb:
         base = dict(suite_id=args.suite, seeds=seeds, policy="random", label="random", obs_mode="rgb",

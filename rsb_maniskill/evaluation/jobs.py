@@ -14,6 +14,7 @@ caller:
 from __future__ import annotations
 
 import os
+import time
 import traceback
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Mapping, Sequence
@@ -112,6 +113,38 @@ class ProgressBar:
             self.bar.close()
 
 
+class Throughput:
+    """A run's pace, for the last line of ``rsb eval``: the start-up (from :meth:`start` to the
+    first episode's start: imports, workers, envs, policies) and the steady env-steps/s after it
+    (every episode's steps over the time from the first episode's start to the last record). An
+    episode's start is its record's arrival less its ``wall_s``."""
+
+    def __init__(self) -> None:
+        self.start()
+
+    def start(self) -> None:
+        self.t0 = time.monotonic()
+        self.first: float | None = None
+        self.last = self.t0
+        self.steps = self.episodes = 0
+
+    def add(self, record: Mapping[str, Any]) -> None:
+        now = time.monotonic()
+        began = now - float(record.get("wall_s") or 0.0)
+        self.first = began if self.first is None else min(self.first, began)
+        self.last, self.steps, self.episodes = now, self.steps + int(record.get("steps") or 0), self.episodes + 1
+
+    def line(self) -> str:
+        if self.first is None:
+            return "throughput: no episode ran"
+        run = max(self.last - self.first, 1e-9)
+        return (f"throughput: start-up {max(0.0, self.first - self.t0):.1f} s, then {self.steps / run:,.0f} "
+                f"env-steps/s ({self.steps:,} env-steps, {self.episodes:,} episodes in {run:.1f} s)")
+
+
+PACE = Throughput()  # every record drive() writes in this process; rsb eval starts it and prints its line
+
+
 def job_records(out_path: str | os.PathLike, settings: EpisodeSettings) -> list[dict]:
     """The records of ``out_path`` that belong to this policy label, suite, instruction mode and perturbation."""
     want = perturb_label(settings.perturb or {})
@@ -143,6 +176,7 @@ def drive(settings: EpisodeSettings, out_path: str | os.PathLike, run: Callable[
             def write(record: dict) -> None:
                 records.append(writer.write({**record, **stamp} if stamp else record))
                 bar.add(record)
+                PACE.add(record)
 
             for todo in _batches(episodes, done, RUN_BATCH):
                 run(todo, write)

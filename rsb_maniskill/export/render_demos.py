@@ -7,11 +7,13 @@ per process and env, and each recorded state is set and observed in turn.
 
 Where an NVIDIA GPU renders, K episodes are rendered together on a vector of K CPU envs
 (``rsb_maniskill.vector``): step t of K episodes is set, then every camera of the K renders in one
-call (:func:`render_envs`: ``--num-envs auto``'s rule). The same frames either way.
+call and the K observations are built once, the eval's path (:func:`render_envs`: ``--num-envs
+auto``'s rule, the default of ``rsb dataset build`` and ``rsb export lerobot``). The same frames either way.
 """
 from __future__ import annotations
 
 import json
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -130,12 +132,15 @@ def _render_wave(env, wave: list, cameras: Sequence[str], stride: int, h5_path: 
 
     vector = hasattr(env.unwrapped, "bases")
     bases = env.unwrapped.bases if vector else [env.unwrapped]
-    for i, (ep, _, _) in enumerate(wave):
-        options = (ep.get("reset_kwargs") or {}).get("options")
-        if vector:
-            env.reset(seed=[ep["episode_seed"]], options={**(options or {}), "env_idx": [i]})
-        else:
-            env.reset(seed=ep["episode_seed"], options=options)
+    # each episode's own reset (its seed and options), rendering nothing: the group is built and
+    # every camera of the K rendered once, at the first observation below
+    with env.unwrapped.skip_observations() if vector else nullcontext():
+        for i, (ep, _, _) in enumerate(wave):
+            options = (ep.get("reset_kwargs") or {}).get("options")
+            if vector:
+                env.reset(seed=[ep["episode_seed"]], options={**(options or {}), "env_idx": [i]})
+            else:
+                env.reset(seed=ep["episode_seed"], options=options)
     specs = [base.episode_specs[0] for base in bases]  # the episodes' semantics, also for files without RSB fields
     state: list[list] = [[] for _ in wave]
     frames: list[dict] = [{c: [] for c in cameras} for _ in wave]
@@ -143,11 +148,12 @@ def _render_wave(env, wave: list, cameras: Sequence[str], stride: int, h5_path: 
         live = [i for i, (_, _, actions) in enumerate(wave) if t < len(actions)]
         for i in live:
             bases[i].set_state_dict(wave[i][1][t])
-        obs = env.unwrapped.get_obs()
+        obs = env.unwrapped.get_obs()  # every camera of the K envs in one call, the observation built once
+        rgb = {c: obs["sensor_data"][sensor_uid(c)]["rgb"].cpu().numpy() for c in cameras}  # one copy a camera
         for i in live:
             state[i].append(bases[i].agent.aloha14_state()[0].cpu().numpy())
             for c in cameras:
-                frames[i][c].append(obs["sensor_data"][sensor_uid(c)]["rgb"][i].cpu().numpy())
+                frames[i][c].append(rgb[c][i])
     for i, (ep, _, actions) in enumerate(wave):
         spec = specs[i]
         meta = {

@@ -128,3 +128,19 @@ def test_wrong_action_dim_is_reported(tmp_path):
 
     with pytest.raises(ValueError, match="dim 16"):
         run(tmp_path, policy=Wrong())
+
+
+def test_throughput_line_splits_start_up_from_the_steady_rate(monkeypatch):
+    """rsb eval's last line: start-up to the first episode's start (arrival less its wall_s), then
+    every episode's steps over the first start to the last record."""
+    from rsb_maniskill.evaluation import jobs
+
+    now = [100.0]
+    monkeypatch.setattr(jobs.time, "monotonic", lambda: now[0])
+    pace = jobs.Throughput()
+    assert pace.line() == "throughput: no episode ran"
+    for t, steps, wall in ((112.0, 300, 2.0), (113.0, 300, 3.0), (114.0, 100, 1.0)):
+        now[0] = t
+        pace.add({"steps": steps, "wall_s": wall})
+    # first start 110 (112 - 2): start-up 10 s; 700 steps from 110 to 114
+    assert pace.line() == "throughput: start-up 10.0 s, then 175 env-steps/s (700 env-steps, 3 episodes in 4.0 s)"

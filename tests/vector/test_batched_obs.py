@@ -136,3 +136,30 @@ def test_camera_envs_step_without_an_observation_of_their_own():
         assert vec.get_obs()["sensor_data"]["head_camera"]["rgb"].shape == (2, 24, 32, 3)
     finally:
         vec.close()
+
+
+def test_recorded_demos_render_through_the_batched_path(tmp_path, monkeypatch):
+    """render_demos sets K recorded states and observes all K in one call: with the stand-in group the
+    frames equal one env rendering the episodes in turn, and the K resets of a wave build the group once."""
+    from rsb_maniskill.export import render_demos
+    from rsb_maniskill.motionplan.generate import GenerateConfig, generate
+    from rsb_maniskill.vector import env as vector_env
+
+    summary = generate(GenerateConfig(env_id=SUITE, out=str(tmp_path), num=2, progress=False))
+    assert summary.completed == 2
+    cams = ("head", "right_wrist")
+    try:
+        one = list(render_demos.render_episodes(summary.path, cams, 40, num_envs=1))
+        renderers = []
+        monkeypatch.setattr(vector_env, "make_renderer",
+                            lambda choice, obs_mode: renderers.append(GroupRenderer(recording_group)) or renderers[-1])
+        two = list(render_demos.render_episodes(summary.path, cams, 40, num_envs=2))
+    finally:
+        render_demos.close_render_env()
+    assert len(one) == len(two) == 2 and renderers[0].rebuilds == 1  # one wave: one group for its K resets
+    for a, b in zip(one, two):
+        assert a.meta == b.meta
+        np.testing.assert_array_equal(a.state, b.state)
+        for c in cams:
+            assert a.frames[c].shape == b.frames[c].shape and a.frames[c].any()
+            np.testing.assert_array_equal(a.frames[c], b.frames[c])

@@ -283,13 +283,17 @@ def test_rsb_eval_oracle_num_envs_4_gives_the_records_of_num_envs_1(tmp_path, ca
     assert all(r["success"] for r in one.values())  # the oracle's episodes, not four empty ones
 
 
-def test_num_envs_auto_says_what_and_why(tmp_path, capsys):
+def test_num_envs_auto_is_the_default_and_says_what_and_why(tmp_path, capsys):
+    """`--num-envs auto` (also when left out) prints its choice and why; eval ends with its throughput."""
     from rsb_maniskill.cli import main
 
-    assert main(["eval", "random", "--suites", SUITE, "-n", "1", "--num-envs", "auto", "--max-steps", "2",
-                 "--out", str(tmp_path / "auto"), "-q"]) == 0
-    err = capsys.readouterr().err
-    assert "envs: 1 a process (auto: no camera to render" in err
+    for name, flags in (("auto", ["--num-envs", "auto"]), ("default", [])):
+        assert main(["eval", "random", "--suites", SUITE, "-n", "2", *flags, "--max-steps", "2",
+                     "--out", str(tmp_path / name), "-q"]) == 0
+        out = capsys.readouterr()
+        assert "envs: 1 a process (auto: no camera to render" in out.err, name
+        last = out.out.strip().splitlines()[-1]
+        assert last.startswith("throughput: start-up ") and "(4 env-steps, 2 episodes in " in last, last
 
 
 @pytest.fixture
@@ -299,21 +303,61 @@ def group_rendering() -> None:
         pytest.skip(why)
 
 
+# SAPIEN's group poses a mounted camera on the GPU (batched_render_system.cu: link pose x local pose,
+# the view matrix from the pose's inverse), a scene on the CPU (camera_component.cpp: (link pose x local
+# pose) x GL-to-ROS, the view from svulkan2's matrix inverse): the same float32 poses in, rounded
+# differently, so a camera on a moving link (the wrists) may differ by one level on a few edge pixels
+# (H200: < 0.005 %). Bounded, not exact (docs/gpu.md); cameras on still links and all else are exact.
+MAX_LEVELS, MAX_PIXEL_SHARE = 1, 1e-4
+EXACT_CAMERAS = ("head_camera",)
+
+
+def _assert_obs_equal_but_wrist_rounding(group, own, where="obs"):
+    if isinstance(group, dict):
+        assert list(group) == list(own), where
+        for k in group:
+            _assert_obs_equal_but_wrist_rounding(group[k], own[k], f"{where}/{k}")
+        return
+    assert group.shape == own.shape and group.dtype == own.dtype, where
+    if "/sensor_data/" not in where or any(f"/{c}/" in where for c in EXACT_CAMERAS):
+        assert torch.equal(group.cpu(), own.cpu()), where
+        return
+    diff = (group.cpu().to(torch.int32) - own.cpu().to(torch.int32)).abs()
+    share = (diff.amax(-1) > 0).float().mean().item()  # pixels with any channel off
+    assert diff.max().item() <= MAX_LEVELS and share <= MAX_PIXEL_SHARE, (where, diff.max().item(), share)
+
+
+def test_the_wrist_rounding_bound_takes_one_level_on_few_pixels_only():
+    own = {"sensor_data": {"head_camera": {"rgb": torch.zeros(1, 200, 100, 3, dtype=torch.uint8)},
+                           "left_wrist_camera": {"rgb": torch.zeros(1, 200, 100, 3, dtype=torch.uint8)}}}
+
+    def with_wrist(levels, pixels, camera="left_wrist_camera"):
+        out = {"sensor_data": {k: {"rgb": v["rgb"].clone()} for k, v in own["sensor_data"].items()}}
+        out["sensor_data"][camera]["rgb"].view(-1, 3)[:pixels, 0] = levels
+        return out
+
+    _assert_obs_equal_but_wrist_rounding(with_wrist(1, 2), own)  # 2 of 20,000 pixels: 0.01 %
+    for bad in (with_wrist(2, 1), with_wrist(1, 3), with_wrist(1, 1, "head_camera")):
+        with pytest.raises(AssertionError):
+            _assert_obs_equal_but_wrist_rounding(bad, own)
+
+
 @pytest.mark.gpu
 @pytest.mark.usefixtures("group_rendering")
 def test_real_group_images_equal_each_scenes_own_render():
-    """SAPIEN's RenderSystemGroup over 4 CPU scenes: every camera's pixels equal ManiSkill's per-scene render."""
+    """SAPIEN's RenderSystemGroup over 4 CPU scenes: ManiSkill's per-scene observation, the head camera's
+    pixels exactly, the wrist cameras' within one level on at most 0.01 % of pixels (the GPU's pose rounding)."""
     envs = {"group": RSBVectorEnv(SUITE, 4, obs_mode="rgb", renderer="group"),
             "own": RSBVectorEnv(SUITE, 4, obs_mode="rgb", renderer="per_scene")}
     try:
         obs = {k: e.reset(seed=[1, 2, 3, 4])[0] for k, e in envs.items()}
-        _assert_obs_equal(obs["group"], obs["own"])
-        action = torch.zeros(envs["own"].action_space.shape)
-        for _ in range(2):
+        _assert_obs_equal_but_wrist_rounding(obs["group"], obs["own"])
+        action = torch.as_tensor(np.stack([envs["own"].single_action_space.sample() * 0.3 for _ in range(4)]))
+        for _ in range(3):
             outs = {k: e.step(action)[0] for k, e in envs.items()}
-        _assert_obs_equal(outs["group"], outs["own"])
+            _assert_obs_equal_but_wrist_rounding(outs["group"], outs["own"])
         obs = {k: e.reset(seed=[9, 8], options={"env_idx": [2, 0]})[0] for k, e in envs.items()}
-        _assert_obs_equal(obs["group"], obs["own"])
+        _assert_obs_equal_but_wrist_rounding(obs["group"], obs["own"])
     finally:
         for e in envs.values():
             e.close()

@@ -80,14 +80,22 @@ def expected_digest(record: Mapping[str, Any], data_dir: str | os.PathLike | Non
                     color_map: str = "fixed") -> str:
     """The digest of the episode this install makes (on ``data_dir``: default, RSB_DATA_DIR or the
     package's) for ``record``'s suite, seed, perturbation and variant."""
+    counterfactual = record.get("instruction_mode") == COUNTERFACTUAL
+    return _expected(str(record["suite_id"]), perturb_label(record), int(record["seed"]),
+                     int(record.get("variant", 0)) if counterfactual else None,
+                     None if data_dir is None else str(data_dir), color_map, os.environ.get("RSB_DATA_DIR"))
+
+
+@lru_cache(maxsize=1 << 16)
+def _expected(suite_id: str, perturb: str, seed: int, variant_index: int | None, data_dir: str | None,
+              color_map: str, env_data_dir: str | None) -> str:
+    """:func:`expected_digest`, kept: a run's summaries, results.json, page and last line each check it."""
     from rsb_maniskill.semantic.counterfactual import variant
     from rsb_maniskill.semantic.digest import episode_digest
 
-    sampler = _sampler(str(record["suite_id"]), perturb_label(record), None if data_dir is None else str(data_dir),
-                       color_map, os.environ.get("RSB_DATA_DIR"))
-    seed = int(record["seed"])
-    if record.get("instruction_mode") == COUNTERFACTUAL:
-        return episode_digest(variant(sampler, seed, int(record.get("variant", 0))).spec)
+    sampler = _sampler(suite_id, perturb, data_dir, color_map, env_data_dir)
+    if variant_index is not None:
+        return episode_digest(variant(sampler, seed, variant_index).spec)
     return episode_digest(sampler.episode(seed))
 
 

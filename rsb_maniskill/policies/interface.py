@@ -70,15 +70,15 @@ def is_batched(policy: Any) -> bool:
 
 
 def takes_keyword(method: Any, name: str) -> bool:
-    """Whether ``method`` accepts the keyword ``name`` (by name, or through ``**kwargs``)."""
+    """Whether ``method`` names the keyword ``name`` (not merely ``**kwargs``, which a policy may pass
+    on to a model that does not take it)."""
     import inspect
 
     try:
         params = inspect.signature(method).parameters.values()
     except (TypeError, ValueError):  # a builtin or a C method without a signature: not given
         return False
-    return any(p.name == name and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) or p.kind == p.VAR_KEYWORD
-               for p in params)
+    return any(p.name == name and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) for p in params)
 
 
 def reset_policy(policy: Any, instruction: str, obs: Any, seed: int) -> None:

@@ -679,14 +679,15 @@ def test_a_plugin_that_hangs_exits_or_replaces_a_builtin_is_named_and_skipped(bo
 
 def test_a_resume_checks_which_code_made_its_records(tmp_path):
     """The records of `oracle` made by one factory are not extended by another under the same name."""
+    from rsb_maniskill.evaluation.records import RECORD_FIELDS, VERSION_FIELD
     from rsb_maniskill.evaluation.store import ManifestError, RecordWriter, check_manifest
+    from rsb_maniskill.version import BENCHMARK_VERSION
 
     settings = {"policy": "oracle", "policy_factory": "rsb_maniskill.policies.reference:oracle"}
     assert check_manifest(tmp_path, "oracle", settings, keys=("policy",)) is None
-    with RecordWriter(tmp_path / "episodes.jsonl") as writer:
-        writer.write({"policy": "oracle", "suite_id": SUITE, "seed": 0, "instruction_mode": "normal",
-                      "grasped_any": True, "grasped_correct": True, "placed_correct": True, "placed_wrong": False,
-                      "success": True})
+    with RecordWriter(tmp_path / "episodes.jsonl") as writer:  # one episode of the real oracle
+        writer.write({**dict.fromkeys(RECORD_FIELDS, 0), "policy": "oracle", "suite_id": SUITE, "seed": 0,
+                      "instruction_mode": "normal", VERSION_FIELD: BENCHMARK_VERSION})
     impostor = {**settings, "policy_factory": "rsb_odd_plugin:Impostor"}
     with pytest.raises(ManifestError, match="made by rsb_maniskill.policies.reference:oracle"):
         check_manifest(tmp_path, "oracle", impostor, keys=("policy",))

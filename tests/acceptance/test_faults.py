@@ -694,6 +694,100 @@ def test_a_resume_checks_which_code_made_its_records(tmp_path):
     assert check_manifest(tmp_path, "oracle", settings, keys=("policy",)) is None  # the same code resumes
 
 
+@pytest.fixture
+def read_only(tmp_path) -> Path:
+    """An empty read-only file system at tmp_path/ro (root ignores file modes, not a read-only mount)."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(ro)], capture_output=True,
+                         text=True)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip()}")
+    yield ro
+    subprocess.run(["umount", "-l", str(ro)], check=False)
+
+
+READ_ONLY_CASES = [  # (argv with {ro} for the read-only folder, phrase of the one line)
+    ([*GENERATE, "--out", "{ro}/d"], "Read-only file system"),
+    (["eval", "oracle", *EVAL, "-n", "1", "--out", "{ro}/r"], "Read-only file system"),
+    (["merge", "{pair}", "--out", "{ro}/m.h5"], "Read-only file system"),
+    (["audit", SUITE, "-n", "5", "--out", "{ro}/a"], "Read-only file system"),
+]
+
+
+@pytest.mark.parametrize("argv, phrase", READ_ONLY_CASES, ids=[c[0][0] for c in READ_ONLY_CASES])
+def test_a_read_only_folder_is_one_line_naming_it(argv, phrase, read_only, tmp_path):
+    pair = _pair(tmp_path / "a.h5", [0, 1])
+    argv = [a.replace("{ro}", str(read_only)).replace("{pair}", str(pair)) for a in argv]
+    res = rsb(*argv, timeout=120)
+    errors = error_lines(res.stderr)
+    assert res.returncode == 2 and len(errors) == 1, res.stderr[-2000:]
+    assert phrase in errors[0] and str(read_only) in errors[0] and "Traceback" not in res.stderr
+
+
+def test_a_merge_killed_before_its_rename_leaves_nothing_after_a_rerun(tmp_path):
+    """kill -9 of `rsb merge` leaves its temp pair (named by its pid): the same command removes it."""
+    a, b = _pair(tmp_path / "a.h5", [0, 1]), _pair(tmp_path / "b.h5", [2])
+    gone = subprocess.Popen(["true"])
+    gone.wait()  # a pid no process has now: a killed merge's
+    for suffix in (".h5", ".json"):
+        (tmp_path / f".m.tmp{gone.pid}.merge{suffix}").write_bytes(b"half")
+    res = rsb("merge", str(a), str(b), "--out", str(tmp_path / "m.h5"), timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert stray_files(tmp_path) == [] and len(json.loads((tmp_path / "m.json").read_text())["episodes"]) == 3
+
+def test_a_unicode_name_under_a_non_utf8_locale_is_the_same_name(tmp_path):
+    """LC_ALL=POSIX without Python's UTF-8 mode: '模型🤖 é' ended in "surrogates not allowed"; it is
+    read as the text typed, and its row and folder are those of a UTF-8 locale."""
+    name = "模型🤖 é"
+    out = tmp_path / "r"
+    res = rsb("eval", "oracle", *EVAL, "-n", "1", "--max-steps", "2", "--name", name, "--out", str(out),
+              LC_ALL="POSIX", LANG="POSIX", PYTHONUTF8="0", PYTHONIOENCODING="")
+    assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr[-2000:]
+    from rsb_maniskill.evaluation.store import folder_name
+
+    assert {r["policy"] for r in records(out)} == {name}
+    assert (out / f"summary_{folder_name(name)}.png").exists()
+
+
+LOUD_BACKBONE = '''
+from huggingface_hub.utils import tqdm
+
+
+class Loud:
+    """Loads "weights" behind a progress bar, as a transformers model does."""
+
+    def __init__(self):
+        for _ in tqdm(range(3), desc="Loading weights"):
+            pass
+
+    def answer(self, instruction, images):
+        return "A"
+'''
+
+
+def test_backbone_quiet_draws_no_library_progress_bar(tmp_path):
+    """`rsb backbone ... -q` drew the "Loading weights" bar of the model it loads."""
+    (tmp_path / "rsb_loud_backbone.py").write_text(LOUD_BACKBONE)
+    path = os.pathsep.join([str(tmp_path), str(TESTS), str(REPO)])
+    runs = {flags: rsb("backbone", "rsb_loud_backbone:Loud", "--suites", SUITE, "-n", "1", *flags, "--out",
+                       str(tmp_path / f"r{len(flags)}"), timeout=120, PYTHONPATH=path) for flags in ((), ("-q",))}
+    assert all(res.returncode == 0 for res in runs.values()), [r.stderr[-2000:] for r in runs.values()]
+    assert "Loading weights" in runs[()].stderr  # the bar the library draws, unless told not to
+    assert "Loading weights" not in runs[("-q",)].stderr and "it/s" not in runs[("-q",)].stderr
+
+
+def test_merge_onto_a_full_disk_is_refused_before_it_writes(small_disk, tmp_path):
+    """libhdf5 meeting a full disk may crash the process: the free space is checked first."""
+    a, b = _pair(tmp_path / "a.h5", [0, 1]), _pair(tmp_path / "b.h5", [2])
+    disk = small_disk("16k")
+    res = rsb("merge", str(a), str(b), "--out", str(disk / "m.h5"), timeout=120)
+    errors = error_lines(res.stderr)
+    assert res.returncode == 2 and len(errors) == 1, res.stderr[-2000:]
+    assert f"no space left on the device of {disk}" in errors[0] and "choose another --out" in errors[0]
+    assert list(disk.iterdir()) == []
+
+
 # ------------------------------------------------------------ second sweep: eval runs
 # (issue 60) the run's settings reach every process; every output carries one verdict on its
 # episodes; a policy's episode is a function of its seed; Ctrl-C stops a run whatever its policy
@@ -819,99 +913,8 @@ def test_workers_are_quiet_plain_and_counted_as_started(tmp_path):
     assert "Rendering might be disabled" not in res.stderr and "\x1b[" not in res.stderr, res.stderr[-2000:]
 
 
-@pytest.fixture
-def read_only(tmp_path) -> Path:
-    """An empty read-only file system at tmp_path/ro (root ignores file modes, not a read-only mount)."""
-    ro = tmp_path / "ro"
-    ro.mkdir()
-    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(ro)], capture_output=True,
-                         text=True)
-    if res.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip()}")
-    yield ro
-    subprocess.run(["umount", "-l", str(ro)], check=False)
-
-
-READ_ONLY_CASES = [  # (argv with {ro} for the read-only folder, phrase of the one line)
-    ([*GENERATE, "--out", "{ro}/d"], "Read-only file system"),
-    (["eval", "oracle", *EVAL, "-n", "1", "--out", "{ro}/r"], "Read-only file system"),
-    (["merge", "{pair}", "--out", "{ro}/m.h5"], "Read-only file system"),
-    (["audit", SUITE, "-n", "5", "--out", "{ro}/a"], "Read-only file system"),
-]
-
-
-@pytest.mark.parametrize("argv, phrase", READ_ONLY_CASES, ids=[c[0][0] for c in READ_ONLY_CASES])
-def test_a_read_only_folder_is_one_line_naming_it(argv, phrase, read_only, tmp_path):
-    pair = _pair(tmp_path / "a.h5", [0, 1])
-    argv = [a.replace("{ro}", str(read_only)).replace("{pair}", str(pair)) for a in argv]
-    res = rsb(*argv, timeout=120)
-    errors = error_lines(res.stderr)
-    assert res.returncode == 2 and len(errors) == 1, res.stderr[-2000:]
-    assert phrase in errors[0] and str(read_only) in errors[0] and "Traceback" not in res.stderr
-
-
-def test_a_merge_killed_before_its_rename_leaves_nothing_after_a_rerun(tmp_path):
-    """kill -9 of `rsb merge` leaves its temp pair (named by its pid): the same command removes it."""
-    a, b = _pair(tmp_path / "a.h5", [0, 1]), _pair(tmp_path / "b.h5", [2])
-    gone = subprocess.Popen(["true"])
-    gone.wait()  # a pid no process has now: a killed merge's
-    for suffix in (".h5", ".json"):
-        (tmp_path / f".m.tmp{gone.pid}.merge{suffix}").write_bytes(b"half")
-    res = rsb("merge", str(a), str(b), "--out", str(tmp_path / "m.h5"), timeout=120)
-    assert res.returncode == 0, res.stderr[-2000:]
-    assert stray_files(tmp_path) == [] and len(json.loads((tmp_path / "m.json").read_text())["episodes"]) == 3
-
-def test_a_unicode_name_under_a_non_utf8_locale_is_the_same_name(tmp_path):
-    """LC_ALL=POSIX without Python's UTF-8 mode: '模型🤖 é' ended in "surrogates not allowed"; it is
-    read as the text typed, and its row and folder are those of a UTF-8 locale."""
-    name = "模型🤖 é"
-    out = tmp_path / "r"
-    res = rsb("eval", "oracle", *EVAL, "-n", "1", "--max-steps", "2", "--name", name, "--out", str(out),
-              LC_ALL="POSIX", LANG="POSIX", PYTHONUTF8="0", PYTHONIOENCODING="")
-    assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr[-2000:]
-    from rsb_maniskill.evaluation.store import folder_name
-
-    assert {r["policy"] for r in records(out)} == {name}
-    assert (out / f"summary_{folder_name(name)}.png").exists()
-
-
-LOUD_BACKBONE = '''
-from huggingface_hub.utils import tqdm
-
-
-class Loud:
-    """Loads "weights" behind a progress bar, as a transformers model does."""
-
-    def __init__(self):
-        for _ in tqdm(range(3), desc="Loading weights"):
-            pass
-
-    def answer(self, instruction, images):
-        return "A"
-'''
-
-
-def test_backbone_quiet_draws_no_library_progress_bar(tmp_path):
-    """`rsb backbone ... -q` drew the "Loading weights" bar of the model it loads."""
-    (tmp_path / "rsb_loud_backbone.py").write_text(LOUD_BACKBONE)
-    path = os.pathsep.join([str(tmp_path), str(TESTS), str(REPO)])
-    runs = {flags: rsb("backbone", "rsb_loud_backbone:Loud", "--suites", SUITE, "-n", "1", *flags, "--out",
-                       str(tmp_path / f"r{len(flags)}"), timeout=120, PYTHONPATH=path) for flags in ((), ("-q",))}
-    assert all(res.returncode == 0 for res in runs.values()), [r.stderr[-2000:] for r in runs.values()]
-    assert "Loading weights" in runs[()].stderr  # the bar the library draws, unless told not to
-    assert "Loading weights" not in runs[("-q",)].stderr and "it/s" not in runs[("-q",)].stderr
-
-
 # ------------------------------------------------------------ second sweep: reports and leaderboard
-def test_merge_onto_a_full_disk_is_refused_before_it_writes(small_disk, tmp_path):
-    """libhdf5 meeting a full disk may crash the process: the free space is checked first."""
-    a, b = _pair(tmp_path / "a.h5", [0, 1]), _pair(tmp_path / "b.h5", [2])
-    disk = small_disk("16k")
-    res = rsb("merge", str(a), str(b), "--out", str(disk / "m.h5"), timeout=120)
-    errors = error_lines(res.stderr)
-    assert res.returncode == 2 and len(errors) == 1, res.stderr[-2000:]
-    assert f"no space left on the device of {disk}" in errors[0] and "choose another --out" in errors[0]
-    assert list(disk.iterdir()) == []
+
 
 # Issue 60's report / leaderboard cases (issue 59's owner): hand-edited or malformed results, the same
 # run twice, a run compared with itself, a RESULTS_DIR beside --compare, an empty vla-eval file.

@@ -51,6 +51,7 @@ RESEND_S = 0.05  # how soon a signal held back in a finalizer is sent again
 # out in a second or two; one blocked in a call that ignores signals (a policy in native code) is
 # killed, its finished records already sent. Ctrl-C stops any run within ~10 s, whatever it runs.
 STOP_GRACE_S = 5.0
+EXIT_WAIT_S = 10.0  # how long finished workers may take to exit (all together) before they are killed
 
 
 def _in_finalizer(frame: Any) -> bool:
@@ -258,7 +259,9 @@ class ProcessPool:
                 for k, p in enumerate(procs):
                     if k not in done and p.is_alive():  # leaving early (an error here): stop it
                         p.terminate()
-                    p.join(timeout=10)
+                exit_by = time.monotonic() + EXIT_WAIT_S  # one wait for all: a worker whose exit hangs
+                for p in procs:                           # (a policy's thread) costs it once, not once each
+                    p.join(timeout=max(0.0, exit_by - time.monotonic()))
                     if p.is_alive():
                         p.kill()
                         p.join(timeout=10)

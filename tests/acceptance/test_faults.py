@@ -903,6 +903,20 @@ def test_an_act_only_policy_on_two_envs_is_blamed_for_its_act_on_its_seed(tmp_pa
     assert "act_batch" not in errors[0] and "seeds" not in errors[0], errors[0]
 
 
+def test_workers_that_do_not_exit_cost_one_wait_not_one_each():
+    """8 workers whose process lingers after its work (a policy's thread): the run ends with every
+    result, the workers killed after one shared wait (10 s), not 10 s each one after the other (80 s)."""
+    from rsb_maniskill.parallel.pool import EXIT_WAIT_S, ProcessPool
+
+    from bad_policies import lingers
+
+    seen: list = []
+    t0 = time.monotonic()
+    outcome = ProcessPool().run(lingers, list(range(8)), seen.append)
+    assert [t.result for t in outcome.tasks] == list(range(8)) and sorted(seen) == list(range(8))
+    assert time.monotonic() - t0 < 8 * EXIT_WAIT_S  # the waits one after the other would take this alone
+
+
 def test_workers_are_quiet_plain_and_counted_as_started(tmp_path):
     """--num-procs 99 for 2 episodes: the line says the 2 workers that start, and no worker prints
     ManiSkill's render-device warning (nothing renders) nor colour codes."""

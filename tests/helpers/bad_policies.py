@@ -207,3 +207,14 @@ class ActFails(Returns):
 
 def act_fails(on: int) -> ActFails:
     return ActFails(on)
+
+
+def lingers(task, emit):
+    """A worker target whose process does not exit after its work: a non-daemon thread that sleeps
+    (a policy's background thread left running)."""
+    import threading
+    import time
+
+    threading.Thread(target=time.sleep, args=(3600,), daemon=False).start()
+    emit(task)
+    return task

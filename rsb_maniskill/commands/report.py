@@ -107,7 +107,9 @@ def run_report(args: argparse.Namespace) -> int:
                 results = f"not written ({args.results_dir} is read-only; summary.* and results.json neither)"
             path = write_html_report(args.results_dir, args.out, records=records, title=args.title)
     except (ReportError, ValueError, OSError) as err:
-        print(f"rsb report: error: {err}", file=sys.stderr)
+        from rsb_maniskill.outdirs import write_error_line
+
+        print(f"rsb report: error: {write_error_line(err) or err}", file=sys.stderr)  # a full disk: path and fix
         return 2
     print(f"results: {results}\nreport: {path}")
     if not args.compare and not is_vla_eval_results(args.results_dir):

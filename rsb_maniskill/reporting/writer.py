@@ -10,11 +10,14 @@ from __future__ import annotations
 import html
 import json
 import os
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.records import one_version
-from rsb_maniskill.evaluation.store import RECORDS_FILE, read_records, safe_name
+from rsb_maniskill.evaluation.store import RECORDS_FILE, folder_name, read_records
+from rsb_maniskill.outdirs import naming
 from rsb_maniskill.reporting import sections
 from rsb_maniskill.reporting.leaderboard_files import write_text
 from rsb_maniskill.reporting.results import write_results
@@ -41,31 +44,50 @@ def write_report(results: Results, out_dir: str | os.PathLike, stem: str = "summ
     stuck rates (``counterfactual``, ``<stem>_counterfactual.csv``, ``<stem>_counterfactual.png``).
     ``partial`` (a run stopped before its end: ``"partial: interrupted, 12 of 30 episodes"``) heads
     the Markdown and is the JSON's ``partial``."""
-    from rsb_maniskill.version import BENCHMARK_VERSION
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    # every file is written into a hidden folder first and moved into place at the end: a full disk
+    # or a kill leaves the previous summaries whole, never a half-written (or 0-byte) one
     records = list(records) if records is not None else []
+    for stale in out.glob(f".{stem}.tmp*"):  # a killed run's
+        shutil.rmtree(stale, ignore_errors=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{stem}.tmp", dir=out))
+    try:
+        with naming(out):  # an error writing an open file (ENOSPC) names the folder
+            staged = _write_report(results, out, stage, stem, records, partial)
+            for done in sorted(stage.iterdir()):
+                os.replace(done, out / done.name)
+            paths = {key: out / path.name if path is not None else None for key, path in staged.items()}
+            if records:  # (whole, as its own; it reads the run's settings in out)
+                paths["results"] = write_results(out, records)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return paths
+
+
+def _write_report(results: Results, out: Path, stage: Path, stem: str, records: list[Mapping[str, Any]],
+                  partial: str | None) -> dict[str, Path]:
+    """:func:`write_report`'s summaries, written into ``stage`` (``out`` is read: rsb backbone's answers)."""
+    from rsb_maniskill.version import BENCHMARK_VERSION
+
     version = one_version(records) or BENCHMARK_VERSION
     paths = {
-        "json": write_json(results, out / f"{stem}.json", version),
-        "csv": write_csv(results, out / f"{stem}.csv", version),
-        "markdown": write_markdown(results, out / f"{stem}.md", version),
+        "json": write_json(results, stage / f"{stem}.json", version),
+        "csv": write_csv(results, stage / f"{stem}.csv", version),
+        "markdown": write_markdown(results, stage / f"{stem}.md", version),
     }
     if partial:
         mark_partial(paths, partial)
     if records:
         mark_episodes(paths, records, out)
-    if records:
-        paths["results"] = write_results(out, records)
     for section in sections.SECTIONS:  # each appends to summary.{json,md} and writes its own files
         table = section.compute(records, out)
         if table is not None:
             append_section(paths, section.key, section.to_json(table), section.markdown(table))
-            paths.update(section.files(table, out, stem))
+            paths.update(section.files(table, stage, stem))
     for label, row in results.items():
         if row:
-            png = out / f"{stem}_{safe_name(label)}.png"
+            png = stage / f"{stem}_{folder_name(label, strict=False)}.png"  # a file a row, never two rows
             paths[f"png:{label}"] = plot_summary(row, png, title=f"{label}: GSR and TSR")
     return paths
 

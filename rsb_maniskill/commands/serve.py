@@ -1,7 +1,7 @@
 """`rsb serve`: one policy for every client, over openpi's websocket protocol, batching their envs.
 
     rsb serve my_policies:make_policy -a checkpoint=ckpt/last --port 8000
-    rsb serve my_policies:make_policy --port 8000 --max-batch 64 --max-wait-ms 5
+    rsb serve my_policies:make_policy --port 8000 --max-batch 64 --max-wait-ms 25
     rsb eval remote -a host=gpu-box -a port=8000 --num-procs 16 --num-envs 4    # on the eval machine
 
 The policy is built once; the requests of every connection are gathered for at most

@@ -31,6 +31,7 @@ class CountedPolicy:
             f.write(f"{os.getpid()}\n")
         self.fail_on, self.delay_s = fail_on, delay_s
         self.row_resets: list[list[int]] = []
+        self.seeds: list[int] = []  # the episode seeds its resets were given
 
     def _check(self, obs) -> None:
         if self.fail_on is not None and float(np.asarray(obs).sum()) == self.fail_on:
@@ -46,8 +47,9 @@ class CountedPolicy:
     def reset_batch(self, instructions, obs) -> None:
         pass
 
-    def reset_envs(self, instructions, obs, envs) -> None:
+    def reset_envs(self, instructions, obs, envs, seeds=None) -> None:
         self.row_resets.append([int(e) for e in envs])
+        self.seeds += list(seeds or [])
 
     def act_batch(self, obs, envs):
         time.sleep(self.delay_s)
@@ -74,9 +76,11 @@ class CountedSingle:
         with open(log, "a") as f:
             f.write(f"{os.getpid()}\n")
         self.history: list[float] = []
+        self.seed: int | None = None
 
-    def reset(self, instruction, obs) -> None:
+    def reset(self, instruction, obs, seed=None) -> None:
         self.history.clear()
+        self.seed = seed
 
     def act(self, obs):
         self.history.append(float(np.asarray(obs).sum()))

@@ -217,6 +217,19 @@ def test_rsb_serve_batches_two_clients_and_stops_on_ctrl_c(tmp_path):
     assert loads.read_text().count("\n") == 1
 
 
+def test_episode_seeds_reach_the_served_resets(tmp_path):
+    """The runner's seed= / seeds= travel with the episode start, so a seeded policy acts as in a worker."""
+    batched, single = CountedPolicy(str(tmp_path / "a")), CountedSingle(str(tmp_path / "b"))
+    with PolicyServer(batched, host="127.0.0.1", port=0) as s1, PolicyServer(single, host="127.0.0.1", port=0) as s2:
+        with RemotePolicy("127.0.0.1", s1.port, mark_episode_start=True, connect_timeout=10) as client:
+            client.reset_batch(["a", "b", "c"], {}, seeds=[30, 31, 32])
+            client.act_batch(_obs(2, 0), [0, 2])  # env 1 holds actions: not asked, not reset
+        with RemotePolicy("127.0.0.1", s2.port, mark_episode_start=True, connect_timeout=10) as client:
+            client.reset("p", {}, seed=7)
+            client.act(_obs(1, 0)[0])
+    assert batched.seeds == [30, 32] and single.seed == 7
+
+
 def test_rsb_serve_refuses_a_policy_built_with_the_env():
     from rsb_maniskill.cli import main
 

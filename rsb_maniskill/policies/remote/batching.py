@@ -7,7 +7,9 @@ once over all their rows and hands each request its own rows back.
 
 A row is one env of one connection (``(connection, env_id)``) and holds a slot: a fixed index into
 the policy's batched form for as long as the connection lives. Episode starts reset only their
-rows; rows that still hold actions of a chunk are not in any request, so they are not asked.
+rows; rows that still hold actions of a chunk are not in any request, so they are not asked. An
+episode start carries the episodes' seeds (``RemotePolicy`` passes on the runner's), given to a
+``reset`` that takes ``seed`` (``reset_envs``: ``seeds``), so a seeded policy acts as in a worker.
 
 - A batched policy (``reset_batch`` / ``act_batch``) gets one ``act_batch(obs, slots)`` per batch.
   Its starting rows reset with ``reset_envs(instructions, obs, slots)`` where it has that (the
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import collections
 import copy
+import inspect
 import queue
 import threading
 import time
@@ -35,7 +38,7 @@ import numpy as np
 from rsb_maniskill.policies.interface import as_chunk, as_chunks, is_batched, split_output, split_outputs
 
 DEFAULT_MAX_BATCH = 64  # rows (envs) a forward pass at most: 16 workers x 4 envs
-DEFAULT_MAX_WAIT_MS = 5.0  # how long the first request of a batch waits for others
+DEFAULT_MAX_WAIT_MS = 25.0  # how long the first request of a batch waits for others: about half a 50 ms forward pass
 
 
 @dataclass
@@ -47,6 +50,7 @@ class Request:
     prompts: list[str]
     start: bool  # the client marked an episode start (every row of the request)
     obs: Any
+    seeds: list[int] | None = None  # the starting episodes' seeds, one a row (given to a reset that takes them)
     arrived: float = field(default_factory=time.monotonic)
     done: threading.Event = field(default_factory=threading.Event)
     chunks: list[np.ndarray] | None = None
@@ -80,6 +84,16 @@ def take_rows(obs: Any, rows: Sequence[int] | int) -> Any:
     if isinstance(obs, Mapping):
         return {k: take_rows(v, rows) for k, v in obs.items()}
     return np.asarray(obs)[rows if isinstance(rows, int) else list(rows)]
+
+
+def takes_keyword(method: Any, name: str) -> bool:
+    """Whether ``method`` accepts the keyword ``name`` (a reset's ``seed`` / ``seeds``)."""
+    try:
+        params = inspect.signature(method).parameters.values()
+    except (TypeError, ValueError):
+        return False
+    return any((p.name == name and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)) or p.kind == p.VAR_KEYWORD
+               for p in params)
 
 
 def row_copy(policy: Any) -> Any:
@@ -254,29 +268,33 @@ class Batcher:
                 r.done.set()
 
     def _run(self, group: list[Request]) -> None:
-        slots, starts, prompts = [], [], []
+        slots, starts, prompts, seeds = [], [], [], []
         for r in group:
-            for env, prompt in zip(r.env_ids, r.prompts):
+            for k, (env, prompt) in enumerate(zip(r.env_ids, r.prompts)):
                 slot, new = self._slot(r.conn, env)
                 slots.append(slot)
                 starts.append(r.start or new or self._prompts.get(slot) != prompt)
                 prompts.append(prompt)
+                seeds.append(r.seeds[k] if r.seeds is not None and k < len(r.seeds) else None)
         obs = stack_rows([r.obs for r in group])
         if self.batched:
-            chunks, texts = self._run_batched(obs, slots, starts, prompts)
+            chunks, texts = self._run_batched(obs, slots, starts, prompts, seeds)
         else:
-            chunks, texts = self._run_rows(obs, slots, starts, prompts)
+            chunks, texts = self._run_rows(obs, slots, starts, prompts, seeds)
         self.sizes[len(slots)] += 1
         at = 0
         for r in group:
             r.chunks, r.texts = chunks[at:at + len(r)], texts[at:at + len(r)]
             at += len(r)
 
-    def _run_batched(self, obs: Any, slots: list[int], starts: list[bool],
-                     prompts: list[str]) -> tuple[list[np.ndarray], list[str | None]]:
+    def _run_batched(self, obs: Any, slots: list[int], starts: list[bool], prompts: list[str],
+                     seeds: list[int | None]) -> tuple[list[np.ndarray], list[str | None]]:
         begin = [i for i, s in enumerate(starts) if s]
         if begin and self.row_resets:
-            self.policy.reset_envs([prompts[i] for i in begin], take_rows(obs, begin), [slots[i] for i in begin])
+            given = [seeds[i] for i in begin]
+            extra = {"seeds": given} if None not in given and takes_keyword(self.policy.reset_envs, "seeds") else {}
+            self.policy.reset_envs([prompts[i] for i in begin], take_rows(obs, begin), [slots[i] for i in begin],
+                                   **extra)
         if not self.row_resets:
             for i, slot in enumerate(slots):
                 self._last_obs[slot] = take_rows(obs, [i])
@@ -291,8 +309,8 @@ class Batcher:
         actions, texts = split_outputs(self.policy.act_batch(obs, slots), len(slots))
         return as_chunks(actions, len(slots)), texts
 
-    def _run_rows(self, obs: Any, slots: list[int], starts: list[bool],
-                  prompts: list[str]) -> tuple[list[np.ndarray], list[str | None]]:
+    def _run_rows(self, obs: Any, slots: list[int], starts: list[bool], prompts: list[str],
+                  seeds: list[int | None]) -> tuple[list[np.ndarray], list[str | None]]:
         chunks, texts = [], []
         for i, slot in enumerate(slots):
             policy = self._copies.get(slot)
@@ -301,7 +319,10 @@ class Batcher:
                 self._copies[slot] = policy
             row = take_rows(obs, i)
             if starts[i]:
-                policy.reset(prompts[i], row)
+                if seeds[i] is not None and takes_keyword(policy.reset, "seed"):
+                    policy.reset(prompts[i], row, seed=seeds[i])
+                else:
+                    policy.reset(prompts[i], row)
                 self._prompts[slot] = prompts[i]
             actions, text = split_output(policy.act(row))
             chunks.append(as_chunk(actions))

@@ -65,8 +65,9 @@ class RemotePolicy:
         api_key: sent as ``Authorization: Api-Key ...`` as openpi's client does.
         action_horizon: execute only the first k actions of each chunk before asking again.
         mark_episode_start: add ``"episode_start": True`` to the first request of each episode so
-            that ``server.py``'s server resets the wrapped policy; off by default because other
-            servers do not expect the key.
+            that ``server.py``'s server resets the wrapped policy, with the episode's seed
+            (``"episode_seed"``; batched: ``"episode_seeds"``) when the runner gave one; off by
+            default because other servers do not expect the keys.
         connect_timeout: seconds to keep retrying a refused connection (openpi's client waits forever),
             and to wait for the server's metadata once connected: ConnectionError, one line, after it.
         preset: ``"openpi-aloha"``: send openpi's Aloha keys and layout and read the reply as Aloha-layout
@@ -117,6 +118,7 @@ class RemotePolicy:
         self.name = name
         self.instruction = ""
         self._episode_start = False
+        self._seeds: list[int] | None = None  # of the episodes starting (the runner's seed= / seeds=)
         # openpi's Aloha policies take one observation per request: a preset sends one per env
         self.batch = batch and self.preset is None
         self.instructions: list[str] = []  # of the batched form
@@ -148,9 +150,10 @@ class RemotePolicy:
             raise RuntimeError(f"policy server {self.uri} replied {type(reply).__name__}, expected a dict")
         return reply
 
-    def reset(self, instruction: str, obs: dict) -> None:
+    def reset(self, instruction: str, obs: dict, seed: int | None = None) -> None:
         self.instruction = instruction
         self._episode_start = True
+        self._seeds = None if seed is None else [int(seed)]
 
     def act(self, obs: dict) -> Any:
         if self.obs_transform is not None:
@@ -160,6 +163,8 @@ class RemotePolicy:
             payload[self.prompt_key] = self.instruction
         if self.mark_episode_start and self._episode_start:
             payload["episode_start"] = True
+            if self._seeds is not None:
+                payload["episode_seed"] = self._seeds[0]
         self._episode_start = False
         reply = self.infer(payload)
         if "actions" not in reply:
@@ -172,9 +177,10 @@ class RemotePolicy:
         return chunk if text is None else {"actions": chunk, "text": text}
 
     # ------------------------------------------------------------ batched form (parallel envs)
-    def reset_batch(self, instructions: Any, obs: dict) -> None:
+    def reset_batch(self, instructions: Any, obs: dict, seeds: Any = None) -> None:
         self.instructions = list(instructions)
         self._episode_start = True
+        self._seeds = None if seeds is None else [int(s) for s in seeds]
 
     def act_batch(self, obs: dict, envs: Any) -> Any:
         """Chunks for ``envs``: one batched request, or (``batch=False``) one request per env."""
@@ -194,6 +200,8 @@ class RemotePolicy:
         payload["env_ids"] = np.asarray(envs, dtype=np.int64)
         if self.mark_episode_start and self._episode_start:
             payload["episode_start"] = True
+            if self._seeds is not None:
+                payload["episode_seeds"] = np.asarray([self._seeds[e] for e in envs], dtype=np.int64)
         self._episode_start = False
         reply = self.infer(payload)
         actions = np.asarray(reply.get("actions")) if "actions" in reply else None

@@ -41,6 +41,14 @@ READY = "rsb serve: listening on"  # the line a parent process reads the port fr
 PARENT_POLL_S = 1.0  # --parent-pid: how often the server checks that its parent still lives
 
 
+def _request_obs(request: dict, prefix: str) -> Any:
+    """The observation of a request: a flat "state" observation (one array under the prefix) as the
+    array itself, as the policy gets it in-process; else the nested dict of its keys."""
+    if prefix in request:
+        return request[prefix]
+    return unflatten_obs(request, prefix)
+
+
 class PolicyAdapter:
     """openpi ``infer`` on top of an RSB Policy.
 
@@ -70,7 +78,7 @@ class PolicyAdapter:
             if self.preset:
                 raise TypeError("the openpi-aloha preset takes one observation per request, not a batch")
             return self._infer_batch(prompt, start, request)
-        obs = self.preset.obs_from_request(request) if self.preset else unflatten_obs(request, self.obs_prefix)
+        obs = self.preset.obs_from_request(request) if self.preset else _request_obs(request, self.obs_prefix)
         if start or prompt != self._prompt:
             self.policy.reset(prompt, obs)
             self._prompt = prompt
@@ -84,7 +92,7 @@ class PolicyAdapter:
             raise TypeError(f"{type(self.policy).__name__} has no batched form (reset_batch / act_batch) for a "
                             "batched request; serve a batched policy or use RemotePolicy(batch=False)")
         envs = [int(e) for e in request.pop("env_ids", range(len(prompts)))]
-        obs = unflatten_obs(request, self.obs_prefix)
+        obs = _request_obs(request, self.obs_prefix)
         old = self._prompt if isinstance(self._prompt, list) else []
         if start or any(e >= len(old) or old[e] != p for e, p in zip(envs, prompts)):
             self.policy.reset_batch(prompts, obs)  # the first request of a wave holds every env
@@ -178,23 +186,24 @@ class PolicyServer:
         return PolicyAdapter(self.policy, self.prompt_key, self.obs_prefix, self.preset).infer
 
     # ------------------------------------------------------------ batched serving
-    def _obs(self, request: dict) -> Any:
-        if self.obs_prefix in request:  # a flat "state" observation: the array itself
-            return request[self.obs_prefix]
-        return unflatten_obs(request, self.obs_prefix)
-
     def _request(self, conn: int, request: dict) -> tuple[Request, bool]:
         """A decoded request (its rows) and whether it was a single-env one."""
         request = dict(request)
         prompt = request.pop(self.prompt_key, "")
         start = bool(request.pop("episode_start", False))
+        seeds = request.pop("episode_seeds", None)  # the episodes' seeds (RemotePolicy with mark_episode_start)
+        seed = request.pop("episode_seed", None)
         if isinstance(prompt, list):
             if self.preset:
                 raise TypeError("the openpi-aloha preset takes one observation per request, not a batch")
             envs = [int(e) for e in request.pop("env_ids", range(len(prompt)))]
-            return Request(conn, envs, [str(p) for p in prompt], start, self._obs(request)), False
-        obs = self.preset.obs_from_request(request) if self.preset else self._obs(request)
-        return Request(conn, [0], [str(prompt)], start, _with_row_dim(obs)), True
+            rows = Request(conn, envs, [str(p) for p in prompt], start, _request_obs(request, self.obs_prefix))
+            rows.seeds = None if seeds is None else [int(s) for s in seeds]
+            return rows, False
+        obs = self.preset.obs_from_request(request) if self.preset else _request_obs(request, self.obs_prefix)
+        rows = Request(conn, [0], [str(prompt)], start, _with_row_dim(obs))
+        rows.seeds = None if seed is None else [int(seed)]
+        return rows, True
 
     def _batched_reply(self, conn: int, request: dict) -> dict:
         assert self.batcher is not None

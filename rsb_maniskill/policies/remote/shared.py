@@ -22,8 +22,8 @@ from rsb_maniskill.policies.remote.batching import DEFAULT_MAX_BATCH, DEFAULT_MA
 
 POLICY_PROCESSES = ("auto", "shared", "worker")
 LOOPBACK = "127.0.0.1"
-STOP_WAIT_S = 10.0
-CHECK_WAIT_S = 2.0  # after workers failed: how long the server may take to be seen gone  # how long a stopped server may take to print its batch sizes before it is killed
+STOP_WAIT_S = 10.0  # how long a stopped server may take to print its batch sizes before it is killed
+CHECK_WAIT_S = 2.0  # after workers failed: how long the server may take to be seen gone
 
 
 def choose(mode: str, spec: str, num_procs: int, local: bool = True) -> tuple[str, str]:

@@ -122,6 +122,17 @@ def check_question_pool(records: Iterable[Mapping[str, Any]], label: str, data_d
     return None
 
 
+@lru_cache(maxsize=64)
+def _pinned_at_hand(suite_id: str, data_dir: str | None, env_data_dir: str | None) -> bool | None:
+    """:func:`data_pinned`, None where that data is not at hand (asked once, not once a record)."""
+    from rsb_maniskill.semantic.errors import SemanticError
+
+    try:
+        return data_pinned(suite_id, data_dir, env_data_dir)
+    except (SemanticError, OSError):
+        return None
+
+
 def record_verdict(record: Mapping[str, Any], data_dir: str | os.PathLike | None = None) -> str:
     """:data:`PINNED`, :data:`DIFFER` or :data:`UNVERIFIED` (no digest, another version's record, or
     no data at hand to check it on); ``data_dir``: the data the run was given (tried first)."""
@@ -133,9 +144,11 @@ def record_verdict(record: Mapping[str, Any], data_dir: str | os.PathLike | None
     made_by_unpinned = False
     for data in ([str(data_dir)] if data_dir else []) + [None]:  # the run's data, then the default's
         try:
+            pinned = _pinned_at_hand(str(record["suite_id"]), data, os.environ.get("RSB_DATA_DIR"))
+            if pinned is None:  # this data is not at hand or not readable (a --data-dir gone, no hub cache)
+                continue
             same = expected_digest(record, data) == record[DIGEST_FIELD]
-            pinned = data_pinned(str(record["suite_id"]), data, os.environ.get("RSB_DATA_DIR"))
-        except (SemanticError, OSError):  # this data is not at hand or not readable (a --data-dir gone, no hub cache)
+        except (SemanticError, OSError):
             continue
         except (KeyError, ValueError, IndexError):  # a seed or suite this install cannot make: not this version's
             return DIFFER

@@ -389,7 +389,7 @@ def _run_eval(args: argparse.Namespace) -> int:
                       {SETTINGS_FIELD: settings_id(settings, MANIFEST_KEYS)}, policy="remote" if server else None)
         except KeyboardInterrupt:
             interrupted = True
-        except (PolicyError, JobError) as err:
+        except (PolicyError, JobError, EvalError) as err:  # EvalError: --policy-process refused
             start.undo(label)
             if server is not None:
                 server.check()  # a dead server is the cause: said in one line

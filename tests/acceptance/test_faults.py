@@ -917,6 +917,25 @@ def test_workers_that_do_not_exit_cost_one_wait_not_one_each():
     assert time.monotonic() - t0 < 8 * EXIT_WAIT_S  # the waits one after the other would take this alone
 
 
+def test_a_dataset_build_says_how_many_workers_start(capsys):
+    """`rsb dataset build --num-procs 99` over 2 shards: 2 workers start, one a shard, and it says so
+    (the plan's line before it named the 99 asked for)."""
+    from rsb_maniskill.export.build import _run
+    from rsb_maniskill.export.shards import SuiteShard
+    from rsb_maniskill.parallel.pool import RunOutcome
+
+    class Recorder:
+        def run(self, target, tasks, on_message):
+            self.tasks = tasks
+            return RunOutcome([])
+
+    rec = Recorder()
+    _run([(Path("/w"), {"env_id": SUITE}, k, SuiteShard(SUITE, k, k + 1)) for k in range(2)], 99, rec,
+         progress=False)
+    assert len(rec.tasks) == 2 and "workers: 2 started, one a shard (2 shards for --num-procs 99)" in \
+        capsys.readouterr().err
+
+
 def test_workers_are_quiet_plain_and_counted_as_started(tmp_path):
     """--num-procs 99 for 2 episodes: the line says the 2 workers that start, and no worker prints
     ManiSkill's render-device warning (nothing renders) nor colour codes."""

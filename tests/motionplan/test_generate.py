@@ -170,6 +170,36 @@ def test_unknown_suite_and_unwritable_dir_leave_no_files(tmp_path):
     assert _all_files(tmp_path) == [blocker]
 
 
+def _tiny_pair(path: Path, n: int) -> Path:
+    with h5py.File(path, "w") as f:
+        for i in range(n):
+            f.create_dataset(f"traj_{i}/actions", data=np.zeros((2, 14), dtype=np.float32))
+    path.with_suffix(".json").write_text(json.dumps({"env_info": {"env_id": ENV_ID}, "episodes": [
+        {"episode_id": i, "episode_seed": i} for i in range(n)]}))
+    return path
+
+
+def test_a_replaced_pair_never_shows_counts_that_disagree(tmp_path, monkeypatch):
+    """Between the renames of a new pair onto an old one a reader sees the old pair, or the new json
+    with no h5 yet: never the new json (3 episodes) beside the old h5 (2 groups)."""
+    from rsb_maniskill.motionplan import dataset
+
+    final = _tiny_pair(tmp_path / "final.h5", 2)
+    tmp = _tiny_pair(tmp_path / ".final.tmp1.h5", 3)
+    seen = []
+    real_replace = os.replace
+
+    def replace(src, dst):
+        real_replace(src, dst)
+        try:
+            seen.append(len(check_pair(final)["episodes"]))
+        except dataset.DatasetError as err:
+            seen.append(str(err).split(": ", 1)[1][:9])  # "need both"
+    monkeypatch.setattr(dataset.os, "replace", replace)
+    dataset.finalize_pair(tmp, final)
+    assert seen == ["need both", 3]
+
+
 def test_annotate_episodes_joins_by_seed_after_the_pair_is_written(tmp_path):
     """The public path for RSB metadata: a rewrite of the finished json, matched by episode_seed."""
     h5 = tmp_path / "part.h5"

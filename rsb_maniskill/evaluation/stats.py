@@ -53,10 +53,10 @@ def size_design_effect(sizes: Sequence[int] | np.ndarray) -> float:
 
 def design_effect(values: Sequence[float] | np.ndarray, clusters: Sequence[Hashable] | np.ndarray) -> float:
     """Cluster-robust variance of the mean of ``values`` over its variance were they independent:
-    Kish's design effect estimated from the data, between 1 (independent outcomes) and
-    :func:`size_design_effect` (a cluster's outcomes all alike). Where the data cannot estimate it
-    (one cluster, or every value alike: a rate of 0 % or 100 %) it is that bound: the clusters are
-    counted, not their members."""
+    Kish's design effect estimated from the data, at least 1 (independent outcomes), about
+    :func:`size_design_effect` when a cluster's outcomes are all alike (times the robust variance's
+    small-sample ``c / (c - 1)``). Where the data cannot estimate it (one cluster, or every value
+    alike: a rate of 0 % or 100 %) it is that bound: the clusters are counted, not their members."""
     values = np.asarray(values, dtype=float)
     n = len(values)
     group, sizes = _groups(clusters)
@@ -66,7 +66,7 @@ def design_effect(values: Sequence[float] | np.ndarray, clusters: Sequence[Hasha
         return bound
     resid = np.bincount(group, weights=values - values.mean(), minlength=c)
     robust = c / (c - 1) * float(np.sum(resid ** 2)) / n ** 2
-    return min(bound, max(1.0, robust / (float(np.var(values)) / n)))
+    return max(1.0, robust / (float(np.var(values)) / n))
 
 
 @lru_cache(maxsize=4096)
@@ -182,7 +182,7 @@ def scene_permutation(num_a: Sequence[float], den_a: Sequence[float], num_b: Seq
     by scene (GSR, TSR: the same episodes) the difference is a sum of integers and the test is exact
     (:func:`sign_flip_p`); otherwise (follow, switch: each run's grasps decide its denominator) every
     flip is enumerated up to :data:`EXACT_SCENES` scenes, else drawn until the p-value's Monte Carlo
-    interval leaves :data:`ALPHA` (at most 16 chunks of :data:`PERMUTATIONS`)."""
+    interval leaves :data:`ALPHA` (at most 16 x :data:`PERMUTATIONS` flips)."""
     na, da, nb, db = (np.asarray(x, dtype=float) for x in (num_a, den_a, num_b, den_b))
     keep = (da + db) > 0
     na, da, nb, db = na[keep], da[keep], nb[keep], db[keep]
@@ -208,13 +208,14 @@ def scene_permutation(num_a: Sequence[float], den_a: Sequence[float], num_b: Seq
         return ScenePermutation(diff, float(np.mean(np.abs(t) >= abs(diff) - tol)), c)
     rng = np.random.default_rng(seed)
     hits = draws = 0
-    for _ in range(16):
-        t = flipped(rng.integers(0, 2, (PERMUTATIONS, c)).astype(float))
+    rows = min(PERMUTATIONS, max(1000, 4_000_000 // c))  # a chunk: at most ~4M flips of a scene in memory
+    while draws < 16 * PERMUTATIONS:
+        t = flipped(rng.integers(0, 2, (rows, c)).astype(float))
         t = t[np.isfinite(t)]
         hits, draws = hits + int(np.sum(np.abs(t) >= abs(diff) - tol)), draws + len(t)
         p = (hits + 1) / (draws + 1)
-        half = MC_Z * math.sqrt(p * (1 - p) / draws)
-        if not p - half < ALPHA <= p + half:
+        half = MC_Z * math.sqrt(p * (1 - p) / max(draws, 1))
+        if not p - half < ALPHA <= p + half or not len(t):
             break
     return ScenePermutation(diff, p, c, exact=False, p_low=max(0.0, p - half), p_high=min(1.0, p + half),
                             draws=draws)

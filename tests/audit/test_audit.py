@@ -229,7 +229,8 @@ def test_the_design_effect_counts_a_repeated_episode_once():
     assert acc == pytest.approx(base.mean()) and (lo, hi) == pytest.approx((lo1, hi1))
     assert (lo, hi) == pytest.approx(rate(base)[1:], abs=0.002)  # 400 distinct episodes, not 1,200
     assert rate(base, np.arange(400))[1:] == pytest.approx(rate(base)[1:], abs=0.001)
-    assert design_effect(np.ones(30), np.repeat(np.arange(10), 3)) == 1.0  # no variance: nothing to scale
+    # no variance to estimate it from (issue 59): the groups' sizes, a question counted once
+    assert design_effect(np.ones(30), np.repeat(np.arange(10), 3)) == 3.0
 
 
 def test_audit_intervals_count_questions_not_episodes():

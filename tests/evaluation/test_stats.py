@@ -9,9 +9,9 @@ import pytest
 from rsb_maniskill.evaluation.metrics import Rate, wilson_interval
 from rsb_maniskill.evaluation.stats import (
     ALPHA,
+    cluster_quantile,
     clustered_power,
     clustered_rate,
-    cluster_quantile,
     confusion,
     design_effect,
     holm,
@@ -53,7 +53,7 @@ def test_the_clustered_interval_holds_95_percent_where_counting_variants_does_no
 def test_independent_outcomes_keep_the_plain_wilson_interval():
     rng = np.random.default_rng(3)
     values = rng.random(400) < 0.3
-    assert design_effect(values, np.arange(400)) == 1.0  # one a cluster: the size bound, below Kish's c / (c - 1)
+    assert design_effect(values, np.arange(400)) == pytest.approx(400 / 399)  # c / (c - 1): the small-sample term
     rate, plain = clustered_rate(values, np.arange(400)), Rate.of(int(values.sum()), 400)
     assert (rate.low, rate.high) == pytest.approx((plain.low, plain.high), abs=1e-3)
     assert clustered_rate([], []) == Rate(None, None, None)
@@ -111,8 +111,8 @@ def test_the_design_effect_is_the_cluster_sizes_where_the_data_cannot_estimate_i
     assert nothing.low == 0.0 and nothing.high == pytest.approx(1 - everything.low)
     one = clustered_rate(np.ones(4), np.zeros(4))
     assert (one.low, one.high) == pytest.approx(wilson_interval(1, 1))  # one scene counts as one episode
-    mixed = np.array([1, 1, 1, 0, 0, 0, 1, 0])  # the estimate never exceeds the size bound
-    assert 1.0 <= design_effect(mixed, unequal) <= size_design_effect([1, 2, 5])
+    alike = np.array([1, 0, 0, 1, 1, 1, 1, 1])  # unequal clusters, each all alike: about the size bound
+    assert size_design_effect([1, 2, 5]) <= design_effect(alike, unequal) <= size_design_effect([1, 2, 5]) * 3 / 2
 
 
 def _beta_coverage(rate: float, icc: float, clusters: int, sizes, sims: int, seed: int) -> float:
@@ -209,3 +209,19 @@ def test_at_the_planned_episodes_the_test_rejects_four_times_in_five(p_a, p_b, s
     assert power >= 0.8 - 2 * np.sqrt(0.8 * 0.2 / 3000), (plan, power)
     short = plan_episodes(p_a, p_b, power=0.5, size=size, icc=icc)
     assert short.scenes < plan.scenes
+
+
+def test_the_monte_carlo_scene_permutation_says_its_own_error():
+    """Beyond 16 scenes a ratio's flips are drawn: p comes with its 99.9 % Monte Carlo interval, and a
+    decided p gives the same decision under every seed."""
+    from rsb_maniskill.evaluation.stats import scene_permutation
+
+    rng = np.random.default_rng(2)
+    c = 40
+    den_a, den_b = rng.integers(1, 5, c), rng.integers(1, 5, c)
+    far_a, far_b = rng.binomial(den_a, 0.2), rng.binomial(den_b, 0.7)
+    near_a, near_b = rng.binomial(den_a, 0.5), rng.binomial(den_b, 0.5)
+    for num_a, num_b, significant in ((far_a, far_b, True), (near_a, near_b, False)):
+        runs = [scene_permutation(num_a, den_a, num_b, den_b, seed=s) for s in range(5)]
+        assert all(not r.exact and r.p_low <= r.p <= r.p_high and r.decided for r in runs)
+        assert {r.p < ALPHA for r in runs} == {significant}

@@ -95,3 +95,21 @@ def test_cells_read_the_same_in_every_table():
     assert rate_cell(Rate.of(1, 2)) == "50.0 [9.5, 90.5]" and rate_cell(Rate.of(0, 0)) == "n/a"
     assert (delta(0.5, 0.25), delta(0.25, 0.5), delta(None, 0.5)) == ("+25.0", "-25.0", "n/a")
     assert markdown_table(["A", "B"], [["x", "1"]]) == "| A | B |\n|---|:---:|\n| x | 1 |"
+
+
+def test_summary_says_the_differences_each_suite_can_detect(tmp_path, results):
+    """Issue 59: per suite and metric, the smallest difference a paired comparison on the run's episodes
+    detects 4 times in 5, in summary.json and in the per-suite table of summary.md (and the page)."""
+    from rsb_maniskill.evaluation.stats import minimum_detectable_difference
+
+    data = json.loads(write_report(results, tmp_path)["json"].read_text())
+    math = data["rows"]["good"]["suites"]["RSB-Math-4"]  # 30 successes, 90 grasps of 100
+    assert math["detectable_difference"]["tsr"] == minimum_detectable_difference(0.3, 100)
+    assert math["detectable_difference"]["gsr"] == minimum_detectable_difference(0.9, 100)
+    assert math["detectable_difference"]["nsg"] == pytest.approx(minimum_detectable_difference(30 / 90, 90) / 0.75)
+    assert data["rows"]["clumsy"]["suites"]["RSB-Math-4"]["detectable_difference"]["nsg"] is None  # no grasp
+    assert "detectable_difference" in data  # what the numbers mean
+    md = markdown_tables(results)
+    row = next(line for line in md.split("good: per suite")[1].splitlines() if line.startswith("| RSB-Math-4 |"))
+    assert row.rstrip(" |").endswith(f"±{100 * minimum_detectable_difference(0.3, 100):.1f}")
+    assert "Detectable TSR difference" in md and "`rsb plan`" in md

@@ -41,6 +41,7 @@ from rsb_maniskill.export.shards import (
     shard_dir,
 )
 from rsb_maniskill.objects.family import DEFAULT_TARGETS
+from rsb_maniskill.outdirs import writable_dir
 from rsb_maniskill.robot import CAMERAS
 from rsb_maniskill.sim.render import lavapipe_share
 
@@ -232,6 +233,10 @@ def run_export_shards(shards: list[ExportShard], out: Path, settings: dict, *, n
     ``meta`` as ``meta/rsb_export.json``)."""
     from rsb_maniskill.export.merge import merge_datasets
 
+    try:  # a read-only or missing-permission --out: named by the user's path, not the work folder beside it
+        writable_dir(out.parent)
+    except OSError as err:
+        raise ExportError(f"cannot write to --out {out}: {err.strerror or err}; choose a writable --out") from None
     work = out.parent / f".{out.name}.work"
     if overwrite and (work / SETTINGS_FILE).is_file() and json.loads((work / SETTINGS_FILE).read_text()) != settings:
         shutil.rmtree(work)

@@ -712,6 +712,7 @@ READ_ONLY_CASES = [  # (argv with {ro} for the read-only folder, phrase of the o
     (["eval", "oracle", *EVAL, "-n", "1", "--out", "{ro}/r"], "Read-only file system"),
     (["merge", "{pair}", "--out", "{ro}/m.h5"], "Read-only file system"),
     (["audit", SUITE, "-n", "5", "--out", "{ro}/a"], "Read-only file system"),
+    (["export", "lerobot", "{pair}", "--out", "{ro}/ds"], "cannot write to --out {ro}/ds: Read-only file system"),
 ]
 
 
@@ -719,6 +720,7 @@ READ_ONLY_CASES = [  # (argv with {ro} for the read-only folder, phrase of the o
 def test_a_read_only_folder_is_one_line_naming_it(argv, phrase, read_only, tmp_path):
     pair = _pair(tmp_path / "a.h5", [0, 1])
     argv = [a.replace("{ro}", str(read_only)).replace("{pair}", str(pair)) for a in argv]
+    phrase = phrase.replace("{ro}", str(read_only))
     res = rsb(*argv, timeout=120)
     errors = error_lines(res.stderr)
     assert res.returncode == 2 and len(errors) == 1, res.stderr[-2000:]

@@ -123,7 +123,8 @@ def gpu_tests(dry: bool) -> str:
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     lines = [ln for ln in res.stdout.strip().splitlines() if ln.strip()]
     fails = [ln for ln in lines if ln.startswith(("FAILED", "ERROR"))]
-    return "\n".join([*fails, f"{lines[-1] if lines else '(no output)'} (exit {res.returncode})"])
+    last = lines[-1] if lines else (res.stderr.strip().splitlines() or ["(no output)"])[-1]  # e.g. no pytest
+    return "\n".join([*fails, f"{last} (exit {res.returncode})"])
 
 
 def ceiling(procs: int, k: int, steps: int, size: list[int], dry: bool) -> float:

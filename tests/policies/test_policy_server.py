@@ -191,9 +191,11 @@ def test_rsb_serve_batches_two_clients_and_stops_on_ctrl_c(tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HELPERS), *sys.path]))
     log = tmp_path / "serve.err"
     with open(log, "w") as err:
-        proc = subprocess.Popen(["timeout", "120", sys.executable, "-m", "rsb_maniskill.cli", "serve",
+        # no `timeout` wrapper: it would pass the SIGINT on to its whole process group, a second Ctrl-C
+        proc = subprocess.Popen([sys.executable, "-m", "rsb_maniskill.cli", "serve",
                                  "counted_policies:make_counted", "-a", f"log={loads}", "--host", "127.0.0.1",
-                                 "--port", "0", "--max-batch", "8", "--max-wait-ms", "20"],
+                                 "--port", "0", "--max-batch", "8", "--max-wait-ms", "20",
+                                 "--parent-pid", str(os.getpid())],  # stops by itself if the test dies
                                 stdout=subprocess.PIPE, stderr=err, env=env, text=True)
     try:
         line = proc.stdout.readline()

@@ -316,8 +316,9 @@ def _run_eval(args: argparse.Namespace) -> int:
     if gpu_physics and (args.num_envs or 1) > 1 and (args.num_procs or 1) > 1 and args.executor == "local":
         raise EvalError(f"use either --num-envs with -b {GPU_SIM_BACKEND} (one process) or --num-procs, not both")
     obs_mode = args.obs_mode or policy_spec(args.policy).obs_mode
+    said: list[str] = []  # --num-envs auto's line: printed once every argument is checked (an error is one line)
     if args.num_envs is None:
-        args.num_envs = resolve_num_envs(None, obs_mode_renders(obs_mode))
+        args.num_envs = resolve_num_envs(None, obs_mode_renders(obs_mode), log=said.append)
     try:
         executor = executor_from_args(args.executor, args.address,
                                       gpus_per_task=1 if args.num_envs > 1 and gpu_physics else 0)
@@ -376,6 +377,8 @@ def _run_eval(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         if executor is not None:
             stack.enter_context(executor)  # a local Ray cluster lives for the whole run
+        for line in said:
+            print(line, file=sys.stderr, flush=True)
         executor, num_procs = resolve_workers(args.num_procs, executor, obs_mode_renders(obs_mode) or args.videos > 0,
                                               num_envs=args.num_envs, episodes=args.num_episodes * max(
                                                   episodes_per_scene(s, m, args.variants)

@@ -4,6 +4,7 @@ must cover the truth 95 % of the time (within 2 points), simulated."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from rsb_maniskill.evaluation.metrics import Rate
 from rsb_maniskill.reporting.sections.counterfactual import Counts, scene_rate
@@ -69,7 +70,8 @@ def test_follow_and_switch_say_the_difference_their_scenes_can_detect():
     m = CounterfactualMetrics.of(Counts(per_scene=alike), N, K)
     values = [1 if i % 2 else 0 for i in range(20) for _ in range(3)]
     clusters = [i for i in range(20) for _ in range(3)]
-    assert design_effect(values, clusters) == 3.0  # every scene all one way: a scene counts once
-    assert m.detectable["follow"] == minimum_detectable_difference(0.5, 60, design=3.0)
+    assert design_effect(values, clusters) == pytest.approx(3 * 20 / 19)  # a scene counts once (x c / (c - 1))
+    assert m.detectable["follow"] == minimum_detectable_difference(0.5, 60, design=design_effect(values, clusters))
     assert m.detectable["follow"] > minimum_detectable_difference(0.5, 60)
+    # no switch at all: no variance, the scenes' sizes (3 pairs each) are the design effect
     assert m.to_dict()["detectable_difference"]["switch"] == minimum_detectable_difference(0.0, 60, design=3.0)

@@ -738,6 +738,7 @@ def test_a_merge_killed_before_its_rename_leaves_nothing_after_a_rerun(tmp_path)
     assert res.returncode == 0, res.stderr[-2000:]
     assert stray_files(tmp_path) == [] and len(json.loads((tmp_path / "m.json").read_text())["episodes"]) == 3
 
+
 def test_a_unicode_name_under_a_non_utf8_locale_is_the_same_name(tmp_path):
     """LC_ALL=POSIX without Python's UTF-8 mode: '模型🤖 é' ended in "surrogates not allowed"; it is
     read as the text typed, and its row and folder are those of a UTF-8 locale."""
@@ -949,8 +950,6 @@ def test_workers_are_quiet_plain_and_counted_as_started(tmp_path):
 
 
 # ------------------------------------------------------------ second sweep: reports and leaderboard
-
-
 # Issue 60's report / leaderboard cases (issue 59's owner): hand-edited or malformed results, the same
 # run twice, a run compared with itself, a RESULTS_DIR beside --compare, an empty vla-eval file.
 

@@ -25,7 +25,7 @@ import numpy as np
 from rsb_maniskill.evaluation.metrics import Z95, Rate, wilson_interval
 
 BOOTSTRAP_RESAMPLES = 2000  # paired bootstrap draws to start with
-BOOTSTRAP_MAX_RESAMPLES = 64000  # at most this many while the p-value's Monte Carlo interval holds alpha
+BOOTSTRAP_MAX_RESAMPLES = 256000  # at most this many while the p-value's Monte Carlo interval holds alpha
 BOOTSTRAP_SEED = 0  # the bootstrap is seeded: a report is the same every time it is written
 MC_Z = 3.29  # the p-value's Monte Carlo interval: 99.9 % (a mark decided outside it does not flip with the seed)
 EXACT_SCENES = 16  # up to this many scenes a permutation test enumerates every flip (2^16 = 65,536)

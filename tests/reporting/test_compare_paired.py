@@ -167,8 +167,6 @@ def test_the_bootstrap_mark_does_not_flip_with_the_seed_on_a_borderline_case():
     fixed = [paired_bootstrap(b, a, mean, resamples=2000, seed=s, max_resamples=2000).p for s in range(10)]
     assert min(fixed) < ALPHA <= max(fixed), fixed  # at a fixed 2,000 draws the seed decides the mark
     runs = [paired_bootstrap(b, a, mean, seed=s) for s in range(10)]
-    marks = {r.p < ALPHA for r in runs if r.decided}
-    # never "*" under one seed and no mark under another
-    assert marks == {True}, [(r.p, r.p_low, r.p_high, r.decided) for r in runs]
-    assert all(r.decided or r.resamples >= 60000 for r in runs)  # undecided only at the most draws: printed "?"
-    assert all(r.p_low <= r.p <= r.p_high for r in runs)
+    assert all(r.decided for r in runs), [(r.p, r.p_low, r.p_high, r.resamples) for r in runs]
+    assert {r.p < ALPHA for r in runs} == {True}  # the same mark under every seed (p near 0.045)
+    assert all(r.p_low <= r.p <= r.p_high for r in runs) and max(r.resamples for r in runs) > 2000

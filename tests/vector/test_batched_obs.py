@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from test_vector_env import SMALL, SUITE, CamerasByScene, SceneByScene
+from group_stand_ins import SMALL, SUITE, CamerasByScene, SceneByScene
 
 import rsb_maniskill  # noqa: F401
 from rsb_maniskill import compat

@@ -11,16 +11,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from group_stand_ins import SMALL, SUITE, CamerasByScene, SceneByScene
 
 import rsb_maniskill  # noqa: F401
 from rsb_maniskill.parallel.plan import plan_num_envs, plan_workers
 from rsb_maniskill.sim.camera_group import CameraGroup, assign_rows, fill_poses, group_rendering_unavailable
 from rsb_maniskill.vector import RSBVectorEnv, make_renderer
 from rsb_maniskill.vector.env import GroupRenderer, PerSceneRenderer, env_options, episode_seeds
-
-SUITE = "RSB-Math-4"
-SMALL = {"camera_size": (32, 24)}  # rgb where images are the point, at a size lavapipe renders fast
-
 
 # ------------------------------------------------------------------ fakes of SAPIEN's render objects
 
@@ -87,43 +84,6 @@ def test_buffer_rows_are_the_entities_poses():
     host = fill_poses([Entity(i, True, pose) for i, pose in enumerate(poses)], np.zeros((4, 7), np.float32))
     for i, pose in enumerate(poses):
         np.testing.assert_array_equal(host[i], np.concatenate([pose.p, pose.q]))
-
-
-class SceneByScene:
-    """A RenderSystemGroup that renders each scene on its own (lavapipe has no CUDA interop): the
-    group path, buffer and camera groups included, with pictures a CPU machine can make."""
-
-    made: list = []
-
-    def __init__(self, systems):
-        self.systems, self.poses = systems, None
-        SceneByScene.made.append(self)
-
-    def set_cuda_poses(self, buffer):
-        self.poses = buffer
-
-    def update_render(self):
-        for system in self.systems:
-            system.step()
-
-    def create_camera_group(self, cameras, textures):
-        return CamerasByScene(cameras)
-
-
-class CamerasByScene:
-    blank = False  # True: black pictures, to see that the observation's images are the group's
-
-    def __init__(self, cameras):
-        self.cameras = cameras
-
-    def take_picture(self):
-        for c in self.cameras:
-            c.take_picture()
-
-    def get_picture_cuda(self, name):
-        pics = torch.stack([torch.from_numpy(np.asarray(c.get_picture(name))) for c in self.cameras])
-        pics = torch.zeros_like(pics) if self.blank else pics
-        return SimpleNamespace(torch=lambda: pics)
 
 
 def fake_group(bases):

@@ -1,9 +1,10 @@
-"""The one reader of ``"package.module:attr"`` names. Policies, backbones, question pools, candidate
-builders, experts and audit readers are named by such strings and imported only when used (a leaf:
-it imports nothing of the pack)."""
+"""The one reader of ``"package.module:attr"`` names, and of ``KEY=VALUE`` arguments (``-a``, ``-e``).
+Policies, backbones, question pools, candidate builders, experts and audit readers are named by such
+strings and imported only when used (a leaf: it imports nothing of the pack)."""
 from __future__ import annotations
 
 import importlib
+import json
 from typing import Any
 
 
@@ -28,3 +29,18 @@ def resolve(spec: str, what: str = "object", *, must_call: bool = True) -> Any:
     if must_call and not callable(obj):
         raise TypeError(f"{what} spec {spec!r}: {attr!r} is not callable")
     return obj
+
+
+def key_values(items: list[str], what: str) -> dict[str, Any]:
+    """``["a=1", "b=x"]`` -> ``{"a": 1, "b": "x"}``: each VALUE parsed as JSON, else kept as a string.
+    An item without ``KEY=`` is a ValueError naming ``what`` (the flag)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"{what} {item!r} must look like KEY=VALUE")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out

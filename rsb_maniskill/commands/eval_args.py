@@ -20,6 +20,7 @@ from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, EVAL_SEED_BASE
 from rsb_maniskill.evaluation.store import folder_labels, folder_name
 from rsb_maniskill.outdirs import writable_dir
 from rsb_maniskill.parallel.plan import NO_RENDER_OBS_MODES
+from rsb_maniskill.resolve import key_values
 
 # Fixed by the protocol (the evaluation split): not settable with --env-arg.
 PROTOCOL_KEYS: tuple[str, ...] = tuple(EVAL_ENV_KWARGS)
@@ -46,17 +47,11 @@ class EvalError(RuntimeError):
 
 
 def parse_kv(items: list[str], what: str) -> dict[str, Any]:
-    """``["a=1", "b=x"]`` -> ``{"a": 1, "b": "x"}``: each VALUE parsed as JSON, else kept as a string."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise EvalError(f"{what} {item!r} must look like KEY=VALUE")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
+    """``["a=1", "b=x"]`` -> ``{"a": 1, "b": "x"}`` (``resolve.key_values``), its error an EvalError."""
+    try:
+        return key_values(items, what)
+    except ValueError as err:
+        raise EvalError(str(err)) from None
 
 
 def check_env_args(env_kwargs: Mapping[str, Any], perturb_hint: str,

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import http
-import json
 import logging
 import os
 import signal
@@ -35,6 +34,7 @@ from rsb_maniskill.policies.registry import load_policy, policy_spec
 from rsb_maniskill.policies.remote.batching import DEFAULT_MAX_BATCH, DEFAULT_MAX_WAIT_MS, Batcher, Request
 from rsb_maniskill.policies.remote.openpi import PRESETS, make_preset
 from rsb_maniskill.policies.remote.wire import INSTALL_HINT, packb, unflatten_obs, unpackb
+from rsb_maniskill.resolve import key_values
 
 logger = logging.getLogger(__name__)
 READY = "rsb serve: listening on"  # the line a parent process reads the port from (stdout)
@@ -308,20 +308,6 @@ def _watch_parent(pid: int, server: PolicyServer) -> None:
             return
 
 
-def _policy_args(items: list[str]) -> dict[str, Any]:
-    """``-a KEY=VALUE`` items (VALUE as JSON, else a string), as ``rsb eval`` reads them."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"-a {item!r} must look like KEY=VALUE")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
-
-
 def add_serve_args(p: argparse.ArgumentParser) -> None:
     """The arguments of ``rsb serve`` (and ``python -m rsb_maniskill.policies.remote.server``)."""
     p.add_argument("policy", help="built-in name or 'package.module:factory' returning an object with reset/act "
@@ -349,7 +335,7 @@ def run_server(args: argparse.Namespace) -> int:
         raise ValueError(f"--max-batch must be >= 1 rows, got {args.max_batch}")
     if not args.max_wait_ms >= 0:
         raise ValueError(f"--max-wait-ms must be >= 0, got {args.max_wait_ms}")
-    kwargs = _policy_args(args.policy_arg)
+    kwargs = key_values(args.policy_arg, "-a")
     from rsb_maniskill.plugins import load_plugins
 
     load_plugins()  # a plugin's register_policy names, as `rsb eval` knows them

@@ -6,11 +6,13 @@ which alone writes the output files. An :class:`Executor` hides where the tasks 
 
 - :class:`InProcess` runs them one after the other here; exceptions and Ctrl-C reach the caller
   as they are.
-- :class:`ProcessPool` runs one spawned process per task. A worker's exception comes back as
-  :attr:`TaskOutcome.error` (with its traceback), a worker that dies without a word as an error
-  naming its exit code. On SIGINT / SIGTERM it asks the workers to stop (SIGTERM: each raises
-  :class:`Interrupted` between two critical sections), keeps handling their messages until they
-  are done, and reports which signal it got. Given GPUs, it deals its workers over them.
+- :class:`ProcessPool` runs each task in a spawned worker process. A worker's exception comes back
+  as :attr:`TaskOutcome.error` (with its traceback), a worker that dies without a word as an error
+  naming how (its exit code, or the signal that killed it). On SIGINT / SIGTERM it asks the workers
+  to stop (SIGTERM: each raises :class:`Interrupted` between two critical sections), keeps handling
+  their messages until they are done, and reports which signal it got. Given GPUs, it deals its
+  workers over them. Used in a ``with`` block its workers outlive :meth:`ProcessPool.run`: a job of
+  several parts (``rsb eval``'s suites) pays the workers' start-up (imports: seconds each) once.
 - ``RayExecutor`` (:mod:`rsb_maniskill.parallel.ray_pool`, the ``ray`` extra) runs one Ray task per
   task, on a Ray cluster or on a local one it starts.
 
@@ -63,6 +65,19 @@ def _in_finalizer(frame: Any) -> bool:
     return False
 
 
+_GUARDS: list["InterruptGuard"] = []  # the guards active in this process, innermost last
+
+
+def from_a_signal(err: BaseException) -> bool:
+    """Whether a KeyboardInterrupt may stand for a signal (Ctrl-C, SIGTERM) rather than be raised by
+    code (a policy's ``raise KeyboardInterrupt``): under an :class:`InterruptGuard` a signal raises
+    :class:`Interrupted`, so a plain KeyboardInterrupt there, with no signal received, is code's;
+    without a guard any KeyboardInterrupt may be Python's own Ctrl-C."""
+    if isinstance(err, Interrupted) or not _GUARDS:
+        return True
+    return _GUARDS[-1].received is not None
+
+
 class InterruptGuard:
     """Turns SIGINT / SIGTERM into :class:`Interrupted`, deferred to the end of ``critical()`` blocks.
 
@@ -82,12 +97,15 @@ class InterruptGuard:
     def __enter__(self) -> "InterruptGuard":
         for s in self.SIGNALS:
             self._old[s] = signal.signal(s, self._handler)
+        _GUARDS.append(self)
         return self
 
     def __exit__(self, *exc: object) -> None:
         self._cancel_resend()
         for s, h in self._old.items():
             signal.signal(s, h)
+        if self in _GUARDS:
+            _GUARDS.remove(self)
 
     def disarm(self) -> None:
         """Stop raising: later signals are only recorded (we are already shutting down)."""
@@ -174,8 +192,21 @@ class InProcess:
         return RunOutcome([TaskOutcome(i, result=target(task, on_message)) for i, task in enumerate(tasks)])
 
 
+@dataclass
+class _Worker:
+    """A spawned worker process as its pool holds it: the pipes it is sent tasks on and sends its
+    messages on, and the (since, limit) and label of the block it is in (see :func:`watched`)."""
+
+    proc: Any
+    tasks: Any  # this process's sending end: (target, task, index), or None to stop
+    messages: Any  # this process's reading end: ("msg", message) ..., then ("done", TaskOutcome)
+    watch: Any
+    label: Any
+
+
 class ProcessPool:
-    """One spawned process per task (spawned: SAPIEN and torch state must not be forked).
+    """Runs each task in a spawned worker process (spawned: SAPIEN and torch state must not be forked),
+    task k in worker k.
 
     ``target`` and the tasks must be picklable (a module-level function and plain data).
     ``grace_s``: how long stopping workers may take after a signal before they are killed (a
@@ -183,6 +214,12 @@ class ProcessPool:
     ``devices``: GPUs as ``CUDA_VISIBLE_DEVICES`` names them; worker k starts with
     ``CUDA_VISIBLE_DEVICES=devices[k % len(devices)]``, so it renders (and runs CUDA) on that one
     GPU: set in its environment before its interpreter starts, hence before the simulator loads.
+
+    Alone, :meth:`run` starts its workers and stops them before it returns. In a ``with`` block they
+    live until the block ends: each :meth:`run` hands its tasks to the workers already started
+    (starting more only where it has more tasks), so their start-up (the interpreter, the imports)
+    is paid once. A worker whose task did not end cleanly (it failed, died, was killed or
+    interrupted) is stopped and a later run starts a fresh one in its place.
 
     Each worker writes to its own pipe, synchronously (a message sent is in the pipe, even if the
     worker then dies at once), and the parent waits on the pipes and on the processes' sentinels
@@ -196,34 +233,67 @@ class ProcessPool:
         self.grace_s = grace_s
         self.poll_s = poll_s
         self.devices = tuple(devices)
+        self._workers: dict[int, _Worker] = {}
+        self._kept = False  # in a with block: workers outlive run()
+
+    def __enter__(self) -> "ProcessPool":
+        self._kept = True
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._kept = False
+        self.close()
 
     def device_of(self, index: int) -> str | None:
         """The ``CUDA_VISIBLE_DEVICES`` of worker ``index`` (None: inherited as it is)."""
         return self.devices[index % len(self.devices)] if self.devices else None
 
-    def run(self, target: Target, tasks: Sequence[Any], on_message: Emit) -> RunOutcome:
+    @property
+    def started(self) -> int:
+        """Worker processes running now (between two runs of a ``with`` block: the ones kept)."""
+        return sum(w.proc.is_alive() for w in self._workers.values())
+
+    def _worker(self, index: int) -> _Worker:
+        """Worker ``index``: the one kept from an earlier run if it still lives, else a new one."""
         import multiprocessing as mp
+
+        kept = self._workers.get(index)
+        if kept is not None and kept.proc.is_alive():
+            return kept
+        if kept is not None:
+            self._stop([self._workers.pop(index)])
+        ctx = mp.get_context("spawn")
+        task_r, task_w = ctx.Pipe(duplex=False)
+        msg_r, msg_w = ctx.Pipe(duplex=False)
+        watch = ctx.Array("d", 2, lock=False)  # (since, limit) of the watched block, 0: none
+        label = ctx.Array("c", _LABEL_BYTES, lock=False)
+        proc = ctx.Process(target=_worker_main, args=(task_r, msg_w, watch, label, os.getpid()), daemon=True)
+        with _environ(CUDA_VISIBLE_DEVICES=self.device_of(index)):  # the child inherits it
+            proc.start()
+        task_r.close()  # the child holds these ends
+        msg_w.close()
+        self._workers[index] = worker = _Worker(proc, task_w, msg_r, watch, label)
+        return worker
+
+    def run(self, target: Target, tasks: Sequence[Any], on_message: Emit) -> RunOutcome:
         from multiprocessing.connection import wait
 
-        ctx = mp.get_context("spawn")
-        pipes = [ctx.Pipe(duplex=False) for _ in tasks]
-        watches = [ctx.Array("d", 2, lock=False) for _ in tasks]  # (since, limit) of the watched block, 0: none
-        labels = [ctx.Array("c", _LABEL_BYTES, lock=False) for _ in tasks]
-        procs = [ctx.Process(target=_worker_main, args=(target, task, i, pipes[i][1], watches[i], labels[i],
-                                                        os.getpid()), daemon=True)
-                 for i, task in enumerate(tasks)]
+        workers: list[_Worker] = []
         done: dict[int, TaskOutcome] = {}
-        readers = {i: pipes[i][0] for i in range(len(tasks))}
         with InterruptGuard() as guard:
             try:
-                for k, p in enumerate(procs):
-                    with _environ(CUDA_VISIBLE_DEVICES=self.device_of(k)):  # the child inherits it
-                        p.start()
-                    pipes[k][1].close()  # the child holds the writing end
+                for k, task in enumerate(tasks):
+                    workers.append(self._worker(k))
+                    try:
+                        workers[k].tasks.send((target, task, k))
+                    except OSError:  # it died since it was kept: noticed below as dead
+                        pass
+                procs = [w.proc for w in workers]
+                readers = {i: w.messages for i, w in enumerate(workers)}
                 deadline = None
                 while len(done) < len(procs):
                     try:
-                        live = {readers[i]: i for i in readers}
+                        live = {readers[i]: i for i in readers if i not in done}
                         sentinels = {procs[i].sentinel: i for i in range(len(procs)) if i not in done}
                         ready = wait([*live, *sentinels], timeout=self.poll_s)
                         for conn in [c for c in ready if c in live]:
@@ -241,8 +311,8 @@ class ProcessPool:
                         for s in [s for s in ready if s in sentinels]:
                             i = sentinels[s]
                             if i not in done and not (i in readers and readers[i].poll()):
-                                done[i] = self._died(i, procs[i], watches[i], labels[i])
-                        self._check_watches(procs, done, watches, labels)
+                                done[i] = self._died(i, procs[i], workers[i].watch, workers[i].label)
+                        self._check_watches(procs, done, [w.watch for w in workers], [w.label for w in workers])
                         if deadline is not None and (time.monotonic() > deadline or guard.count > 1):
                             self._kill(procs, done, "killed: did not stop in time after the interruption")
                     except Interrupted:
@@ -256,27 +326,46 @@ class ProcessPool:
                                   file=sys.stderr, flush=True)
             finally:
                 guard.disarm()
-                for k, p in enumerate(procs):
-                    if k not in done and p.is_alive():  # leaving early (an error here): stop it
-                        p.terminate()
-                exit_by = time.monotonic() + EXIT_WAIT_S  # one wait for all: a worker whose exit hangs
-                for p in procs:                           # (a policy's thread) costs it once, not once each
-                    p.join(timeout=max(0.0, exit_by - time.monotonic()))
-                    if p.is_alive():
-                        p.kill()
-                        p.join(timeout=10)
-                for reader, _ in pipes:
-                    reader.close()
-        return RunOutcome([done[i] for i in range(len(procs))], interrupted=guard.received)
+                for k, w in enumerate(workers):
+                    if k not in done and w.proc.is_alive():  # leaving early (an error here): stop it
+                        w.proc.terminate()
+                clean = self._kept and guard.received is None
+                unfit = [k for k, w in enumerate(workers) if not (clean and k in done and done[k].error is None
+                                                                   and done[k].interrupted is None)]
+                self._stop([self._workers.pop(k) for k in unfit if k in self._workers])
+                if not self._kept:
+                    self.close()
+        return RunOutcome([done[i] for i in range(len(workers))], interrupted=guard.received)
+
+    def close(self) -> None:
+        """Stop every worker (each finishes what it is doing; one that does not exit is killed)."""
+        workers, self._workers = list(self._workers.values()), {}
+        self._stop(workers)
+
+    @staticmethod
+    def _stop(workers: list[_Worker]) -> None:
+        for w in workers:
+            try:
+                w.tasks.send(None)  # no more tasks: its loop ends
+            except OSError:
+                pass
+        exit_by = time.monotonic() + EXIT_WAIT_S  # one wait for all: a worker whose exit hangs
+        for w in workers:                         # (a policy's thread) costs it once, not once each
+            w.proc.join(timeout=max(0.0, exit_by - time.monotonic()))
+            if w.proc.is_alive():
+                w.proc.kill()
+                w.proc.join(timeout=10)
+            w.tasks.close()
+            w.messages.close()
 
     @staticmethod
     def _died(index: int, proc: Any, watch: Any, label: Any) -> TaskOutcome:
         proc.join(timeout=5)
         code = proc.exitcode
         if watch[0]:  # it died inside a watched block: that block ended the process
-            return TaskOutcome(index, error=f"exited with code {code}", stuck=label.value.decode(errors="replace"),
+            return TaskOutcome(index, error=exit_text(code), stuck=label.value.decode(errors="replace"),
                                exit_code=code)
-        return TaskOutcome(index, error=f"exited with code {code}", exit_code=code)
+        return TaskOutcome(index, error=exit_text(code), exit_code=code)
 
     @staticmethod
     def _check_watches(procs: list, done: dict[int, TaskOutcome], watches: list, labels: list) -> None:
@@ -303,6 +392,29 @@ class ProcessPool:
                 if p.is_alive():
                     p.kill()
                 done[k] = TaskOutcome(k, error=why)
+
+
+# Why a signal may have ended a worker, said beside its name (SIGKILL: nothing in the process could
+# have said anything: the kernel's out-of-memory killer, or a user's or a scheduler's kill -9).
+SIGNAL_CAUSES = {
+    signal.SIGKILL: "likely out of memory, or killed by the user",
+    signal.SIGSEGV: "a crash in native code",
+    signal.SIGBUS: "a crash in native code",
+    signal.SIGABRT: "aborted, often by native code",
+}
+
+
+def exit_text(code: int | None) -> str:
+    """How a process that ended without an outcome ended: ``"exited with code 3"``, or for a
+    negative code ``"killed by SIGKILL (likely out of memory, or killed by the user)"``."""
+    if code is None or code >= 0:
+        return f"exited with code {code}"
+    try:
+        sig = signal.Signals(-code)
+    except ValueError:
+        return f"killed by signal {-code}"
+    cause = SIGNAL_CAUSES.get(sig)
+    return f"killed by {sig.name}" + (f" ({cause})" if cause else "")
 
 
 _LABEL_BYTES = 512
@@ -367,12 +479,25 @@ def _environ(**values: str | None) -> Iterator[None]:
                 os.environ[k] = v
 
 
-def _worker_main(target: Target, task: Any, index: int, conn: Any, watch: Any, label: Any,
-                 parent_pid: int) -> None:
-    """Process entry: runs ``target`` under a guard and always sends its outcome."""
+def _worker_main(tasks: Any, conn: Any, watch: Any, label: Any, parent_pid: int) -> None:
+    """Process entry: runs the tasks it is sent, one after the other, until it is sent None (or its
+    parent is gone); each task's outcome is always sent back."""
     global _WATCH
     die_with_parent(parent_pid)
     _WATCH = (watch, label)
+    while True:
+        try:
+            job = tasks.recv()
+        except (EOFError, OSError, KeyboardInterrupt):  # the parent closed the pipe; a Ctrl-C between tasks
+            job = None
+        if job is None:
+            conn.close()
+            return
+        _run_task(*job, conn, watch)
+
+
+def _run_task(target: Target, task: Any, index: int, conn: Any, watch: Any) -> None:
+    """One task under a guard: its messages, then its outcome, sent on ``conn``."""
     with InterruptGuard() as guard:
         def emit(message: Any) -> None:
             with guard.critical():
@@ -389,7 +514,6 @@ def _worker_main(target: Target, task: Any, index: int, conn: Any, watch: Any, l
         guard.disarm()
         watch[0] = 0.0
         conn.send(("done", outcome))
-        conn.close()
 
 
 def deal(items: Sequence[Any], parts: int) -> list[list[Any]]:

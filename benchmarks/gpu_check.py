@@ -1,9 +1,12 @@
-"""Every GPU figure of the batched path in one short run (issue 57), for a lent GPU box:
+"""Every GPU figure of the batched path in one short run, on a machine with an NVIDIA GPU:
 
-    . .device/activate.sh && python benchmarks/gpu_check.py [--procs 16] [--envs 4] [--episodes 128]
+    python benchmarks/gpu_check.py [--procs 16] [--envs 4] [--episodes 128]
 
-(``.device`` built here by ``bash ../shared/tools/device-bundle.sh``, DESIGN.md section 6.) It prints,
-each as soon as it is measured, on RSB-Math-4 (three 320x240 cameras, rendering every step):
+from the project root, in a venv with this package installed (``bash scripts/setup.sh``: on an NVIDIA
+machine it also stages SAPIEN's PhysX GPU library). It prints, each as soon as it is measured, on
+RSB-Math-4 (three 320x240 cameras, rendering every step), and records them in
+``benchmarks/results/gpu_check.json`` (``benchmarks/recorded.py``; docs/gpu.md's table of GPU figures
+shows that file once it exists):
 
 1. the GPU tests: ``pytest -m gpu tests/vector tests/sim`` (the group's images against each scene's own);
 2. the raw ceiling: PROCS spawned workers x ENVS envs, each stepping its vector env (physics, random
@@ -11,10 +14,10 @@ each as soon as it is measured, on RSB-Math-4 (three 320x240 cameras, rendering 
    aggregate env-steps/s, the workers started together at a barrier once all are built;
 3. ``rsb eval random -o rgb`` with its defaults (``--num-envs auto``, ``--num-procs auto``) on
    EPISODES episodes: its own throughput line (start-up, steady env-steps/s) and the wall time;
-4. the ratio eval steady / ceiling (issue 57: >= 0.85, and >= 2,000 env-steps/s on 16 cores);
+4. the ratio eval steady / ceiling (the target: >= 0.85, and >= 2,000 env-steps/s on 16 cores);
 5. training-set rendering (``export/render_demos.py``, K episodes a process set and observed in one
    call): recorded env states of random episodes, rendered by PROCS workers, frames/s in all
-   (issue 57: >= 2,200).
+   (the target: >= 2,200).
 
 Where CUDA rendering is absent it stops at once with one line saying so (exit status 2).
 ``--dry-run`` runs every stage on this machine instead, small (two workers, a stand-in group whose
@@ -213,9 +216,9 @@ def main(argv: list[str] | None = None) -> int:
     if not dry:
         why = no_cuda_reason()
         if why:
-            print(f"gpu_check: error: no GPU figures here: {why}. Run it on a GPU box through the device bundle "
-                  "(. .device/activate.sh && python benchmarks/gpu_check.py), or --dry-run to check the script",
-                  file=sys.stderr)
+            print(f"gpu_check: error: no GPU figures here: {why}. Run it on a machine with an NVIDIA GPU, from "
+                  "the project root in a venv with this package installed (python benchmarks/gpu_check.py), or "
+                  "--dry-run to check the script", file=sys.stderr)
             return 2
     from rsb_maniskill.parallel.plan import RENDER_ENVS_PER_PROC, usable_cpus
 
@@ -237,6 +240,12 @@ def main(argv: list[str] | None = None) -> int:
     fps = training_frames(procs, k, demo_eps, 3 if dry else 100, size)
     print(f"5. training-set rendering ({procs} procs x K = {k}, render_demos): {fps:,.0f} frames/s", flush=True)
     print(f"gpu_check: {time.perf_counter() - t_all:.0f} s in all", flush=True)
+    if not dry:  # a dry run's figures mean nothing
+        from recorded import write
+
+        write("gpu_check", {"procs": procs, "envs": k, "suite": SUITE, "raw_ceiling_env_steps_s": round(raw, 1),
+                            "eval_steady_env_steps_s": steady, "eval_over_ceiling": round(steady / raw, 3),
+                            "eval_said": said, "training_frames_s": round(fps, 1)})
     return 0
 
 

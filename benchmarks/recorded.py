@@ -9,6 +9,23 @@ check the page against it. A benchmark calls :func:`write` once at the end:
 
 ``--record-to DIR`` style overrides are left to the caller (``out_dir=``); the default folder is
 ``benchmarks/results`` of this checkout. :func:`read` loads a recorded file (tests, docs).
+
+How a page quotes a recorded figure (``python scripts/render_figures.py`` renders every marked region of
+README.md and docs/*.md from these files; ``tests/acceptance/test_docs_figures.py`` fails when a region
+differs from its file, so re-record, re-render, commit both):
+
+- a table: put ``table(columns, rows)`` in the figures (``{"table": ...}``, or several under ``"tables"``),
+  its cells the strings the page shows, and mark the page
+  ``<!-- figures: NAME -->`` / ``<!-- figures: NAME TABLE -->`` ... ``<!-- /figures -->``: the region becomes
+  the table and a line naming the file, command, date, commit, machine and load;
+- one value: ``<!-- fig: NAME KEY FORMAT -->0.52<!-- /fig -->`` (KEY a dotted path into the figures,
+  FORMAT a Python format spec such as ``.2f`` or ``,.0f``; ``<!-- fig: NAME @date -->`` the date,
+  ``@source`` the short provenance).
+
+A figure measured in an earlier run whose output was not kept is written once with
+:func:`write_earlier`, with the date, commit and machine the page gave (``recorded_from`` says so);
+``python benchmarks/record_docs_figures.py`` re-records every figure the pages quote that this machine
+can measure.
 """
 from __future__ import annotations
 
@@ -95,6 +112,34 @@ def write(name: str, figures: Mapping[str, Any], *, command: str | None = None, 
     tmp.write_text(json.dumps(body, indent=2, sort_keys=False) + "\n", encoding="utf-8")
     tmp.replace(path)  # never a half-written file in place of a good one
     print(f"recorded: {path}", flush=True)
+    return path
+
+
+def table(columns: list[str], rows: list[list[Any]], align: str | None = None) -> dict[str, Any]:
+    """A table a page renders as Markdown: ``align`` one letter a column (``l`` left, ``r`` right, ``c``
+    centred; default: the first left, the rest right); cells are shown as ``str(cell)``, so format them here."""
+    align = align or "l" + "r" * (len(columns) - 1)
+    if len(align) != len(columns) or any(len(row) != len(columns) for row in rows):
+        raise ValueError(f"a table of {len(columns)} columns needs that many alignments and cells a row")
+    return {"columns": list(columns), "align": align, "rows": [[str(c) for c in row] for row in rows]}
+
+
+def write_earlier(name: str, figures: Mapping[str, Any], *, command: str, date: str, commit: str,
+                  machine: Mapping[str, Any], recorded_from: str, notes: str = "",
+                  out_dir: str | os.PathLike | None = None) -> Path:
+    """Record figures measured in an earlier run whose own output was not kept (a lent GPU box, a long
+    training): the date, commit and machine are the ones the page gave, and ``recorded_from`` says where
+    the figures were taken from. Such a file is not re-recorded by this checkout's benchmarks."""
+    folder = Path(out_dir) if out_dir is not None else RESULTS_DIR
+    folder.mkdir(parents=True, exist_ok=True)
+    body = {"name": name, "command": command, "date": date, "commit": commit, "dirty": False,
+            "machine": {"cores": None, "cpu": None, "memory_gib": None, "gpu": "none", "load_1min_start": None,
+                        "load_1min_end": None, **machine},
+            "recorded_from": recorded_from, "figures": dict(figures)}
+    if notes:
+        body["notes"] = notes
+    path = folder / f"{name}.json"
+    path.write_text(json.dumps(body, indent=2) + "\n", encoding="utf-8")
     return path
 
 

@@ -13,6 +13,8 @@ import argparse
 import os
 import tempfile
 
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 from rsb_maniskill.motionplan.generate import GenerateConfig, generate
 
 
@@ -40,6 +42,11 @@ def main() -> None:
     for r in rows:
         print(f"{r['procs']:>5} {r['demos']:>5} {r['tried']:>5} {r['wall']:>7.1f} {r['per_min']:>9.1f} "
               f"{r['plan']:>9.3f} {r['sim']:>8.3f} {r['other']:>10.3f} {r['steps']:>10.0f}")
+    write("demo_throughput", {
+        "env": args.env, "runs": [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()} for r in rows],
+        "table": table(["procs", "successful demos/min", "planning s/episode", "simulation s/episode", "steps/demo"],
+                       [[r["procs"], f"{r['per_min']:.0f}", f"{r['plan']:.3f}", f"{r['sim']:.2f}", f"{r['steps']:.0f}"]
+                        for r in rows], "rrrrr")})
 
 
 if __name__ == "__main__":

@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 from rsb_maniskill.evaluation import eval_seeds
 from rsb_maniskill.evaluation.jobs import EvalJob, run_job
 from rsb_maniskill.evaluation.store import RECORDS_FILE
@@ -54,6 +56,7 @@ def loop_cost(suite: str, envs: list[int], episodes: int, max_steps: int) -> Non
           f"{os.cpu_count()} CPUs visible; ms per env-step")
     print("| K | loop | env (reset + step) | policy | rest | loop / env |")
     print("|---|---:|---:|---:|---:|---:|")
+    rows = []
     for k in envs:
         job = EvalJob(suite_id=suite, seeds=seeds, policy="random", label="random", obs_mode="state", num_envs=k,
                       max_steps=max_steps)
@@ -92,8 +95,11 @@ def loop_cost(suite: str, envs: list[int], episodes: int, max_steps: int) -> Non
         steps = sum(r["steps"] for r in records)
         ms = {key: 1000 * v / steps for key, v in (("loop", wall), *spent.items())}
         rest = ms["loop"] - ms["env"] - ms["policy"]
-        print(f"| {k} | {ms['loop']:.2f} | {ms['env']:.2f} | {ms['policy']:.2f} | {rest:.2f} | "
-              f"{ms['loop'] / ms['env']:.2f} |", flush=True)
+        rows.append([k, f"{ms['loop']:.2f}", f"{ms['env']:.2f}", f"{ms['policy']:.2f}", f"{rest:.2f}",
+                     f"{ms['loop'] / ms['env']:.2f}"])
+        print("| " + " | ".join(map(str, rows[-1])) + " |", flush=True)
+    write("eval_loop_cost", {"suite": suite, "episodes": episodes, "max_steps": max_steps, "table": table(
+        ["K", "loop", "env (reset + step)", "policy", "rest", "loop / env"], rows, "rrrrrr")})
 
 
 def show(rows: list[tuple[str, dict]]) -> None:
@@ -133,9 +139,13 @@ def main() -> None:
         print(f"\nrandom policy on {args.suite}, rgb obs (3 cameras, 320x240), chunks of {args.chunk}, "
               f"{args.max_steps} steps/episode, 1 process, {os.cpu_count()} CPUs visible")
         show([("render on demand", lazy), ("render every step", eager)])
+        same = strip(lazy['records']) == strip(eager['records'])
         print(f"episodes/min inside the loop: {lazy['loop_per_min']:.1f} on demand, {eager['loop_per_min']:.1f} "
-              f"every step: {lazy['loop_per_min'] / eager['loop_per_min']:.1f}x; "
-              f"same records: {strip(lazy['records']) == strip(eager['records'])}")
+              f"every step: {lazy['loop_per_min'] / eager['loop_per_min']:.1f}x; same records: {same}")
+        write("eval_throughput_rgb", {"suite": args.suite, "chunk": args.chunk, "max_steps": args.max_steps,
+                                      "on_demand": _figures(lazy), "every_step": _figures(eager),
+                                      "speedup": round(lazy["loop_per_min"] / eager["loop_per_min"], 2),
+                                      "same_records": same})
         return
     rows = []
     for k in args.procs:
@@ -143,6 +153,19 @@ def main() -> None:
         rows.append((f"{k} procs", run(job, k)))
     print(f"\n{args.policy} on {args.suite}, state obs, no video, {os.cpu_count()} CPUs visible")
     show(rows)
+    write(f"eval_throughput_{args.policy}", {
+        "suite": args.suite, "policy": args.policy, "runs": [_figures(r) for _, r in rows],
+        "table": table(["procs", "episodes/min", "s/episode", f"{args.policy} TSR"],
+                       [[r["procs"], f"{r['per_min']:.0f}", f"{r['ep_s']:.2f}", f"{r['tsr']:.0%}".replace("%", " %")]
+                        for _, r in rows], "rrrr")})
+
+
+def _figures(r: dict) -> dict:
+    """A run's figures as recorded (``ms_per_step``: the time inside the loop over the steps)."""
+    return {"procs": r["procs"], "episodes": r["episodes"], "wall_s": round(r["wall"], 2),
+            "episodes_per_min": round(r["per_min"], 1), "loop_episodes_per_min": round(r["loop_per_min"], 1),
+            "s_per_episode": round(r["ep_s"], 3), "steps_per_episode": round(r["steps"], 1),
+            "ms_per_step": round(1000 * r["ep_s"] / r["steps"], 2), "tsr": r["tsr"]}
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ import time
 import gymnasium as gym
 import numpy as np
 import torch
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
 
 import mani_skill.envs  # noqa: F401
 
@@ -72,11 +73,20 @@ def main() -> None:
     print("| env | state steps/s | ratio to PickCube | ratio to blocks | rgb steps/s | ratio to PickCube "
           "| reset (ms) |")
     print("|---|---:|---:|---:|---:|---:|---:|")
+    cells = []
     for env_id, (s, r, reset) in rows.items():
         blocks = rows.get(env_id.removesuffix("-Objects"))
         vs_blocks = f"{s / blocks[0]:.2f}" if env_id.endswith("-Objects") and blocks else ""
-        print(f"| {env_id} | {s:.0f} | {s / base_s:.2f} | {vs_blocks} | {r:.1f} | {r / base_r:.2f} | {reset:.1f} |")
+        cells.append([env_id, f"{s:.0f}", f"{s / base_s:.2f}", vs_blocks, f"{r:.1f}", f"{r / base_r:.2f}",
+                      f"{reset:.1f}"])
+        print("| " + " | ".join(cells[-1]) + " |")
     print("PickCube-v1 rgb: one 128x128 camera; RSB rgb: head + two wrist cameras at 320x240.")
+    write("task_speed", {
+        "envs": {env_id: {"state_steps_s": round(s, 1), "rgb_steps_s": round(r, 2), "reset_ms": round(reset, 2)}
+                 for env_id, (s, r, reset) in rows.items()},
+        "torch_threads": torch.get_num_threads(),
+        "table": table(["env", "state steps/s", "ratio to PickCube", "ratio to blocks", "rgb steps/s",
+                        "ratio to PickCube", "reset (ms)"], cells)})
 
 
 if __name__ == "__main__":

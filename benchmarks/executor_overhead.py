@@ -16,6 +16,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from recorded import write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 from rsb_maniskill.evaluation import eval_seeds
 from rsb_maniskill.evaluation.jobs import EvalJob, run_job
 from rsb_maniskill.evaluation.store import RECORDS_FILE
@@ -55,8 +57,15 @@ def main() -> None:
     print(f"{'executor':>10} {'wall s':>7} {'episodes/min':>12} {'s/episode (in loop)':>20}")
     for name, wall, recs in (("local", local_s, local), ("ray", ray_s, on_ray)):
         print(f"{name:>10} {wall:>7.1f} {60 * n / wall:>12.1f} {sum(r['wall_s'] for r in recs) / n:>20.3f}")
+    same = strip(local) == strip(on_ray)
     print(f"Ray overhead: {100 * (ray_s - local_s) / local_s:+.1f} % wall time "
-          f"(local cluster start, not counted: {start_s:.1f} s); same records: {strip(local) == strip(on_ray)}")
+          f"(local cluster start, not counted: {start_s:.1f} s); same records: {same}")
+    write("executor_overhead", {
+        "suite": args.suite, "policy": args.policy, "episodes": n, "workers": args.workers, "ray_first": args.ray_first,
+        "local_wall_s": round(local_s, 2), "ray_wall_s": round(ray_s, 2), "ray_start_s": round(start_s, 2),
+        "local_s_per_episode": round(sum(r["wall_s"] for r in local) / n, 3),
+        "ray_s_per_episode": round(sum(r["wall_s"] for r in on_ray) / n, 3),
+        "ray_overhead_pct": round(100 * (ray_s - local_s) / local_s, 1), "same_records": same})
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from recorded import write  # benchmarks/recorded.py: the figures to benchmarks/results/
 
 from rsb_maniskill.parallel.pool import InProcess, ProcessPool, deal
 
@@ -120,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--num-procs", type=int, default=2)
     p.add_argument("--failures", default=DEFAULT_FAILURES, help="JSONL log of every failure")
     p.add_argument("--records", default=None, help="optional JSONL of every episode")
+    p.add_argument("--record-as", default="expert_success", metavar="NAME",
+                   help="the figures go to benchmarks/results/NAME.json (default expert_success)")
     args = p.parse_args(argv)
     suites = args.suites or list(_suite_ids())
     jobs = [(s, seed) for s in suites for seed in range(args.seed_start, args.seed_start + args.seeds)]
@@ -143,6 +146,12 @@ def main(argv: list[str] | None = None) -> int:
     rows = summarise(records)
     print_table(rows, elapsed, sum(r["success"] for r in records))
     print(f"failures logged to {args.failures}")
+    n_success = sum(r["success"] for r in records)
+    write(args.record_as, {
+        "suites": {suite: {k: r[k] for k in ("n", "success", "len_mean", "len_max")} for suite, r in rows.items()},
+        "seeds_per_suite": args.seeds, "episodes": len(records), "failures": len(records) - n_success,
+        "lowest_success_pct": round(100 * min(r["success"] for r in rows.values()), 1),
+        "demos_per_min": round(60 * n_success / elapsed, 1)})
     return 0 if all(r["success"] >= 0.98 for r in rows.values()) else 1
 
 

@@ -8,8 +8,9 @@
 Run it on an otherwise idle machine with the question data (`RSB_DATA_DIR`): each benchmark writes
 `benchmarks/results/NAME.json` (`recorded.py`: command, date, commit, machine and its load), and the pages'
 marked regions are rendered from those files. Then commit the files and the pages together
-(`tests/acceptance/test_docs_figures.py` fails while a page differs from its file). About 25 minutes on two
-idle cores, most of it the fresh clone's set-up and the 200-episode throughput runs.
+(`tests/acceptance/test_docs_figures.py` fails while a page differs from its file). About 45 minutes on two
+idle cores, most of it the expert's 3,200 episodes, the fresh clone's set-up and the 200-episode
+throughput runs.
 
 Figures from lent GPU boxes and long trainings (`recorded_from` in their files) are not re-measured here:
 `python benchmarks/gpu_check.py` on a GPU box records `gpu_check.json`, which docs/gpu.md's table then shows.
@@ -27,6 +28,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
+OBJECTS = [f"RSB-{s}-{n}-Objects" for s in ("Math", "HardMath", "General", "Direct") for n in (4, 10)]
 # recorded file -> (the command the pages quote, a smaller one for --quick)
 JOBS: dict[str, tuple[list[str], list[str]]] = {
     "cli_startup": (["cli_startup.py", "--repeat", "5"], ["cli_startup.py", "--repeat", "3"]),
@@ -38,6 +40,10 @@ JOBS: dict[str, tuple[list[str], list[str]]] = {
     "eval_throughput_oracle": (["eval_throughput.py", "-n", "200"], ["eval_throughput.py", "-n", "40"]),
     "demo_throughput": (["demo_throughput.py", "-n", "200"], ["demo_throughput.py", "-n", "20"]),
     "task_speed": (["task_speed.py", "--repeats", "2"], ["task_speed.py", "--repeats", "1"]),
+    "expert_success": (["expert_success.py"], ["expert_success.py", "--seeds", "10"]),
+    "expert_success_objects": (["expert_success.py", "--record-as", "expert_success_objects", "--suites", *OBJECTS],
+                               ["expert_success.py", "--record-as", "expert_success_objects", "--seeds", "10",
+                                "--suites", *OBJECTS]),
     "first_hour": (["first_hour.py"], ["first_hour.py"]),
 }
 

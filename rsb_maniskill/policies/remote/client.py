@@ -7,12 +7,25 @@ module holds the policy side of it: what a request carries and how a reply becom
 from __future__ import annotations
 
 import inspect
+import os
 from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from rsb_maniskill.policies.interface import as_chunk, join_outputs
-from rsb_maniskill.policies.remote.wire import flatten_obs, open_websocket, packb, unpackb
+from rsb_maniskill.policies.remote.wire import (
+    DEFAULT_MAX_MESSAGE_MB,
+    MIB,
+    TOKEN_ENV,
+    TOKEN_SCHEME,
+    ServerUnreachable,
+    WireError,
+    error_line,
+    flatten_obs,
+    open_websocket,
+    packb,
+    unpack_map,
+)
 
 
 def _row(obs: Any, i: int) -> Any:
@@ -46,7 +59,7 @@ def check_remote_args(policy_kwargs: Mapping[str, Any], obs_mode: str) -> None:
     check_preset_args(kwargs, obs_mode)
     try:
         RemotePolicy(**kwargs).close()
-    except ConnectionError as err:
+    except ServerUnreachable as err:
         raise ConnectionError(f"{err}; start the policy server, or fix -a host / -a port (-a connect_timeout=S "
                               "waits longer for one still loading)") from None
 
@@ -62,7 +75,8 @@ class RemotePolicy:
     Args:
         host: server host, or a full ``ws://`` / ``wss://`` URI.
         port: server port (None when ``host`` is a URI that holds it).
-        api_key: sent as ``Authorization: Api-Key ...`` as openpi's client does.
+        token: the server's token (``rsb serve --token``; default ``$RSB_SERVE_TOKEN``), sent as
+            ``Authorization: Api-Key TOKEN``, the header openpi's client sends its ``api_key`` in.
         action_horizon: execute only the first k actions of each chunk before asking again.
         mark_episode_start: add ``"episode_start": True`` to the first request of each episode so
             that ``server.py``'s server resets the wrapped policy, with the episode's seed
@@ -70,6 +84,7 @@ class RemotePolicy:
             default because other servers do not expect the keys.
         connect_timeout: seconds to keep retrying a refused connection (openpi's client waits forever),
             and to wait for the server's metadata once connected: ConnectionError, one line, after it.
+        max_message_mb: a reply over this many MB (MiB) ends the connection unread (``wire.py``).
         preset: ``"openpi-aloha"``: send openpi's Aloha keys and layout and read the reply as Aloha-layout
             actions (``openpi.py``); then ``image_size`` (default 224) sets the image size and
             ``action_horizon`` defaults to 10.
@@ -81,7 +96,7 @@ class RemotePolicy:
         self,
         host: str = "127.0.0.1",
         port: int | None = 8000,
-        api_key: str | None = None,
+        token: str | None = None,
         prompt_key: str = "prompt",
         obs_prefix: str = "observation",
         obs_transform: Callable[[dict, str], dict] | None = None,
@@ -93,6 +108,7 @@ class RemotePolicy:
         preset: str | None = None,
         image_size: int | list[int] | None = None,
         batch: bool = True,
+        max_message_mb: float = DEFAULT_MAX_MESSAGE_MB,
     ) -> None:
         self.preset = None
         if preset is not None:
@@ -108,7 +124,9 @@ class RemotePolicy:
         self.uri = host if host.startswith(("ws://", "wss://")) else f"ws://{host}"
         if port is not None and not host.startswith(("ws://", "wss://")):
             self.uri += f":{port}"
-        self.api_key = api_key
+        self.token = token if token is not None else os.environ.get(TOKEN_ENV) or None
+        self.max_message_mb = max_message_mb
+        self._sent = 0  # bytes of the last request (named when the server refuses it as too big)
         self.prompt_key = prompt_key
         self.obs_prefix = obs_prefix
         self.obs_transform = obs_transform
@@ -126,29 +144,63 @@ class RemotePolicy:
 
     def _connect(self, timeout: float) -> tuple[Any, dict]:
         """Connect and read the server's metadata, each within ``timeout`` s."""
-        headers = {"Authorization": f"Api-Key {self.api_key}"} if self.api_key else None
-        ws = open_websocket(self.uri, timeout, headers)
+        headers = {"Authorization": f"{TOKEN_SCHEME} {self.token}"} if self.token else None
+        ws = open_websocket(self.uri, timeout, headers, max_message_mb=self.max_message_mb)
         try:
-            metadata = self._recv(ws, timeout)
+            metadata = self._recv(ws, timeout, "metadata")
         except TimeoutError:
             ws.close()
             raise ConnectionError(f"{self.uri} accepted the connection but sent no metadata within {timeout:.0f} s: "
                                   "not an openpi policy server? (a vla-eval one: -a protocol=vla-eval)") from None
+        except RuntimeError as err:
+            ws.close()
+            raise ConnectionError(str(err)) from None
         return ws, metadata
 
-    def _recv(self, ws: Any, timeout: float | None = None) -> Any:
-        msg = ws.recv(timeout=self.request_timeout if timeout is None else timeout)
-        if isinstance(msg, str):  # openpi servers send their traceback as text before closing
-            raise RuntimeError(f"error in policy server {self.uri}:\n{msg}")
-        return unpackb(msg)
+    def _recv(self, ws: Any, timeout: float | None = None, what: str = "reply") -> dict:
+        """The server's next message, decoded as the server decodes ours (``wire.unpack_map``); its
+        error or its closing the connection: RuntimeError, one line (a traceback in ``.detail``)."""
+        from websockets.exceptions import ConnectionClosed
+
+        try:
+            msg = ws.recv(timeout=self.request_timeout if timeout is None else timeout)
+        except ConnectionClosed as err:
+            raise RuntimeError(self._closed(err)) from None
+        if isinstance(msg, str):  # the server's error, then it closes: a line (server.py) or a traceback (openpi)
+            err = RuntimeError(f"policy server {self.uri}: {error_line(msg)}")
+            err.detail = msg  # type: ignore[attr-defined]  (rsb --debug prints it)
+            raise err
+        try:
+            return unpack_map(msg, what)
+        except WireError as err:
+            raise RuntimeError(f"policy server {self.uri} sent a {what} this client refuses: {err}") from None
+
+    def _closed(self, err: Any) -> str:
+        """One line for a connection the server (or this client's size bound) ended."""
+        sent, rcvd = getattr(err, "sent", None), getattr(err, "rcvd", None)
+        server_first = rcvd is not None and (sent is None or bool(getattr(err, "rcvd_then_sent", False)))
+        if sent is not None and sent.code == 1009 and not server_first:  # a reply over this client's bound
+            return (f"policy server {self.uri} sent a message over this client's limit of {self.max_message_mb:g} MB "
+                    f"({sent.reason}); raise it with -a max_message_mb=MB")
+        if rcvd is not None and rcvd.code == 1009 and server_first:
+            return (f"policy server {self.uri} refused a request of {self._sent / MIB:.1f} MB as too big "
+                    f"({rcvd.reason}); start it with a larger --max-message-mb")
+        if rcvd is not None:
+            return f"policy server {self.uri} closed the connection (code {rcvd.code}{': ' if rcvd.reason else ''}" \
+                   f"{rcvd.reason})"
+        return f"policy server {self.uri} closed the connection without a word ({err}): did it stop?"
 
     def infer(self, payload: dict) -> dict:
         """One raw request/response round trip (openpi's ``infer``)."""
-        self._ws.send(packb(payload))
-        reply = self._recv(self._ws)
-        if not isinstance(reply, dict):
-            raise RuntimeError(f"policy server {self.uri} replied {type(reply).__name__}, expected a dict")
-        return reply
+        from websockets.exceptions import ConnectionClosed
+
+        message = packb(payload)
+        self._sent = len(message)
+        try:
+            self._ws.send(message)
+        except ConnectionClosed as err:
+            raise RuntimeError(self._closed(err)) from None
+        return self._recv(self._ws)
 
     def reset(self, instruction: str, obs: dict, seed: int | None = None) -> None:
         self.instruction = instruction
@@ -236,11 +288,12 @@ class RemoteBackbone:
     any object with ``answer(instruction, images)`` that way. Arguments as :class:`RemotePolicy`.
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int | None = 8000, api_key: str | None = None,
+    def __init__(self, host: str = "127.0.0.1", port: int | None = 8000, token: str | None = None,
                  prompt_key: str = "prompt", connect_timeout: float = 60.0, request_timeout: float | None = 300.0,
-                 name: str = "remote") -> None:
-        self.client = RemotePolicy(host, port, api_key=api_key, prompt_key=prompt_key,
-                                   connect_timeout=connect_timeout, request_timeout=request_timeout, name=name)
+                 name: str = "remote", max_message_mb: float = DEFAULT_MAX_MESSAGE_MB) -> None:
+        self.client = RemotePolicy(host, port, token=token, prompt_key=prompt_key,
+                                   connect_timeout=connect_timeout, request_timeout=request_timeout, name=name,
+                                   max_message_mb=max_message_mb)
         self.name = name
 
     def answer(self, instruction: str, images: Mapping[str, np.ndarray]) -> str:

@@ -17,23 +17,35 @@ Run one from the shell: ``rsb serve pkg.mod:make_policy --port 8000`` (or
 from __future__ import annotations
 
 import argparse
+import hmac
 import http
+import ipaddress
 import logging
 import os
 import signal
 import sys
 import threading
 import time
-import traceback
 from typing import Any
 
 import numpy as np
 
+from rsb_maniskill.debug import debug_enabled
 from rsb_maniskill.policies.interface import as_chunk, as_chunks, is_batched, split_output, split_outputs
 from rsb_maniskill.policies.registry import load_policy, policy_spec
 from rsb_maniskill.policies.remote.batching import DEFAULT_MAX_BATCH, DEFAULT_MAX_WAIT_MS, Batcher, Request
 from rsb_maniskill.policies.remote.openpi import PRESETS, make_preset
-from rsb_maniskill.policies.remote.wire import INSTALL_HINT, packb, unflatten_obs, unpackb
+from rsb_maniskill.policies.remote.wire import (
+    DEFAULT_MAX_MESSAGE_MB,
+    INSTALL_HINT,
+    TOKEN_ENV,
+    TOKEN_SCHEME,
+    WireError,
+    max_message_bytes,
+    packb,
+    read_request,
+    unflatten_obs,
+)
 from rsb_maniskill.resolve import key_values
 
 logger = logging.getLogger(__name__)
@@ -115,11 +127,64 @@ class BackboneAdapter:
         return {"text": str(self.backbone.answer(str(request.get(self.prompt_key, "")), dict(images)))}
 
 
-def _health_check(connection: Any, request: Any) -> Any:
-    # `GET /healthz` -> 200, as openpi's server does; everything else goes on to the handshake.
-    if getattr(request, "path", None) == "/healthz":
-        return connection.respond(http.HTTPStatus.OK, "OK\n")
-    return None
+def _gatekeeper(token: str | None) -> Any:
+    """The handshake's check (websockets' ``process_request``): ``GET /healthz`` -> 200, as openpi's
+    server does; with a token, a client without ``Authorization: Api-Key TOKEN`` gets 401 (none sent)
+    or 403 (another), with a one-line reason, before any message is read."""
+    expected = f"{TOKEN_SCHEME} {token}".encode() if token else None
+
+    def check(connection: Any, request: Any) -> Any:
+        if getattr(request, "path", None) == "/healthz":
+            return connection.respond(http.HTTPStatus.OK, "OK\n")
+        if expected is None:
+            return None
+        sent = request.headers.get("Authorization")
+        if sent is None:
+            return connection.respond(http.HTTPStatus.UNAUTHORIZED, "this policy server needs a token: "
+                                      f"-a token=... or ${TOKEN_ENV} (header Authorization: {TOKEN_SCHEME} ...)\n")
+        if not hmac.compare_digest(sent.encode("utf-8", errors="replace"), expected):  # constant time
+            return connection.respond(http.HTTPStatus.FORBIDDEN, "wrong token for this policy server\n")
+        return None
+
+    return check
+
+
+def _peer(ws: Any) -> str:
+    address = getattr(ws, "remote_address", None)
+    return f"{address[0]}:{address[1]}" if isinstance(address, tuple) and len(address) >= 2 else "a client"
+
+
+def _one_line(err: BaseException) -> str:
+    """An exception as one line, its message and its cause's whole (newlines folded)."""
+    def line(e: BaseException) -> str:
+        return " ".join(f"{type(e).__name__}: {e}".split()) if str(e) else type(e).__name__
+    cause = err.__cause__ or (None if err.__suppress_context__ else err.__context__)
+    return line(err) + (f" (caused by {line(cause)})" if cause is not None else "")
+
+
+def _send_error(ws: Any, line: str, code: int) -> None:
+    """As openpi's server: the error as a text frame (openpi's client raises with it), then close; here
+    one line, never a traceback. 1008: the client's message was wrong; 1011: the policy failed."""
+    try:
+        ws.send(" ".join(line.split()))
+        ws.close(code=code, reason="bad request" if code == 1008 else "policy error")
+    except Exception:  # noqa: BLE001  (the client is gone already: nothing left to tell it)
+        pass
+
+
+def _exposure(host: str, port: int, token: str | None) -> str:
+    """Who can reach the server, said once at start."""
+    try:
+        local = ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        local = host == "localhost"
+    if local:
+        return (f"rsb serve: {host} is this machine only; other machines: an SSH tunnel to port {port}, or "
+                "--host 0.0.0.0 with --token")
+    if token:
+        return f"rsb serve: listening on {host}, reachable from other machines; clients must send the token"
+    return (f"rsb serve: warning: listening on {host} with no token: anyone who reaches port {port} can use this "
+            f"policy (--token, or ${TOKEN_ENV})")
 
 
 def _with_row_dim(obs: Any) -> Any:
@@ -140,7 +205,7 @@ class PolicyServer:
     def __init__(
         self,
         policy: Any,
-        host: str = "0.0.0.0",
+        host: str = "127.0.0.1",
         port: int = 8000,
         metadata: dict | None = None,
         prompt_key: str = "prompt",
@@ -149,6 +214,8 @@ class PolicyServer:
         max_batch: int = DEFAULT_MAX_BATCH,
         max_wait_ms: float = DEFAULT_MAX_WAIT_MS,
         batching: bool = True,
+        token: str | None = None,
+        max_message_mb: float = DEFAULT_MAX_MESSAGE_MB,
     ) -> None:
         try:
             from websockets.sync.server import serve
@@ -166,7 +233,8 @@ class PolicyServer:
         self.batcher = Batcher(policy, max_batch, max_wait_ms) if batching and rsb_policy and not openpi_style \
             else None
         self._server = serve(
-            self._handle, host, port, compression=None, max_size=None, process_request=_health_check
+            self._handle, host, port, compression=None, max_size=max_message_bytes(max_message_mb, "max_message_mb"),
+            process_request=_gatekeeper(token)
         )
         self.host = host
         self.port = int(self._server.socket.getsockname()[1])
@@ -223,7 +291,7 @@ class PolicyServer:
         try:
             ws.send(packb(self.metadata))
             while True:
-                request = unpackb(ws.recv())
+                request = read_request(ws.recv(), self.prompt_key)
                 t0 = time.monotonic()
                 if infer is None:
                     reply = self._batched_reply(conn, request)
@@ -232,16 +300,19 @@ class PolicyServer:
                         reply = dict(infer(request))
                 reply["server_timing"] = {"infer_ms": 1000.0 * (time.monotonic() - t0)}
                 ws.send(packb(reply))
-        except ConnectionClosed:
+        except ConnectionClosed as err:
+            if err.sent is not None and err.sent.code == 1009:  # over --max-message-mb: refused before it was read
+                logger.warning("rsb serve: refused a message from %s: %s (--max-message-mb raises the limit)",
+                               _peer(ws), err.sent.reason)
             return
-        except Exception:
-            # Like openpi: the traceback as a text frame, then close with 1011 (internal error).
-            logger.exception("policy server: request failed")
-            try:
-                ws.send(traceback.format_exc())
-                ws.close(code=1011, reason="Internal server error. Traceback included in previous frame.")
-            except ConnectionClosed:
-                pass
+        except WireError as err:  # the client's message: what is wrong with it, to that client only
+            logger.warning("rsb serve: refused a request from %s: %s", _peer(ws), err)
+            _send_error(ws, f"request refused: {err}", 1008)
+        except BaseException as err:  # noqa: BLE001  (the policy's; in a handler thread even KeyboardInterrupt is)
+            line = _one_line(err)
+            logger.error("rsb serve: the policy failed on a request from %s: %s", _peer(ws), line,
+                         exc_info=debug_enabled())  # the traceback in this log with rsb --debug only
+            _send_error(ws, f"policy error: {line}", 1011)
         finally:
             if self.batcher is not None:
                 self.batcher.close(conn)  # its rows' slots are free again
@@ -268,16 +339,18 @@ class PolicyServer:
         self.shutdown()
 
 
-def serve_policy(policy: Any, host: str = "0.0.0.0", port: int = 8000, metadata: dict | None = None,
+def serve_policy(policy: Any, host: str = "127.0.0.1", port: int = 8000, metadata: dict | None = None,
                  preset: Any = None, max_batch: int = DEFAULT_MAX_BATCH, max_wait_ms: float = DEFAULT_MAX_WAIT_MS,
-                 batching: bool = True, parent_pid: int | None = None) -> None:
+                 batching: bool = True, parent_pid: int | None = None, token: str | None = None,
+                 max_message_mb: float = DEFAULT_MAX_MESSAGE_MB) -> None:
     """Serve ``policy`` until interrupted (Ctrl-C, SIGTERM, or ``parent_pid`` gone); blocks. Says how it
     serves once at start, prints the ready line (:data:`READY`) on stdout and the formed batch sizes at the end."""
     server = PolicyServer(policy, host, port, metadata, preset=preset, max_batch=max_batch, max_wait_ms=max_wait_ms,
-                          batching=batching)
+                          batching=batching, token=token, max_message_mb=max_message_mb)
     print(f"rsb serve: {server.describe()}", file=sys.stderr, flush=True)
     logger.info("serving %s on ws://%s:%d", type(policy).__name__, host, server.port)
     print(f"{READY} ws://{host}:{server.port}", flush=True)
+    print(_exposure(host, server.port, token), file=sys.stderr, flush=True)
     if parent_pid:
         threading.Thread(target=_watch_parent, args=(parent_pid, server), name="rsb-parent-watch",
                          daemon=True).start()
@@ -314,8 +387,13 @@ def add_serve_args(p: argparse.ArgumentParser) -> None:
                                   "(and reset_batch/act_batch to batch), or infer, or a backbone's answer")
     p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="keyword argument of the policy factory (VALUE parsed as JSON, else a string); repeatable")
-    p.add_argument("--host", default="0.0.0.0", help="interface to listen on (default 0.0.0.0; 127.0.0.1: this "
-                                                     "machine only)")
+    p.add_argument("--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1: this machine only; "
+                                                       "0.0.0.0: every interface, with --token)")
+    p.add_argument("--token", default=None, help="clients must send this token (-a token=... of the remote policy; "
+                                                 f"default ${TOKEN_ENV}, which keeps it out of the process list)")
+    p.add_argument("--max-message-mb", type=float, default=DEFAULT_MAX_MESSAGE_MB, metavar="MB",
+                   help="a request over this size ends its connection unread (default "
+                        f"{DEFAULT_MAX_MESSAGE_MB:g}: 64 rows of three 320 x 240 cameras with depth fit)")
     p.add_argument("--port", type=int, default=8000, help="port (default 8000; 0: a free one, printed)")
     p.add_argument("--max-batch", type=int, default=DEFAULT_MAX_BATCH, metavar="B",
                    help=f"rows (envs) one policy call answers at most (default {DEFAULT_MAX_BATCH})")
@@ -335,6 +413,7 @@ def run_server(args: argparse.Namespace) -> int:
         raise ValueError(f"--max-batch must be >= 1 rows, got {args.max_batch}")
     if not args.max_wait_ms >= 0:
         raise ValueError(f"--max-wait-ms must be >= 0, got {args.max_wait_ms}")
+    max_message_bytes(args.max_message_mb, "--max-message-mb")  # before the policy loads
     kwargs = key_values(args.policy_arg, "-a")
     from rsb_maniskill.plugins import load_plugins
 
@@ -353,7 +432,8 @@ def run_server(args: argparse.Namespace) -> int:
                          "nor answer())")
     serve_policy(policy, args.host, args.port, preset=make_preset(args.preset) if args.preset else None,
                  max_batch=args.max_batch, max_wait_ms=args.max_wait_ms, batching=not args.serial,
-                 parent_pid=args.parent_pid)
+                 parent_pid=args.parent_pid, token=args.token or os.environ.get(TOKEN_ENV) or None,
+                 max_message_mb=args.max_message_mb)
     return 0
 
 

@@ -95,7 +95,9 @@ def answered(client, step: int) -> bool:
 
 
 def rss_mb(pid: int) -> float:
-    """Resident memory of process ``pid`` (Linux /proc)."""
+    """Resident memory of process ``pid``, or of its one child when it is `timeout` (Linux /proc)."""
+    if Path(f"/proc/{pid}/comm").read_text().strip() == "timeout":
+        pid = int(Path(f"/proc/{pid}/task/{pid}/children").read_text().split()[0])
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024

@@ -15,6 +15,7 @@ import importlib
 import os
 import signal
 import sys
+import warnings
 from typing import Any, Iterator, NoReturn
 
 from rsb_maniskill.debug import DEBUG_ENV, debug_mode, print_error
@@ -49,11 +50,10 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
     def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
-        """A sub-command refuses an unknown option with its own usage (argparse would hand it up
-        to `rsb`, whose error names no command)."""
+        """A sub-command refuses an unknown option itself, in one line naming the command and its
+        help (argparse would hand it up to `rsb`, whose error names no command)."""
         namespace, extras = super().parse_known_args(args, namespace)
         if extras and not self.top:
-            self.print_usage(sys.stderr)
             self.error(f"unrecognized arguments: {' '.join(extras)}")
         return namespace, extras
 
@@ -112,6 +112,26 @@ def _noting_sigint() -> Iterator[list[int]]:
         signal.signal(signal.SIGINT, previous)
 
 
+@contextlib.contextmanager
+def _warnings_in_one_line(command: str) -> Iterator[None]:
+    """A warning of the pack's own (a torn last record skipped, ...) is one line, ``rsb <command>:
+    warning: ...``, as errors are: not Python's two, with the file, the line number and the code."""
+    original = warnings.formatwarning
+    package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+    def one_line(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 line: str | None = None) -> str:
+        if os.path.abspath(filename).startswith(package):
+            return f"rsb {command}: warning: {message}\n"
+        return original(message, category, filename, lineno, line)
+
+    warnings.formatwarning = one_line
+    try:
+        yield
+    finally:
+        warnings.formatwarning = original
+
+
 def _text_in_any_locale() -> None:
     """A locale that is not UTF-8 (``LC_ALL=POSIX`` with ``PYTHONUTF8=0``, a Latin-1 one) must not turn a
     name typed in UTF-8 into an error: the arguments' bytes are read as UTF-8 where they are, and what
@@ -148,7 +168,8 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    with debug_mode(args.debug), _noting_sigint() as received:  # debug: in the environment, for workers too
+    # debug: in the environment, for workers too
+    with debug_mode(args.debug), _noting_sigint() as received, _warnings_in_one_line(args.command):
         try:
             status = int(args.func(args) or 0)
         except (KeyboardInterrupt, BrokenPipeError):

@@ -174,6 +174,26 @@ def obs_mode(env: Any, mode: str) -> Iterator[None]:
         env._obs_mode = old
 
 
+# ManiSkill's observation modes, known without importing it (seconds): a bad ``-o`` is refused before the
+# simulator loads. ``BaseEnv.SUPPORTED_OBS_MODES`` ("any_textures": camera textures joined by '+') and
+# ``envs.utils.observations``' ``ALL_VISUAL_TEXTURES`` and ``parse_obs_mode_to_struct`` rule, at the pinned
+# version; tests/commands/test_first_hour.py compares them with ManiSkill's own.
+OBS_MODES = ("state", "state_dict", "none", "sensor_data", "any_textures", "pointcloud")
+CAMERA_TEXTURES = ("rgb", "depth", "segmentation", "position", "normal", "albedo")
+_TEXTURE_MODES = ("rgbd", "pointcloud", "sensor_data")  # names parse_obs_mode_to_struct reads as textures
+_NOT_TEXTURES = ("state", "state_dict", "none", "pointcloud")  # what it lets stand beside textures
+
+
+def obs_mode_supported(mode: str, supported: Sequence[str] = OBS_MODES) -> bool:
+    """Whether an env whose ``SUPPORTED_OBS_MODES`` is ``supported`` takes ``mode``, as ``BaseEnv.__init__``
+    decides: one of them, or (with ``any_textures``) camera textures joined by '+'."""
+    if mode in supported and mode != "any_textures":
+        return True
+    if "any_textures" not in supported:
+        return False
+    return mode in _TEXTURE_MODES or all(t in CAMERA_TEXTURES or t in _NOT_TEXTURES for t in mode.split("+"))
+
+
 def check_versions() -> list[str]:
     """What differs from the ManiSkill and SAPIEN versions pyproject.toml pins, the ones these
     accessors are written against (empty when all match, or when the package is not installed)."""

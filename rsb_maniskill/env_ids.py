@@ -142,9 +142,12 @@ def add_suites_argument(parser: argparse.ArgumentParser, default: Sequence[str] 
                         positional: bool = False, help: str | None = None) -> None:
     """The one way a command takes suites: ``--suites``, and where ``positional`` a ``SUITE ...`` list
     too (either spelling), names separated by spaces or commas; ``args.suites`` holds the resolved env
-    ids (``default``, resolved, when none is given)."""
+    ids (``default``, resolved, when none is given). The help names the default and how many suites it
+    is: it decides the size of a run."""
+    suites = resolve_env_ids(default)
+    said = f" (default: {' '.join(default)}: {len(suites)} suite{'s' if len(suites) != 1 else ''})" if suites else ""
     kwargs: dict[str, Any] = dict(nargs="*" if positional else "+", action=_SuitesAction, metavar="SUITE",
-                                  default=resolve_env_ids(default), help=help or SUITES_HELP)
+                                  default=suites, help=(help or SUITES_HELP) + said)
     if positional:
         parser.add_argument("suites", **kwargs)
         kwargs.update(nargs="+", help="the same as SUITE ...", default=argparse.SUPPRESS)

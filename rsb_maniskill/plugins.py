@@ -6,7 +6,8 @@ that module registers what it adds (``register_suite``, ``register_family``, ``r
 exist), so a plugin's suites and families get env ids, gym registrations and commands like the
 built-in ones. As LeRobot's ``lerobot_env_*`` plugins: installing the distribution is the switch.
 
-A plugin must not take the pack down: one that fails to import (an exception, ``sys.exit``) or does
+A plugin must not take the pack down: one that fails to import (an exception, ``sys.exit``, a
+``KeyboardInterrupt`` it raises itself, which a Ctrl-C during its import is told apart from) or does
 not finish importing within ``RSB_PLUGIN_TIMEOUT`` seconds is named on stderr in one line, with how
 to turn it off (``RSB_NO_PLUGINS``), and skipped; nothing else is. A built-in name it registers is
 refused (the registries raise). Worker processes inherit what the parent skipped and said: a plugin
@@ -49,12 +50,23 @@ def _import(module: str, timeout_s: float) -> str | None:
     import that blocks (a network call, a sleep, a lock) after ``timeout_s``: it costs that, not the
     command. (The import runs here, not in a thread: the plugin imports the module that is loading it.)"""
     timer = threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer")
+    ctrl_c: list[int] = []  # a real Ctrl-C during the import, as opposed to a KeyboardInterrupt the plugin raised
     if timer:
         def expire(signum: int, frame: object) -> None:
             raise _ImportTimeout
 
         previous = signal.signal(signal.SIGALRM, expire)
         signal.setitimer(signal.ITIMER_REAL, timeout_s)
+        on_int = signal.getsignal(signal.SIGINT)
+
+        def note(signum: int, frame: object) -> None:
+            ctrl_c.append(signum)
+            if callable(on_int):  # the command's start-up guard (it exits), or Python's KeyboardInterrupt
+                on_int(signum, frame)
+            elif on_int != signal.SIG_IGN:
+                raise KeyboardInterrupt
+
+        signal.signal(signal.SIGINT, note)
     try:
         importlib.import_module(module)
         return None
@@ -63,13 +75,17 @@ def _import(module: str, timeout_s: float) -> str | None:
     except SystemExit as stop:  # sys.exit at import: it would end every command without a word
         return f"it called sys.exit({stop.code!r}) while importing"
     except KeyboardInterrupt:
-        raise
+        if ctrl_c or not timer:  # Ctrl-C (or no way to tell it from one): the user's, not the plugin's
+            raise
+        return "it raised KeyboardInterrupt while importing (no Ctrl-C was pressed)"
     except BaseException as err:  # noqa: BLE001  (a broken plugin is named, not raised)
         return f"{type(err).__name__}: {err}"
     finally:
         if timer:
             signal.setitimer(signal.ITIMER_REAL, 0)
             signal.signal(signal.SIGALRM, previous)
+            if on_int is not None:  # (None: a handler not set from Python, left as it was)
+                signal.signal(signal.SIGINT, on_int)
 
 
 def skip_plugins() -> None:

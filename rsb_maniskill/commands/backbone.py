@@ -23,6 +23,7 @@ from rsb_maniskill.commands.eval_args import (
     check_env_settings,
     parse_kv,
     results_dir,
+    run_settings,
 )
 from rsb_maniskill.evaluation.store import ManifestError, RecordsError
 
@@ -31,6 +32,7 @@ OWN_ENV_KEYS = {key: "rsb backbone builds its env with its own" for key in EVAL_
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.commands.eval_args import NameAction
     from rsb_maniskill.env_ids import add_suites_argument
     from rsb_maniskill.evaluation.backbone import BACKBONES
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
@@ -53,7 +55,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="instruction given: normal, blank or shuffled (as rsb eval --instruction)")
     p.add_argument("--images", action="store_true",
                    help="also send the head camera's first frame (renders each episode's first observation)")
-    p.add_argument("--name", default=None, help="row label in records and tables (default: the backbone spec)")
+    p.add_argument("--name", default=None, action=NameAction,
+                   help="row label in records and tables, on one line (default: the backbone spec)")
     p.add_argument("--out", default=None, help="results directory, e.g. the --out of an rsb eval run "
                                                "(default: results/<name>)")
     p.add_argument("-e", "--env-arg", action="append", default=[], metavar="KEY=VALUE",
@@ -101,8 +104,9 @@ def _run_backbone(args: argparse.Namespace) -> int:
     check_data(suites, env_kwargs.get("data_dir"))
     label = args.name or args.backbone
     out = results_dir(args.out, label)
-    note = check_manifest(out, label, dict(backbone=args.backbone, backbone_kwargs=kwargs, images=args.images,
-                                           env_kwargs=env_kwargs), section="backbones", keys=BACKBONE_KEYS)
+    note = check_manifest(out, label, run_settings(dict(backbone=args.backbone, backbone_kwargs=kwargs,
+                                                        images=args.images, env_kwargs=env_kwargs)),
+                          section="backbones", keys=BACKBONE_KEYS, read_row=run_settings)
     if note:
         print(f"rsb backbone: note: {note}", file=sys.stderr)
     if args.quiet:

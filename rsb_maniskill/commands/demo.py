@@ -24,10 +24,16 @@ def register(subparsers) -> None:
     from rsb_maniskill.commands.vocab import add_old_spelling
     from rsb_maniskill.env_ids import add_suites_argument
 
-    p = subparsers.add_parser("demo", help="the pipeline on RSB-Math-4: camera pictures, expert demos, evaluation")
+    p = subparsers.add_parser(
+        "demo", help="the pipeline on RSB-Math-4: camera pictures, expert demos, evaluation",
+        description=f"The whole pipeline on one suite (default {DEFAULT_SUITE}: procedural questions, no data "
+                    "needed), written under --out: what the cameras see at the first step, scripted-expert "
+                    "demonstrations, and the oracle and blind baselines on the first -n evaluation episodes with "
+                    "their summary and report.html (the last line printed names it).")
     p.add_argument("--out", default=DEFAULT_OUT, help=f"output directory (default: {DEFAULT_OUT})")
     add_suites_argument(p, default=(DEFAULT_SUITE,), positional=True,
-                        help=f"one suite id (default: {DEFAULT_SUITE})")
+                        help="the suite to run: one suite id or the paper release's task name (the demo runs one "
+                             "suite; more are refused)")
     add_old_spelling(p, "--suite", "--suites")
     p.add_argument("--demos", type=int, default=3, help="expert demonstrations to generate (default 3)")
     p.add_argument("-n", "--num-episodes", dest="episodes", metavar="N", type=int, default=20,

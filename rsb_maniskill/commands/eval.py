@@ -32,6 +32,7 @@ from rsb_maniskill.commands.eval_args import (
     check_policy_args,
     parse_kv,
     results_dir,
+    run_settings,
 )
 from rsb_maniskill.debug import print_error
 from rsb_maniskill.evaluation.store import ManifestError, RecordsError
@@ -42,6 +43,7 @@ SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from rsb_maniskill.commands.eval_args import NameAction, ObsModeAction
     from rsb_maniskill.env_ids import CPU_SIM_BACKEND, GPU_SIM_BACKEND, TASK_MAX_EPISODE_STEPS, add_suites_argument
     from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS
     from rsb_maniskill.evaluation.records import EVAL_INSTRUCTION_MODES
@@ -61,9 +63,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-a", "--policy-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="keyword argument of the policy factory (VALUE parsed as JSON, else a string); repeatable")
     add_suites_argument(p)
+    n_suites = len(p.get_default("suites"))
+    total = EPISODES_PER_SUITE * n_suites
+    p.description += (f" The defaults are the paper's protocol, a long run: {n_suites} suites x {EPISODES_PER_SUITE} "
+                      f"episodes = {total:,} episodes, hours on a CPU machine; try --suites RSB-Math-4 -n 20 first.")
     p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
-                   help=f"episodes per suite (default {EPISODES_PER_SUITE}); "
-                        "the first n are a prefix of any longer run")
+                   help=f"episodes per suite (default {EPISODES_PER_SUITE}: {total:,} episodes on the default "
+                        "suites, hours on a CPU machine; each more --instruction mode or --sweep level runs them "
+                        "again); the first n are a prefix of any longer run")
     p.add_argument("--instruction", nargs="+", default=["normal"], choices=EVAL_INSTRUCTION_MODES,
                    help="instruction given to the policy: normal, blank or shuffled (another episode's); "
                         "counterfactual: K variants of each scene, the answer on another candidate each "
@@ -76,11 +83,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--sweep", nargs="+", default=[], metavar="AXIS",
                    help="run each axis at levels 0-3, one after the other (level 0, the unperturbed run, once for "
                         "all); resumable; the summary and report.html get a robustness table per suite")
-    p.add_argument("--name", default=None, help="row label in records and tables (default: the policy spec)")
+    p.add_argument("--name", default=None, action=NameAction,
+                   help="row label in records and tables, on one line (default: the policy spec)")
     p.add_argument("--checkpoint", default=None, metavar="ID",
                    help="your id of the weights evaluated (a hub revision, a run name): results.json carries it")
     p.add_argument("--out", default=None, help="results directory (default: results/<name>)")
-    p.add_argument("-o", "--obs-mode", default=None,
+    p.add_argument("-o", "--obs-mode", default=None, action=ObsModeAction,
                    help=f"observations (default: rgb; state for {', '.join(state_only)})")
     p.add_argument("-c", "--control-mode", default=None, help=f"controller (default: the robot's {CONTROL_MODE})")
     p.add_argument("-e", "--env-arg", action="append", default=[], metavar="KEY=VALUE",
@@ -359,16 +367,16 @@ def _run_eval(args: argparse.Namespace) -> int:
     label = unicodedata.normalize("NFC", args.name or args.policy)
     out = results_dir(args.out, label)
     max_steps = args.max_steps or TASK_MAX_EPISODE_STEPS
-    settings = dict(policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode,
-                    control_mode=args.control_mode, max_steps=max_steps, env_kwargs=env_kwargs,
-                    benchmark_version=BENCHMARK_VERSION, checkpoint=args.checkpoint,
-                    policy_factory=factory_path(args.policy))  # a resume checks its records came from this code
+    settings = run_settings(dict(  # (remote: without host, port, token: a resume on another port is the same run)
+        policy=args.policy, policy_kwargs=policy_kwargs, obs_mode=obs_mode, control_mode=args.control_mode,
+        max_steps=max_steps, env_kwargs=env_kwargs, benchmark_version=BENCHMARK_VERSION, checkpoint=args.checkpoint,
+        policy_factory=factory_path(args.policy)))  # a resume checks its records came from this code
     pool = check_question_pool(read_records(out / RECORDS_FILE), label, env_kwargs.get("data_dir"),
                                env_kwargs.get("color_map", "fixed"))
     if pool:  # a resume on other question data would pool two question pools in one summary
         raise EvalError(pool)
     start = RunStart(out)  # taken back if the run fails before its first episode
-    note = check_manifest(out, label, settings, keys=MANIFEST_KEYS)
+    note = check_manifest(out, label, settings, keys=MANIFEST_KEYS, read_row=run_settings)
     if note:
         print(f"rsb eval: note: {note}", file=sys.stderr)
 

@@ -9,13 +9,17 @@ hints, its obs modes, its robot's controllers) without building an env.
 """
 from __future__ import annotations
 
+import argparse
+import difflib
 import inspect
 import json
 import types
 import typing
+import unicodedata
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+from rsb_maniskill.compat import CAMERA_TEXTURES, OBS_MODES, obs_mode_supported
 from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, EVAL_SEED_BASE
 from rsb_maniskill.evaluation.store import folder_labels, folder_name
 from rsb_maniskill.outdirs import writable_dir
@@ -31,6 +35,10 @@ MANIFEST_KEYS = ("policy", "policy_kwargs", "obs_mode", "control_mode", "max_ste
                  "checkpoint")
 # Settings that change what a backbone row means: a resumed run must keep them.
 BACKBONE_KEYS = ("backbone", "backbone_kwargs", "images", "env_kwargs")
+# Arguments of the remote policy / backbone that say how to reach the model, not what it is: a run resumes
+# when its server comes back on another host or port, and the token is never written down.
+TRANSPORT_ARGS = ("host", "port", "token", "connect_timeout", "request_timeout", "max_message_mb")
+REMOTE = "remote"
 RESULTS_ROOT = Path("results")  # --out defaults to results/<name>
 # gym.make keywords that rsb eval sets from its own flags: an --env-arg would be ignored or fight them.
 EVAL_FLAG_KEYS: dict[str, str] = {
@@ -44,6 +52,17 @@ JSON_EXAMPLES = {int: "3", float: "0.5", bool: "true", str: "text", tuple: "[224
 
 class EvalError(RuntimeError):
     """Bad arguments or a results directory that does not fit this run."""
+
+
+def run_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """A row's settings as run.json keeps them and its settings id digests them: the remote model's
+    arguments without :data:`TRANSPORT_ARGS`. Also reads a row of an older run.json, which kept them
+    (its run resumes on another port)."""
+    out = dict(settings)
+    for spec, kwargs in (("policy", "policy_kwargs"), ("backbone", "backbone_kwargs")):
+        if out.get(spec) == REMOTE and isinstance(out.get(kwargs), Mapping):
+            out[kwargs] = {k: v for k, v in out[kwargs].items() if k not in TRANSPORT_ARGS}
+    return out
 
 
 def parse_kv(items: list[str], what: str) -> dict[str, Any]:
@@ -168,23 +187,66 @@ def _task_class(env_id: str) -> type:
 
 
 def _check_obs_mode(suite: str, obs_mode: str) -> None:
-    """ManiSkill's rule: one of the task's obs modes, or camera textures joined by '+'."""
+    """ManiSkill's rule on the task class's own obs modes (``-o`` was checked against ManiSkill's
+    when it was parsed: :class:`ObsModeAction`)."""
     if obs_mode in NO_RENDER_OBS_MODES:  # every ManiSkill task's: no need to load the simulator to say so
         return
-    from mani_skill.envs.utils.observations import ALL_VISUAL_TEXTURES, parse_obs_mode_to_struct
+    problem = obs_mode_problem(obs_mode, _task_class(suite).SUPPORTED_OBS_MODES)
+    if problem:
+        raise EvalError(f"-o {obs_mode}: {problem}")
 
-    supported = _task_class(suite).SUPPORTED_OBS_MODES
-    if obs_mode in supported:
-        return
-    if "any_textures" in supported:
-        try:
-            parse_obs_mode_to_struct(obs_mode)
-            return
-        except (AssertionError, ValueError, KeyError):
-            pass
+
+def obs_mode_problem(obs_mode: str, supported: Sequence[str] = OBS_MODES) -> str | None:
+    """Why ``obs_mode`` is no obs mode of an env supporting ``supported`` (None when it is one), with
+    the modes to use; a word near none of them is taken for the results folder -o once named."""
+    if obs_mode_supported(obs_mode, supported):
+        return None
     named = [m for m in supported if m != "any_textures"]
-    raise EvalError(f"-o {obs_mode}: not an obs mode; use one of {', '.join(named)}, or camera textures "
-                    f"({', '.join(ALL_VISUAL_TEXTURES)}) joined by '+', e.g. rgb or rgb+depth")
+    textures = f", or camera textures ({', '.join(CAMERA_TEXTURES)}) joined by '+'" if "any_textures" in supported \
+        else ""
+    words = [*named, *CAMERA_TEXTURES]
+    parts = obs_mode.split("+")
+    near = ["".join(difflib.get_close_matches(t, words, n=1)) if t not in words else t for t in parts]
+    then = ""
+    if obs_mode.strip() and ("/" in obs_mode or Path(obs_mode).exists() or near == [""]):
+        # "-o results/pi0": -o named the results folder before it named the obs mode
+        then = f"; -o is the obs mode: the results folder is --out {obs_mode}"
+    elif all(near):
+        then = f" (did you mean {'+'.join(near)}?)"
+    return f"not an obs mode; use one of {', '.join(named)}{textures}, e.g. rgb or rgb+depth{then}"
+
+
+class ObsModeAction(argparse.Action):
+    """``-o``, refused as it is parsed when ManiSkill has no such obs mode: in a second, before the
+    simulator loads (the task class's own modes are checked with the other settings)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        problem = obs_mode_problem(values)
+        if problem:
+            parser.error(f"{option_string} {values}: {problem}")
+        setattr(namespace, self.dest, values)
+
+
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a row label (None when it can): a control character (a newline, a tab)
+    or a line separator would break every table row it stands in."""
+    for i, ch in enumerate(name):
+        if unicodedata.category(ch) in ("Cc", "Zl", "Zp"):
+            return (f"holds a control character ({ch!r} at position {i}): it would break the rows of the tables; "
+                    "give a name on one line, without tabs")
+    return None
+
+
+class NameAction(argparse.Action):
+    """``--name``, refused as it is parsed when it cannot be a row label (:func:`name_problem`)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        problem = name_problem(values)
+        if problem:
+            parser.error(f"{option_string} {values!r}: {problem}")
+        setattr(namespace, self.dest, values)
 
 
 def _control_modes(robot: Any) -> list[str]:

@@ -30,7 +30,9 @@ def _add_format_args(p: argparse.ArgumentParser) -> None:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("export", help="export demonstrations to another format (LeRobot)")
+    p = subparsers.add_parser("export", help="export demonstrations to another format (LeRobot)",
+                              description="Writes demonstrations (rsb generate output) in another format: rsb "
+                                          "export lerobot DEMOS.h5 ... --out DIR for a LeRobot v3.0 dataset.")
     sub = p.add_subparsers(dest="export_format", metavar="FORMAT")
     lr = sub.add_parser("lerobot", help="a LeRobot dataset (format v3.0)",
                         description="Write demos (rsb generate output, merged or converted) as one LeRobot v3.0 "
@@ -45,7 +47,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     lr.set_defaults(func=cmd_lerobot)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
-    d = subparsers.add_parser("dataset", help="build the training sets as LeRobot datasets (expert + rendering)")
+    d = subparsers.add_parser("dataset", help="build the training sets as LeRobot datasets (expert + rendering)",
+                              description="The training sets as LeRobot datasets: rsb dataset build --out DIR runs "
+                                          "the scripted expert on every training question and renders its frames.")
     dsub = d.add_subparsers(dest="dataset_command", metavar="COMMAND")
     b = dsub.add_parser("build", help="expert demos of every training question, rendered, as one LeRobot dataset "
                                       "per suite",

@@ -34,14 +34,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.set_defaults(func=cmd_questions)
 
-    s = subparsers.add_parser("stats", help="print question pool sizes per suite and split")
+    s = subparsers.add_parser("stats", help="print question pool sizes per suite and split",
+                              description="Prints, for each suite, how many questions its train and test pools "
+                                          "hold on the question data at hand (GSM8K / MMLU-Pro for the suites "
+                                          "that read data).")
     add_suites_argument(s, default=("all",))
     s.add_argument("--data-dir", default=None)
     s.set_defaults(func=cmd_stats)
 
-    d = subparsers.add_parser("data", help="question data (GSM8K, MMLU-Pro)")
+    d = subparsers.add_parser("data", help="question data (GSM8K, MMLU-Pro)",
+                              description="The question data of the suites that read data (GSM8K, MMLU-Pro): "
+                                          "rsb data download fetches the pinned revisions once, for offline use.")
     dsub = d.add_subparsers(dest="data_command", metavar="ACTION")
-    dl = dsub.add_parser("download", help="fetch and cache the pinned hub data for offline use")
+    dl = dsub.add_parser("download", help="fetch and cache the pinned hub data for offline use",
+                         description="Fetches GSM8K and MMLU-Pro at the revisions this benchmark version pins into "
+                                     "the hub cache, so that later commands run offline (RSB_OFFLINE=1); with "
+                                     "--out, also writes them in their original formats (usable as RSB_DATA_DIR).")
     dl.add_argument("--out", dest="export", default=None, metavar="DIR",
                     help="also write the data in its original formats under DIR (usable as RSB_DATA_DIR)")
     add_old_spelling(dl, "--export", "--out")

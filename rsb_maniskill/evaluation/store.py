@@ -200,7 +200,8 @@ def iter_records(path: str | os.PathLike, check: Callable[[Mapping[str, Any]], N
         record = _parse_tail(raw)
         if record is None:
             if lineno == len(lines):
-                warnings.warn(f"{path}: skipping a truncated last line (interrupted run)", stacklevel=2)
+                warnings.warn(f"{path}: skipping its truncated last line (a run stopped mid-write; the next run "
+                              "into this folder cuts it off)", stacklevel=2)
                 return
             shown = raw[:SHOWN_CHARS].decode("utf-8", errors="replace") + ("..." if len(raw) > SHOWN_CHARS else "")
             raise RecordsError(f"{path}:{lineno}: not a JSON object record ({shown!r}): the file was edited or "
@@ -309,12 +310,13 @@ def settings_id(settings: Mapping[str, Any], keys: tuple[str, ...]) -> str:
 
 
 def _check_record_settings(out: Path, label: str, settings: Mapping[str, Any], keys: tuple[str, ...], section: str,
-                           records: list[dict]) -> None:
+                           records: list[dict], also: tuple[str, ...] = ()) -> None:
     """The settings id the records of ``label`` carry against these settings' (what a resume checks
-    when ``MANIFEST_FILE`` has no row for them, or one that was edited): ManifestError, one line."""
+    when ``MANIFEST_FILE`` has no row for them, or one that was edited): ManifestError, one line.
+    ``also``: other ids of the same settings (those an older version digested, its row's)."""
     if section == "runs":
         wanted = settings_id(settings, keys)
-        other = [r for r in records if r.get("policy") == label and r.get(SETTINGS_FIELD) not in (None, wanted)]
+        other = [r for r in records if r.get("policy") == label and r.get(SETTINGS_FIELD) not in (None, wanted, *also)]
         if other:
             raise ManifestError(f"{out / RECORDS_FILE} holds {len(other)} episodes of {label!r} run with other "
                                 f"settings than these ({', '.join(keys)}: settings id {other[0][SETTINGS_FIELD]} "
@@ -336,11 +338,14 @@ def _check_code(out: Path, label: str, old: Mapping[str, Any], settings: Mapping
 
 
 def check_manifest(out: Path, label: str, settings: Mapping[str, Any], *, keys: tuple[str, ...],
-                   section: str = "runs") -> str | None:
+                   section: str = "runs", read_row: Callable[[Mapping[str, Any]], Mapping[str, Any]] = dict
+                   ) -> str | None:
     """Record this row's settings in ``MANIFEST_FILE`` (under ``section``: ``runs`` for policies,
     ``backbones`` for ``rsb backbone``), or check that ``keys`` match those it was started with; the
     directory's records must be of this benchmark version (a table holds one). ManifestError, one
-    line, otherwise; RecordsError for a damaged records file.
+    line, otherwise; RecordsError for a damaged records file. ``read_row`` reads a row as ``settings``
+    are given (a row an older version wrote with more in it); a row that matches so is kept as it is,
+    and the records it made (their settings id, of the row as written) extend.
 
     A row started with other settings that recorded nothing (a run that failed before its first
     episode) locks nothing: its settings are replaced, and the returned note (one line) says so."""
@@ -353,13 +358,14 @@ def check_manifest(out: Path, label: str, settings: Mapping[str, Any], *, keys: 
         raise ManifestError(f"{out / RECORDS_FILE}: {err}. Use another --out for this version's run.") from None
     path = out / MANIFEST_FILE
     manifest = _load_manifest(path)
-    old = manifest.setdefault(section, {}).get(label)
+    written = manifest.setdefault(section, {}).get(label)
+    old = read_row(written) if written is not None else None
     note = None
     if old is not None:
         _check_code(out, label, old, settings, section, records)
         diff = [k for k in keys if old.get(k) != settings.get(k)]
         if not diff:
-            _check_record_settings(out, label, settings, keys, section, records)
+            _check_record_settings(out, label, settings, keys, section, records, also=(settings_id(written, keys),))
             return None
         shown = ", ".join(f"{k}: {old.get(k)!r} before, {settings.get(k)!r} now" for k in diff)
         if _has_records(out, section, label, records):

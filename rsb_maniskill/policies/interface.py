@@ -220,6 +220,22 @@ def policy_name(policy: Any) -> str:
     return str(name) if name else type(policy).__name__
 
 
+def _complex_dtype(actions: Any) -> str | None:
+    """The dtype of complex actions (a numpy or torch array, a list of complex numbers), else None."""
+    dtype = getattr(actions, "dtype", None)
+    if isinstance(dtype, np.dtype):
+        return str(dtype) if dtype.kind == "c" else None
+    if dtype is not None:  # a torch tensor's
+        return str(dtype) if getattr(dtype, "is_complex", False) else None
+    if isinstance(actions, (list, tuple)):
+        try:
+            found = np.asarray(actions)
+        except (TypeError, ValueError):
+            return None
+        return str(found.dtype) if np.iscomplexobj(found) else None
+    return None
+
+
 def as_chunk(actions: Any, action_dim: int | None = None, method: str = "act") -> np.ndarray:
     """Check and normalise a policy's output to a float (T, action_dim) array.
 
@@ -229,6 +245,9 @@ def as_chunk(actions: Any, action_dim: int | None = None, method: str = "act") -
     want = f"an array of shape (T, {action_dim or 'action_dim'}) with T >= 1"
     if actions is None:
         raise PolicyError(f"{method} returned None; return {want}")
+    kind = _complex_dtype(actions)
+    if kind is not None:  # numpy would drop the imaginary part with a ComplexWarning; the env cannot clamp it
+        raise PolicyError(f"{method} returned complex actions (dtype {kind}); return {want} of real numbers")
     if isinstance(actions, np.ndarray):
         a = actions
     else:

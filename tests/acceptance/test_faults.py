@@ -324,9 +324,15 @@ def _case_policy_timeout_negative(tmp: Path) -> tuple[list[str], str]:
         "--policy-timeout must be >= 0"
 
 
+def _case_complex_actions(tmp: Path) -> tuple[list[str], str]:  # was ManiSkill's ComplexWarning and "clamp ..."
+    return ["eval", "bad_policies:returns", "-a", "what=complex", *EVAL, "-n", "1", "--max-steps", "3", "--out",
+            str(tmp / "r")], "policy 'bad_policies:returns' on RSB-Math-4 seed 10000000 (normal instruction): act " \
+                             "returned complex actions (dtype complex128)"
+
+
 ODD_INPUT = [_case_audit_empty_specs, _case_audit_huge_n, _case_merge_twice, _case_merge_into_itself,
              _case_merge_a_copy, _case_perturb_twice, _case_gsm8k_garbage, _case_demo_zero, _case_demo_unwritable,
-             _case_policy_timeout_negative]
+             _case_policy_timeout_negative, _case_complex_actions]
 
 
 @pytest.mark.parametrize("case", ODD_INPUT, ids=[c.__name__[6:] for c in ODD_INPUT])
@@ -488,3 +494,15 @@ def test_leaderboard_lists_the_same_run_in_two_folders_once(tmp_path):
     tsr = md.split("### TSR")[1].split("###")[0]
     assert sum(line.startswith("| pi0") for line in tsr.splitlines()) == 1
     assert f"also in {tmp_path / 'copy'}" in md
+
+
+def test_a_truncated_last_record_is_one_warning_line(tmp_path):
+    """A run stopped mid-write leaves a torn last line: skipped with one line, not Python's UserWarning
+    with its file, line number and code."""
+    run = _report_run(tmp_path / "r", "p", 2)
+    with open(run / "episodes.jsonl", "a") as f:
+        f.write('{"policy": "p", "suite_id": "RSB-Ma')
+    res = rsb("report", str(run), timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stderr.splitlines() == [f"rsb report: warning: {run / 'episodes.jsonl'}: skipping its truncated last "
+                                       "line (a run stopped mid-write; the next run into this folder cuts it off)"]

@@ -170,7 +170,22 @@ def _case_questions_bad_split(tmp: Path) -> tuple[list[str], str]:
     return ["questions", SUITE, "--split", "bogus"], "unknown split 'bogus'"
 
 
-USAGE_CASES = [_case_name_300_chars, _case_out_300_chars, _case_generate_out_300_chars, _case_questions_bad_split]
+def _case_name_with_a_newline(tmp: Path) -> tuple[list[str], str]:  # it broke summary.md's table rows
+    return ["eval", "oracle", *EVAL, "-n", "1", "--name", "two\nlines", "--out", str(tmp / "r")], \
+        "--name 'two\\nlines': holds a control character ('\\n' at position 3)"
+
+
+def _case_o_a_folder(tmp: Path) -> tuple[list[str], str]:  # -o named the results folder before it named the obs mode
+    return ["eval", "oracle", "--suites", SUITE, "-n", "1", "-o", "myresults"], \
+        "-o is the obs mode: the results folder is --out myresults (see rsb eval --help)"
+
+
+def _case_unknown_flag(tmp: Path) -> tuple[list[str], str]:
+    return ["eval", "oracle", *EVAL, "--bogus"], "rsb eval: error: unrecognized arguments: --bogus (see rsb eval --help)"
+
+
+USAGE_CASES = [_case_name_300_chars, _case_out_300_chars, _case_generate_out_300_chars, _case_questions_bad_split,
+               _case_name_with_a_newline, _case_o_a_folder, _case_unknown_flag]
 
 
 @pytest.mark.parametrize("case", USAGE_CASES, ids=[c.__name__[6:] for c in USAGE_CASES])
@@ -199,10 +214,11 @@ PLUGIN_CASES = [  # (plugin module, phrase of its one line)
     ("import sys\nsys.exit(3)\n", "it called sys.exit(3) while importing"),
     ("from rsb_maniskill.policies.registry import register_policy\nregister_policy('oracle', 'os:getcwd')\n",
      "policy name 'oracle' is taken (by rsb_maniskill.policies.reference:oracle)"),
+    ("raise KeyboardInterrupt\n", "it raised KeyboardInterrupt while importing (no Ctrl-C was pressed)"),
 ]
 
 
-@pytest.mark.parametrize("body, phrase", PLUGIN_CASES, ids=["hangs", "sys.exit", "replaces-oracle"])
+@pytest.mark.parametrize("body, phrase", PLUGIN_CASES, ids=["hangs", "sys.exit", "replaces-oracle", "KeyboardInterrupt"])
 def test_a_plugin_that_hangs_exits_or_replaces_a_builtin_is_named_and_skipped(body, phrase, tmp_path):
     """Every command hung, exited 3 without a word, or ran an impostor as `oracle`: `rsb --version`
     needs no plugin; others name the plugin and how to go without it in one line, and run."""

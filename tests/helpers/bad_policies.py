@@ -12,6 +12,7 @@ OUTPUTS = {
     "none": (None, "act returned None"),
     "string": ("move the red block", "act returned str 'move the red block', not numbers"),
     "empty": (np.zeros((0, 14)), "act returned an empty chunk"),
+    "complex": (np.zeros((2, 14), dtype=complex), "act returned complex actions (dtype complex128)"),
 }
 
 

@@ -312,12 +312,9 @@ class PolicyServer:
             logger.warning("rsb serve: refused a request from %s: %s", _peer(ws), err)
             _send_error(ws, f"request refused: {err}", 1008)
         except BaseException as err:  # noqa: BLE001  (the policy's; in a handler thread even KeyboardInterrupt is)
-            if isinstance(err, ServedPolicyError):  # the batcher said it once for the call's rows
-                line = str(err)
-            else:
-                line = _one_line(err)
-                logger.error("rsb serve: the policy failed on a request from %s: %s", _peer(ws), line,
-                             exc_info=debug_enabled())  # the traceback in this log with rsb --debug only
+            line = _one_line(err)
+            logger.error("rsb serve: the policy failed on a request from %s: %s", _peer(ws), line,
+                         exc_info=debug_enabled())  # the traceback in this log with rsb --debug only
             _send_error(ws, f"policy error: {line}", 1011)
         finally:
             if self.batcher is not None:

@@ -248,7 +248,7 @@ def _shared_server(args: argparse.Namespace, stack: contextlib.ExitStack, num_pr
     if choice != "shared":
         return None
     return stack.enter_context(SharedServer(args.policy, policy_kwargs, start_timeout=args.policy_timeout or None,
-                                            request_timeout=args.policy_timeout or None))
+                                            policy_timeout=args.policy_timeout or None, quiet=args.quiet))
 
 
 def _say_episodes(records: list[dict], out: Path) -> None:

@@ -6,8 +6,10 @@
 
 The policy is built once; the requests of every connection are gathered for at most
 ``--max-wait-ms`` or ``--max-batch`` rows (envs) and answered by one ``act_batch`` over all their
-rows (``policies/remote/batching.py``; a single-env policy: one row at a time, said at start). The
-server is ``policies/remote/server.py``; ``rsb eval --policy-process shared`` starts one itself.
+rows (``policies/remote/batching.py``; a single-env policy: one row at a time, each env its own copy,
+said at start). A policy call longer than ``--policy-timeout`` fails its rows; Ctrl-C stops the server
+within a few seconds whatever the policy does. The server is ``policies/remote/server.py``;
+``rsb eval --policy-process shared`` starts one itself.
 """
 from __future__ import annotations
 
@@ -29,13 +31,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    import logging
+    """Exit status: 0 when stopped (Ctrl-C, SIGTERM), 2 for a wrong argument or policy, 1 when the
+    server cannot listen (a port taken). Library log lines only with ``rsb --debug``."""
+    from rsb_maniskill.policies.remote.server import ServeError, run_server
 
-    from rsb_maniskill.policies.remote.server import run_server
-
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
         return run_server(args)
     except (ValueError, TypeError, ImportError, AttributeError) as err:  # a spec or argument that is wrong
         print(f"rsb serve: error: {err}", file=sys.stderr)
         return 2
+    except ServeError as err:
+        print(f"rsb serve: error: {err}", file=sys.stderr)
+        return 1

@@ -50,10 +50,26 @@ class Policy(Protocol):
         """Action chunk of shape (T, action_dim), T >= 1, executed in order before the next call;
         or ``{"actions": chunk, "text": str}``."""
 
+    # Served to many envs (``rsb serve``, ``rsb eval --policy-process shared``), each env gets its own
+    # object made from the policy as built: ``fork()`` where the policy defines it (returning a new
+    # policy for another env that shares the weights and nothing that changes in an episode), else a
+    # deep copy whose torch modules are shared by reference. Define ``fork`` when that copy is wrong
+    # (weights outside a torch module, episode state inside one) or cannot be made (a lock, a socket).
+
 
 @runtime_checkable
 class BatchedPolicy(Protocol):
-    """The optional batched form: one object for B parallel envs (rows of batched observations)."""
+    """The optional batched form: one object for B parallel envs (rows of batched observations).
+
+    To be served to many clients in one batch (``rsb serve``, ``rsb eval --policy-process shared``) it
+    also needs ``reset_envs(instructions, obs, envs, seeds=None)``: start episodes in the envs
+    ``envs`` only (env ``envs[i]`` gets ``instructions[i]``, the first observation ``obs`` row i, and
+    ``seeds[i]`` when the method takes ``seeds``), the other envs going on with theirs. There an env
+    index is a slot of the server's table (one per env of every client, reused after a client leaves:
+    any whole numbers from 0, not only ``range(B)``), and ``act_batch`` gets rows of many clients. A
+    batched policy without ``reset_envs`` is served by its single-env form (``reset`` / ``act``), or
+    refused: a ``reset_batch`` over every env would restart the other clients' episodes.
+    """
 
     def reset_batch(self, instructions: Sequence[str], obs: dict) -> None:
         """Start B episodes: env i gets ``instructions[i]``; ``obs`` rows are the envs' first observations.

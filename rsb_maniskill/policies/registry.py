@@ -25,7 +25,8 @@ class PolicySpec:
     needs_env: bool = False
     single_env: bool = False  # reads the simulator of env 0: one env at a time, never parallel envs
     obs_mode: str = "rgb"  # the observations it reads by default
-    heavy: bool = False  # loads a model (a checkpoint, a GPU): `rsb eval --policy-process auto` serves it once
+    heavy: bool = False  # loads a model (a checkpoint): worth loading once for every worker where that pays
+    gpu: bool = False  # its model computes on a GPU where there is one: `--policy-process auto` then serves it once
 
 
 # The one table of built-in names. Privileged baselines are built with the env and drive one env;
@@ -45,7 +46,7 @@ _USER_SPEC = PolicySpec("")  # what a "package.module:factory" spec is: no env, 
 
 
 def register_policy(name: str, factory: str | Callable[..., Any], *, needs_env: bool = False,
-                    single_env: bool = False, obs_mode: str = "rgb", heavy: bool = False) -> None:
+                    single_env: bool = False, obs_mode: str = "rgb", heavy: bool = False, gpu: bool = False) -> None:
     """Make ``load_policy(name)`` use ``factory``; names hold no ':' so they never clash with specs.
 
     A name taken already is refused (ValueError): a plugin cannot replace ``oracle`` and have a
@@ -55,7 +56,7 @@ def register_policy(name: str, factory: str | Callable[..., Any], *, needs_env: 
     if name in POLICIES:
         raise ValueError(f"policy name {name!r} is taken (by {factory_path(name)}); register the policy under "
                          "another name")
-    POLICIES[name] = PolicySpec(factory, needs_env, single_env, obs_mode, heavy)
+    POLICIES[name] = PolicySpec(factory, needs_env, single_env, obs_mode, heavy, gpu)
 
 
 def is_heavy(spec: str) -> bool:
@@ -65,6 +66,15 @@ def is_heavy(spec: str) -> bool:
     if spec in POLICIES:
         return POLICIES[spec].heavy
     return bool(getattr(resolve_factory(spec), "heavy", False))
+
+
+def runs_on_gpu(spec: str) -> bool:
+    """Whether a policy declares that its model computes on a GPU where one is there (``gpu``, as
+    ``heavy``): one served model batches every worker's envs in a forward pass that costs about the
+    same for 1 and 32 rows there; on the CPU it costs more with each row, so a copy a worker is faster."""
+    if spec in POLICIES:
+        return POLICIES[spec].gpu
+    return bool(getattr(resolve_factory(spec), "gpu", False))
 
 
 def factory_path(spec: str) -> str:

@@ -63,7 +63,8 @@ def make_counted(log: str, fail_on: float | None = None, delay_s: float = 0.0) -
     return CountedPolicy(log, fail_on, delay_s)
 
 
-make_counted.heavy = True  # declares a model: `rsb eval --policy-process auto` shares it
+make_counted.heavy = True  # declares a model computed on a GPU: `--policy-process auto` shares it where CUDA is
+make_counted.gpu = True
 
 
 class CountedSingle:

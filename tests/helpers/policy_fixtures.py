@@ -19,8 +19,14 @@ class EnvIdPolicy:
         self.calls += 1
         return np.zeros((self.horizon, 14), dtype=np.float32)
 
+    def fork(self):  # served one env at a time: every env counts on this object (it keeps no episode state)
+        return self
+
     def reset_batch(self, instructions, obs):
         assert obs["agent"]["qpos"].shape[0] == len(instructions)
+        self.resets += 1
+
+    def reset_envs(self, instructions, obs, envs):  # served (rsb serve): the envs that start, only
         self.resets += 1
 
     def act_batch(self, obs, envs):

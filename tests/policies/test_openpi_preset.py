@@ -115,7 +115,7 @@ def test_bad_preset_arguments(tmp_path, capsys):
 
 
 def test_server_side_maps_openpi_requests():
-    from rsb_maniskill.policies.remote.server import PolicyAdapter
+    from rsb_maniskill.policies.remote.server import PolicyServer
 
     class Seen:
         def reset(self, instruction, obs):
@@ -125,17 +125,23 @@ def test_server_side_maps_openpi_requests():
             self.obs = obs
             return np.tile(np.r_[obs["agent"]["qpos"][[0, 2, 4, 6, 8, 10, 1, 3, 5, 7, 9, 11]], -1, 1], (4, 1))
 
+        def fork(self):  # served: the env drives this object, so the test reads what it saw
+            return self
+
+    def served(request):
+        with PolicyServer(policy, host="127.0.0.1", port=0, preset=make_preset("openpi-aloha")) as server:
+            return server.respond(server.batcher.open(), request)
+
     policy, state = Seen(), np.r_[np.arange(6) / 10, 0.25, -np.arange(6) / 10, 1.0].astype(np.float32)
     img = np.zeros((3, 224, 224), np.uint8)
-    reply = PolicyAdapter(policy, preset=make_preset("openpi-aloha")).infer(
-        {"images": {"cam_high": img, "cam_left_wrist": img}, "state": state, "prompt": "go"})
+    reply = served({"images": {"cam_high": img, "cam_left_wrist": img}, "state": state, "prompt": "go"})
     assert policy.instruction == "go" and set(policy.obs["sensor_data"]) == {"head_camera", "left_wrist_camera"}
     assert policy.obs["sensor_data"]["head_camera"]["rgb"].shape == (224, 224, 3)
     np.testing.assert_allclose(aloha14_from_qpos(policy.obs["agent"]["qpos"]), state, atol=1e-6)
     # env actions [left 6, right 6, left grip -1, right grip 1] -> Aloha, grippers 0 (closed) and 1
     np.testing.assert_allclose(reply["actions"][0], np.r_[state[:6], 0, state[7:13], 1], atol=1e-6)
     with pytest.raises(ValueError, match="unknown cameras"):
-        PolicyAdapter(policy, preset=make_preset("openpi-aloha")).infer({"images": {"cam_low": img}, "state": state})
+        served({"images": {"cam_low": img}, "state": state})
 
 
 # ------------------------------------------------------------ against openpi's own packages

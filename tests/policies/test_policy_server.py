@@ -19,7 +19,7 @@ pytest.importorskip("msgpack")
 
 from counted_policies import HORIZON, CountedPolicy, CountedSingle, _action  # noqa: E402
 
-from rsb_maniskill.policies.remote.batching import Batcher, Request, row_copy  # noqa: E402
+from rsb_maniskill.policies.remote.batching import Batcher, Request, row_policy  # noqa: E402
 from rsb_maniskill.policies.remote.client import RemotePolicy  # noqa: E402
 from rsb_maniskill.policies.remote.server import READY, PolicyServer  # noqa: E402
 
@@ -88,18 +88,49 @@ def test_max_batch_splits_and_episode_starts_reset_only_their_rows(tmp_path):
     batcher.stop()
 
 
-def test_a_row_that_raises_fails_its_request_only(tmp_path):
+def test_a_failing_batch_fails_its_rows_once_and_they_start_anew(tmp_path):
+    """One act_batch raised: every request of that call fails, in one line, and the call is not made
+    again over rows that may have advanced; those rows start a new episode on their next request."""
     poison = _obs(1, 40)
     policy = CountedPolicy(str(tmp_path / "loads"), fail_on=float(poison.sum()))
-    batcher = Batcher(policy, max_batch=64, max_wait_ms=WAIT_FOREVER_MS)
+    calls = []
+    act_batch = policy.act_batch
+    policy.act_batch = lambda obs, envs: (calls.append(list(envs)), act_batch(obs, envs))[1]
+    lines: list[str] = []
+    batcher = Batcher(policy, max_batch=64, max_wait_ms=WAIT_FOREVER_MS, log=lines.append)
     conns = [batcher.open() for _ in range(3)]
     obs = [_obs(2, 0), np.concatenate([_obs(1, 7), poison]), _obs(1, 80)]
     out = _submit_all(batcher, [Request(c, list(range(len(o))), ["p"] * len(o), True, o) for c, o in zip(conns, obs)])
+    assert all(isinstance(o, RuntimeError) and "poison" in str(o) for o in out), out
+    assert len(calls) == 1  # never re-run over the rows
+    assert len(lines) == 1 and "5 rows (3 requests) fail" in lines[0] and "poison" in lines[0], lines
+    policy.row_resets.clear()
+    batcher.close(conns[1])
+    batcher.close(conns[2])
+    chunks, _ = _submit_all(batcher, [Request(conns[0], [0, 1], ["p", "p"], False, _obs(2, 1))])[0]
+    assert [c.tolist() for c in chunks] == [_action(r).tolist() for r in _obs(2, 1)]
+    assert len(policy.row_resets) == 1 and len(policy.row_resets[0]) == 2  # no start marked: reset anyway
     batcher.stop()
-    assert isinstance(out[1], RuntimeError) and "poison" in str(out[1])
-    for i in (0, 2):
-        chunks, _ = out[i]
-        assert [c.tolist() for c in chunks] == [_action(r).tolist() for r in obs[i]]
+
+
+def test_a_single_env_row_that_raises_fails_its_request_only(tmp_path):
+    """Rows of a single-env policy are objects of their own: one that raises fails its request, the
+    other requests of that batch get their actions."""
+    class Fussy(CountedSingle):
+        def act(self, obs):
+            if float(np.asarray(obs).sum()) < 0:
+                raise ValueError("negative observation")
+            return super().act(obs)
+
+    lines: list[str] = []
+    batcher = Batcher(Fussy(str(tmp_path / "loads")), max_batch=64, max_wait_ms=WAIT_FOREVER_MS, log=lines.append)
+    conns = [batcher.open() for _ in range(3)]
+    obs = [_obs(1, 0), -_obs(1, 5), _obs(1, 9)]
+    out = _submit_all(batcher, [Request(c, [0], ["p"], True, o) for c, o in zip(conns, obs)])
+    batcher.stop()
+    assert isinstance(out[1], RuntimeError) and "negative observation" in str(out[1])
+    assert [out[i][0][0].tolist() for i in (0, 2)] == [(_action(obs[i][0]) + 0.001).tolist() for i in (0, 2)]
+    assert len(lines) == 1 and "ValueError: negative observation" in lines[0]
 
 
 def test_single_env_policy_one_row_at_a_time_each_row_its_own_state(tmp_path):
@@ -121,22 +152,71 @@ def test_single_env_policy_one_row_at_a_time_each_row_its_own_state(tmp_path):
     batcher.stop()
     for k in range(2):
         assert [g.tolist() for g in got[k]] == [a.tolist() for a in alone(seqs[k])]
-    assert "one row at a time" in batcher.describe()
+    assert "one env at a time" in batcher.describe()
     assert (tmp_path / "loads").read_text().count("\n") == 1  # the copies load nothing
 
 
-def test_row_copy_shares_the_model_and_copies_the_episode_state():
+def test_a_row_shares_the_weights_and_nothing_mutable():
+    """A row of a single-env policy: its torch modules are the template's, its RNG, history, scheduler
+    and wrapped inner policy its own (drawing from one row's generator leaves the other's alone)."""
     import torch
 
-    class P:
+    class Inner:
         def __init__(self):
             self.net = torch.nn.Linear(2, 2)
+            self.gen = torch.Generator().manual_seed(1)
             self.history = [1.0]
-            self.gen = torch.Generator()
+            self.steps = {"t": torch.zeros(3)}
 
-    p = P()
-    q = row_copy(p)
-    assert q.net is p.net and q.gen is p.gen and q.history == p.history and q.history is not p.history
+    class Wrapper:
+        def __init__(self):
+            self.inner = Inner()
+            self.encode = self.inner.net.forward  # a bound method of a module: the module stays shared
+
+    p = Wrapper()
+    q = row_policy(p)
+    assert q.inner is not p.inner and q.inner.net is p.inner.net and q.encode.__self__ is p.inner.net
+    assert q.inner.gen is not p.inner.gen and q.inner.history == [1.0] and q.inner.history is not p.inner.history
+    assert q.inner.steps["t"] is not p.inner.steps["t"]
+    first = torch.randn(2, generator=q.inner.gen)
+    assert torch.equal(torch.randn(2, generator=p.inner.gen), first)  # the template's own draw is untouched
+
+    class Forked(Wrapper):
+        def fork(self):
+            return "forked"
+
+    assert row_policy(Forked()) == "forked"  # the policy's own way to make a row
+
+
+def test_a_batched_policy_without_reset_envs_is_served_by_its_single_form_or_refused(tmp_path):
+    class NoRowResets(CountedPolicy):
+        reset_envs = None
+
+    class BatchedOnly:
+        def reset_batch(self, instructions, obs):
+            pass
+
+        def act_batch(self, obs, envs):
+            return np.zeros((len(envs), 1, 14))
+
+    batcher = Batcher(NoRowResets(str(tmp_path / "loads")))
+    assert not batcher.batched and "one env at a time" in batcher.describe()
+    batcher.stop()
+    with pytest.raises(ValueError, match="no reset_envs"):
+        Batcher(BatchedOnly())
+
+
+def test_max_batch_1_never_forms_two_row_calls(tmp_path):
+    """A request of more rows than max_batch is answered in parts of max_batch rows, one call each."""
+    policy = CountedPolicy(str(tmp_path / "loads"))
+    batcher = Batcher(policy, max_batch=1, max_wait_ms=WAIT_FOREVER_MS)
+    conns = [batcher.open() for _ in range(2)]
+    obs = [_obs(3, 0), _obs(2, 30)]
+    out = _submit_all(batcher, [Request(c, list(range(len(o))), ["p"] * len(o), True, o) for c, o in zip(conns, obs)])
+    batcher.stop()
+    assert batcher.sizes == {1: 5}
+    for o, (chunks, _) in zip(obs, out):
+        assert [c.tolist() for c in chunks] == [_action(r).tolist() for r in o]
 
 
 def test_client_that_leaves_mid_batch_does_not_stop_the_others(tmp_path):
@@ -159,10 +239,10 @@ def test_client_that_leaves_mid_batch_does_not_stop_the_others(tmp_path):
     assert sum(server.batcher.sizes.values()) >= 2
 
 
-def test_policy_error_reaches_only_its_client_over_the_wire(tmp_path):
+def test_policy_error_reaches_the_clients_of_its_call_and_the_server_goes_on(tmp_path):
     poison = _obs(1, 40)[0]
     policy = CountedPolicy(str(tmp_path / "loads"), fail_on=float(poison.sum()))
-    with PolicyServer(policy, host="127.0.0.1", port=0, max_wait_ms=WAIT_FOREVER_MS) as server:
+    with PolicyServer(policy, host="127.0.0.1", port=0, max_wait_ms=WAIT_FOREVER_MS, log=lambda line: None) as server:
         clients = [RemotePolicy("127.0.0.1", server.port, connect_timeout=10, request_timeout=10) for _ in range(2)]
         obs = [poison, _obs(1, 5)[0]]
         out: list = [None, None]
@@ -181,8 +261,10 @@ def test_policy_error_reaches_only_its_client_over_the_wire(tmp_path):
             t.join(timeout=30)
         for c in clients:
             c.close()
-    assert isinstance(out[0], RuntimeError) and "poison" in str(out[0])
-    assert np.array_equal(out[1], _action(obs[1]))
+        assert all(isinstance(o, RuntimeError) and "poison" in str(o) for o in out), out  # one call: both rows
+        with RemotePolicy("127.0.0.1", server.port, connect_timeout=10, request_timeout=10) as again:
+            again.reset("p", {})
+            assert np.array_equal(again.act(obs[1]), _action(obs[1]))
 
 
 def test_rsb_serve_batches_two_clients_and_stops_on_ctrl_c(tmp_path):
@@ -221,7 +303,14 @@ def test_rsb_serve_batches_two_clients_and_stops_on_ctrl_c(tmp_path):
 
 def test_episode_seeds_reach_the_served_resets(tmp_path):
     """The runner's seed= / seeds= travel with the episode start, so a seeded policy acts as in a worker."""
-    batched, single = CountedPolicy(str(tmp_path / "a")), CountedSingle(str(tmp_path / "b"))
+    class Single(CountedSingle):
+        seeds: list = []  # on the class: every row (a copy of the policy) adds to it
+
+        def reset(self, instruction, obs, seed=None):
+            super().reset(instruction, obs, seed)
+            self.seeds.append(seed)
+
+    batched, single = CountedPolicy(str(tmp_path / "a")), Single(str(tmp_path / "b"))
     with PolicyServer(batched, host="127.0.0.1", port=0) as s1, PolicyServer(single, host="127.0.0.1", port=0) as s2:
         with RemotePolicy("127.0.0.1", s1.port, mark_episode_start=True, connect_timeout=10) as client:
             client.reset_batch(["a", "b", "c"], {}, seeds=[30, 31, 32])
@@ -229,7 +318,7 @@ def test_episode_seeds_reach_the_served_resets(tmp_path):
         with RemotePolicy("127.0.0.1", s2.port, mark_episode_start=True, connect_timeout=10) as client:
             client.reset("p", {}, seed=7)
             client.act(_obs(1, 0)[0])
-    assert batched.seeds == [30, 32] and single.seed == 7
+    assert batched.seeds == [30, 32] and Single.seeds == [7]
 
 
 def test_rsb_serve_refuses_a_policy_built_with_the_env():
@@ -238,14 +327,20 @@ def test_rsb_serve_refuses_a_policy_built_with_the_env():
     assert main(["serve", "oracle", "--host", "127.0.0.1", "--port", "0"]) == 2
 
 
-def test_auto_shares_heavy_policies_only():
+def test_auto_shares_only_a_gpu_model_on_a_gpu_machine():
     from rsb_maniskill.policies.remote.shared import choose
 
-    assert choose("auto", "counted_policies:make_counted", 4)[0] == "shared"
-    assert choose("auto", "counted_policies:make_counted", 1)[0] == "worker"
-    assert choose("auto", "oracle", 4)[0] == "worker"
-    assert choose("auto", "rsb_maniskill.baselines.diffusion_policy:make_policy", 4)[0] == "shared"
-    assert choose("auto", "policy_fixtures:EnvIdPolicy", 4)[0] == "worker"  # declares nothing
+    gpu_model = "counted_policies:make_counted"  # declares heavy and gpu
+    assert choose("auto", gpu_model, 4, cuda=True) == ("shared", f"{gpu_model}'s model runs on the GPU: loaded "
+                                                                   "once and batched for the 4 workers")
+    choice, why = choose("auto", gpu_model, 4, cuda=False)
+    assert choice == "worker" and "has none (CUDA)" in why and "benchmarks/results/policy_server.json" in why
+    assert choose("auto", gpu_model, 1, cuda=True)[0] == "worker"
+    assert choose("auto", "oracle", 4, cuda=True)[0] == "worker"
+    choice, why = choose("auto", "rsb_maniskill.baselines.diffusion_policy:make_policy", 4, cuda=True)
+    assert choice == "worker" and "runs on the CPU" in why  # its model computes on the CPU: a copy a worker
+    assert choose("auto", "policy_fixtures:EnvIdPolicy", 4, cuda=True)[0] == "worker"  # declares nothing
+    assert choose("shared", "rsb_maniskill.baselines.diffusion_policy:make_policy", 4)[0] == "shared"
     with pytest.raises(ValueError, match="built with each worker's env"):
         choose("shared", "random", 4)
     with pytest.raises(ValueError, match="ray"):

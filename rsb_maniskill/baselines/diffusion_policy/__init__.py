@@ -17,4 +17,4 @@ def make_policy(checkpoint: str, **kwargs):
     return _make(checkpoint, **kwargs)
 
 
-make_policy.heavy = True  # a loaded checkpoint: `rsb eval --policy-process auto` loads it once for every worker
+make_policy.heavy = True  # a loaded checkpoint; it computes on the CPU (no `gpu`), so `auto` keeps a copy a worker

@@ -7,9 +7,9 @@ form ``reset_batch``/``act_batch``), an openpi-style object (``infer(obs: dict) 
 
 An RSB policy is served by a :class:`~rsb_maniskill.policies.remote.batching.Batcher`: the
 requests of every connection are gathered for at most ``max_wait_ms`` or ``max_batch`` rows (envs)
-and answered by one ``act_batch`` over all their rows (a single-env policy: one row at a time);
-``batching=False`` is the server of before (one request at a time under one lock), kept as the
-benchmark's reference. ``infer`` and ``answer`` objects are served one request at a time.
+and answered by one ``act_batch`` over all their rows (a single-env policy: one row at a time,
+each row its own copy); a policy call past ``policy_timeout`` fails its rows. ``infer`` and
+``answer`` objects are served one request at a time.
 
 Run one from the shell: ``rsb serve pkg.mod:make_policy --port 8000`` (or
 ``python -m rsb_maniskill.policies.remote.server pkg.mod:make_policy --port 8000``).
@@ -17,23 +17,32 @@ Run one from the shell: ``rsb serve pkg.mod:make_policy --port 8000`` (or
 from __future__ import annotations
 
 import argparse
+import errno
 import hmac
 import http
 import ipaddress
 import logging
+import math
 import os
 import signal
 import sys
 import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from rsb_maniskill.debug import debug_enabled
-from rsb_maniskill.policies.interface import as_chunk, as_chunks, is_batched, split_output, split_outputs
+from rsb_maniskill.policies.interface import is_batched
 from rsb_maniskill.policies.registry import load_policy, policy_spec
-from rsb_maniskill.policies.remote.batching import DEFAULT_MAX_BATCH, DEFAULT_MAX_WAIT_MS, Batcher, Request
+from rsb_maniskill.policies.remote.batching import (
+    DEFAULT_MAX_BATCH,
+    DEFAULT_MAX_WAIT_MS,
+    MAX_WAIT_LIMIT_MS,
+    Batcher,
+    Request,
+    ServedPolicyError,
+)
 from rsb_maniskill.policies.remote.openpi import PRESETS, make_preset
 from rsb_maniskill.policies.remote.wire import (
     DEFAULT_MAX_MESSAGE_MB,
@@ -51,6 +60,9 @@ from rsb_maniskill.resolve import key_values
 logger = logging.getLogger(__name__)
 READY = "rsb serve: listening on"  # the line a parent process reads the port from (stdout)
 PARENT_POLL_S = 1.0  # --parent-pid: how often the server checks that its parent still lives
+POLICY_TIMEOUT_S = 300.0  # --policy-timeout's default: rsb eval's (a call longer than this is taken for a hang)
+MAX_BATCH_LIMIT = 65536  # rows a call: more is a typo
+STOP_CLOSE_S = 3.0  # how long a stopping server waits for its connections to close (Ctrl-C: out within 5 s)
 
 
 def _request_obs(request: dict, prefix: str) -> Any:
@@ -59,59 +71,6 @@ def _request_obs(request: dict, prefix: str) -> Any:
     if prefix in request:
         return request[prefix]
     return unflatten_obs(request, prefix)
-
-
-class PolicyAdapter:
-    """openpi ``infer`` on top of an RSB Policy.
-
-    The request's ``prompt`` is the instruction and the ``observation/...`` keys are un-flattened
-    into the nested obs. The policy is reset on a connection's first request, when the request
-    carries ``episode_start`` (``RemotePolicy(mark_episode_start=True)``), or when the prompt changes.
-    With a ``preset`` (``openpi.OpenpiAloha``) the request is in openpi's Aloha layout instead,
-    and so is the reply. A batched request (the prompt a list, see ``wire.py``) goes to the
-    policy's batched form (``reset_batch`` / ``act_batch``), reset on the same rule. A policy that
-    talks (returns ``{"actions": ..., "text": ...}``) gets its text sent as the reply's ``"text"``.
-    """
-
-    def __init__(self, policy: Any, prompt_key: str = "prompt", obs_prefix: str = "observation",
-                 preset: Any = None) -> None:
-        self.policy = policy
-        self.prompt_key = prompt_key
-        self.obs_prefix = obs_prefix
-        self.preset = preset
-        self._prompt: str | None = None
-
-    def infer(self, request: dict) -> dict:
-        request = dict(request)
-        prompt = request.pop(self.prompt_key, "")
-        prompt = prompt if isinstance(prompt, list) else str(prompt)
-        start = bool(request.pop("episode_start", False))
-        if isinstance(prompt, list):
-            if self.preset:
-                raise TypeError("the openpi-aloha preset takes one observation per request, not a batch")
-            return self._infer_batch(prompt, start, request)
-        obs = self.preset.obs_from_request(request) if self.preset else _request_obs(request, self.obs_prefix)
-        if start or prompt != self._prompt:
-            self.policy.reset(prompt, obs)
-            self._prompt = prompt
-        actions, text = split_output(self.policy.act(obs))
-        chunk = as_chunk(actions)
-        reply = {"actions": self.preset.aloha_actions(chunk) if self.preset else chunk}
-        return reply if text is None else {**reply, "text": text}
-
-    def _infer_batch(self, prompts: list, start: bool, request: dict) -> dict:
-        if not is_batched(self.policy):
-            raise TypeError(f"{type(self.policy).__name__} has no batched form (reset_batch / act_batch) for a "
-                            "batched request; serve a batched policy or use RemotePolicy(batch=False)")
-        envs = [int(e) for e in request.pop("env_ids", range(len(prompts)))]
-        obs = _request_obs(request, self.obs_prefix)
-        old = self._prompt if isinstance(self._prompt, list) else []
-        if start or any(e >= len(old) or old[e] != p for e, p in zip(envs, prompts)):
-            self.policy.reset_batch(prompts, obs)  # the first request of a wave holds every env
-            self._prompt = list(prompts)
-        actions, texts = split_outputs(self.policy.act_batch(obs, envs), len(envs))
-        reply = {"actions": np.stack(as_chunks(actions, len(envs)))}
-        return reply if all(t is None for t in texts) else {**reply, "text": texts}
 
 
 class BackboneAdapter:
@@ -200,9 +159,10 @@ class PolicyServer:
     """Serve ``policy`` over websocket; ``port=0`` picks a free port (read it from ``.port``).
 
     ``start()`` serves from a background thread (tests, notebooks); ``serve_forever()`` blocks.
-    An RSB policy's requests are batched across connections (``max_batch`` rows, ``max_wait_ms``;
-    ``batching=False``: one request at a time, the server of before); ``.batcher.sizes`` counts
-    the rows of each policy call.
+    An RSB policy's requests are batched across connections (``max_batch`` rows, ``max_wait_ms``; a
+    call past ``policy_timeout`` seconds fails its rows); ``.batcher.sizes`` counts the rows of each
+    policy call. ``log`` gets the batcher's lines (stderr by default). A policy that cannot be
+    served (a batched one without ``reset_envs``): ValueError, one line.
     """
 
     def __init__(
@@ -216,7 +176,8 @@ class PolicyServer:
         preset: Any = None,
         max_batch: int = DEFAULT_MAX_BATCH,
         max_wait_ms: float = DEFAULT_MAX_WAIT_MS,
-        batching: bool = True,
+        policy_timeout: float | None = None,
+        log: Callable[[str], None] | None = None,
         token: str | None = None,
         max_message_mb: float = DEFAULT_MAX_MESSAGE_MB,
     ) -> None:
@@ -233,8 +194,8 @@ class PolicyServer:
         self._thread: threading.Thread | None = None
         rsb_policy = is_batched(policy) or all(callable(getattr(policy, m, None)) for m in ("reset", "act"))
         openpi_style = preset is None and callable(getattr(policy, "infer", None))
-        self.batcher = Batcher(policy, max_batch, max_wait_ms) if batching and rsb_policy and not openpi_style \
-            else None
+        self.batcher = Batcher(policy, max_batch, max_wait_ms, log=log, policy_timeout=policy_timeout) \
+            if rsb_policy and not openpi_style else None
         self._server = serve(
             self._handle, host, port, compression=None, max_size=max_message_bytes(max_message_mb, "max_message_mb"),
             process_request=_gatekeeper(token)
@@ -251,10 +212,7 @@ class PolicyServer:
     def _infer_fn(self) -> Any:
         if self.preset is None and callable(getattr(self.policy, "infer", None)):
             return self.policy.infer
-        if callable(getattr(self.policy, "answer", None)) and not callable(getattr(self.policy, "act", None)):
-            return BackboneAdapter(self.policy, self.prompt_key).infer
-        # One adapter per connection: a new client starts a new episode.
-        return PolicyAdapter(self.policy, self.prompt_key, self.obs_prefix, self.preset).infer
+        return BackboneAdapter(self.policy, self.prompt_key).infer
 
     # ------------------------------------------------------------ batched serving
     def _request(self, conn: int, request: dict) -> tuple[Request, bool]:
@@ -276,7 +234,9 @@ class PolicyServer:
         rows.seeds = None if seed is None else [int(seed)]
         return rows, True
 
-    def _batched_reply(self, conn: int, request: dict) -> dict:
+    def respond(self, conn: int, request: dict) -> dict:
+        """The reply to one decoded request of connection ``conn`` (``self.batcher.open()``): its rows
+        answered with the other connections' (what a websocket connection is sent back)."""
         assert self.batcher is not None
         rows, single = self._request(conn, request)
         chunks, texts = self.batcher.submit(rows)
@@ -297,7 +257,7 @@ class PolicyServer:
                 request = read_request(ws.recv(), self.prompt_key)
                 t0 = time.monotonic()
                 if infer is None:
-                    reply = self._batched_reply(conn, request)
+                    reply = self.respond(conn, request)
                 else:
                     with self._lock:
                         reply = dict(infer(request))
@@ -312,9 +272,12 @@ class PolicyServer:
             logger.warning("rsb serve: refused a request from %s: %s", _peer(ws), err)
             _send_error(ws, f"request refused: {err}", 1008)
         except BaseException as err:  # noqa: BLE001  (the policy's; in a handler thread even KeyboardInterrupt is)
-            line = _one_line(err)
-            logger.error("rsb serve: the policy failed on a request from %s: %s", _peer(ws), line,
-                         exc_info=debug_enabled())  # the traceback in this log with rsb --debug only
+            if isinstance(err, ServedPolicyError):  # the batcher said it once for the call's rows
+                line = str(err)
+            else:
+                line = _one_line(err)
+                logger.error("rsb serve: the policy failed on a request from %s: %s", _peer(ws), line,
+                             exc_info=debug_enabled())  # the traceback in this log with rsb --debug only
             _send_error(ws, f"policy error: {line}", 1011)
         finally:
             if self.batcher is not None:
@@ -328,12 +291,17 @@ class PolicyServer:
         self._thread.start()
         return self
 
-    def shutdown(self) -> None:
-        self._server.shutdown()
-        if self._thread is not None:
-            self._thread.join(timeout=10)
+    def shutdown(self, timeout: float = 3.0) -> bool:
+        """Stop serving: what waits on the policy fails first (a hung call included), then the connections
+        close; False when they did not within ``timeout`` s (a client that does not answer the close)."""
         if self.batcher is not None:
             self.batcher.stop()
+        closing = threading.Thread(target=self._server.shutdown, name="rsb-policy-server-close", daemon=True)
+        closing.start()
+        closing.join(timeout)
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+        return not closing.is_alive()
 
     def __enter__(self) -> "PolicyServer":
         return self.start()
@@ -344,44 +312,81 @@ class PolicyServer:
 
 def serve_policy(policy: Any, host: str = "127.0.0.1", port: int = 8000, metadata: dict | None = None,
                  preset: Any = None, max_batch: int = DEFAULT_MAX_BATCH, max_wait_ms: float = DEFAULT_MAX_WAIT_MS,
-                 batching: bool = True, parent_pid: int | None = None, token: str | None = None,
-                 max_message_mb: float = DEFAULT_MAX_MESSAGE_MB) -> None:
+                 parent_pid: int | None = None, token: str | None = None,
+                 max_message_mb: float = DEFAULT_MAX_MESSAGE_MB, policy_timeout: float | None = None,
+                 quiet: bool = False) -> None:
     """Serve ``policy`` until interrupted (Ctrl-C, SIGTERM, or ``parent_pid`` gone); blocks. Says how it
-    serves once at start, prints the ready line (:data:`READY`) on stdout and the formed batch sizes at the end."""
-    server = PolicyServer(policy, host, port, metadata, preset=preset, max_batch=max_batch, max_wait_ms=max_wait_ms,
-                          batching=batching, token=token, max_message_mb=max_message_mb)
-    print(f"rsb serve: {server.describe()}", file=sys.stderr, flush=True)
-    logger.info("serving %s on ws://%s:%d", type(policy).__name__, host, server.port)
+    serves once at start, prints the ready line (:data:`READY`) on stdout and the formed batch sizes at the
+    end (``quiet``: only the ready line and errors). A stop takes at most a few seconds whatever the policy
+    does (a call that hangs is left to die with the process); a second Ctrl-C exits at once."""
+    try:
+        server = PolicyServer(policy, host, port, metadata, preset=preset, max_batch=max_batch,
+                              max_wait_ms=max_wait_ms, policy_timeout=policy_timeout, token=token,
+                              max_message_mb=max_message_mb)
+    except OSError as err:  # the port taken since the check before the policy loaded
+        raise ServeError(f"cannot listen on {host}:{port}: {err.strerror or err} (another server there? pick "
+                         "another --port; 0: a free one)") from None
+    if not quiet:
+        print(f"rsb serve: {server.describe()}", file=sys.stderr, flush=True)
     print(f"{READY} ws://{host}:{server.port}", flush=True)
-    print(_exposure(host, server.port, token), file=sys.stderr, flush=True)
+    if not quiet and not parent_pid:  # a run's own server (on loopback) is nobody else's business
+        print(_exposure(host, server.port, token), file=sys.stderr, flush=True)
+    main_thread = threading.current_thread() is threading.main_thread()
     if parent_pid:
-        threading.Thread(target=_watch_parent, args=(parent_pid, server), name="rsb-parent-watch",
+        threading.Thread(target=_watch_parent, args=(parent_pid, server, main_thread), name="rsb-parent-watch",
                          daemon=True).start()
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt) \
-        if threading.current_thread() is threading.main_thread() else None
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt) if main_thread else None
+    closed = True
     try:
         server.serve_forever()
     except KeyboardInterrupt:
         pass
     finally:
-        server.shutdown()
+        if main_thread:  # a second Ctrl-C while stopping: out at once
+            signal.signal(signal.SIGINT, _exit_now)
+            signal.signal(signal.SIGTERM, _exit_now)
+        closed = server.shutdown(timeout=STOP_CLOSE_S)
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-        if server.batcher is not None:
+        if server.batcher is not None and not quiet:
             print(f"rsb serve: batches formed: {server.batcher.summary()}", file=sys.stderr, flush=True)
+    if not closed and main_thread:  # connection threads still open would keep the process from exiting
+        print(f"rsb serve: connections still open after {STOP_CLOSE_S:g} s: stopped without them", file=sys.stderr,
+              flush=True)
+        sys.stdout.flush()
+        os._exit(0)
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
 
-def _watch_parent(pid: int, server: PolicyServer) -> None:
+def _exit_now(signum: int, frame: Any) -> None:
+    sys.stderr.flush()
+    os._exit(130)
+
+
+def _watch_parent(pid: int, server: PolicyServer, main_thread: bool) -> None:
     """Stop serving when the process that started this server is gone (a server never outlives its run)."""
+    import _thread
+
     while True:
         time.sleep(PARENT_POLL_S)
         if os.getppid() != pid:
-            server._server.shutdown()
+            if main_thread:
+                _thread.interrupt_main()  # the main thread stops it, as on Ctrl-C
+            else:
+                server.shutdown()
             return
+
+
+def quiet_logging() -> None:
+    """Library log lines (websockets' "server listening", "connection open", tracebacks of dropped
+    connections) are not the server's output: shown only with ``rsb --debug`` (``RSB_DEBUG=1``); the
+    server's own warnings and errors are one line each."""
+    debug = debug_enabled()
+    logging.basicConfig(level=logging.INFO if debug else logging.WARNING, format="%(message)s")
+    logging.getLogger("websockets").setLevel(logging.INFO if debug else logging.CRITICAL + 1)
 
 
 def add_serve_args(p: argparse.ArgumentParser) -> None:
@@ -403,19 +408,61 @@ def add_serve_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-wait-ms", type=float, default=DEFAULT_MAX_WAIT_MS, metavar="T",
                    help="how long a request waits for others to join its batch, unless every client is in "
                         f"(default {DEFAULT_MAX_WAIT_MS:g})")
-    p.add_argument("--serial", action="store_true",
-                   help="no batching: one request at a time (the server of before; a reference for benchmarks)")
+    p.add_argument("--policy-timeout", type=float, default=POLICY_TIMEOUT_S, metavar="SECONDS",
+                   help="a policy call longer than this is taken for a hang: its clients get an error and later "
+                        f"requests are refused until it returns (default {POLICY_TIMEOUT_S:g}, as rsb eval's; 0: "
+                        "no limit)")
     p.add_argument("--preset", choices=sorted(PRESETS), default=None,
                    help="requests and replies in this layout (openpi-aloha: openpi's Aloha keys, state and actions)")
     p.add_argument("--parent-pid", type=int, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--quiet", action="store_true", help=argparse.SUPPRESS)  # rsb eval -q's own server: errors only
+
+
+class ServeError(Exception):
+    """The server cannot start where it was asked to (a port taken): one line, exit status 1."""
+
+
+def check_serve_limits(max_batch: int, max_wait_ms: float, policy_timeout: float, port: int) -> None:
+    """ValueError (one line, a usage error) for values no server runs with: before anything loads."""
+    if not 1 <= max_batch <= MAX_BATCH_LIMIT:
+        raise ValueError(f"--max-batch must be a number of rows from 1 to {MAX_BATCH_LIMIT}, got {max_batch}")
+    if not 0 <= max_wait_ms <= MAX_WAIT_LIMIT_MS:  # NaN fails too
+        raise ValueError(f"--max-wait-ms must be from 0 to {MAX_WAIT_LIMIT_MS:g} ms, got {max_wait_ms:g}")
+    if not (0 <= policy_timeout and math.isfinite(policy_timeout)):
+        raise ValueError(f"--policy-timeout must be a finite number of seconds >= 0 (0: no limit), got "
+                         f"{policy_timeout:g}")
+    if not 0 <= port <= 65535:
+        raise ValueError(f"--port must be from 0 to 65535 (0: a free one), got {port}")
+
+
+def _check_port(host: str, port: int) -> None:
+    """ServeError when ``host:port`` cannot be listened on (taken, or not this machine's address), said
+    before a model loads for minutes; websockets' own bind still decides."""
+    if port == 0:
+        return
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as err:
+        raise ServeError(f"--host {host}: not an address of this machine ({err.strerror})") from None
+    family, kind, proto, _, address = infos[0]
+    with socket.socket(family, kind, proto) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server's own socket: TIME_WAIT is fine
+        try:
+            probe.bind(address)
+        except OSError as err:
+            if err.errno == errno.EADDRINUSE:
+                raise ServeError(f"port {port} on {host} is taken (another server there?): stop it, or pick "
+                                 "another --port (0: a free one, printed)") from None
+            raise ServeError(f"cannot listen on {host}:{port}: {err.strerror or err}") from None
 
 
 def run_server(args: argparse.Namespace) -> int:
-    """Build the policy of ``args`` once and serve it; usage errors raise ValueError (one line)."""
-    if args.max_batch < 1:
-        raise ValueError(f"--max-batch must be >= 1 rows, got {args.max_batch}")
-    if not args.max_wait_ms >= 0:
-        raise ValueError(f"--max-wait-ms must be >= 0, got {args.max_wait_ms}")
+    """Build the policy of ``args`` once and serve it; usage errors raise ValueError (one line), a port
+    that cannot be had :class:`ServeError` (one line, before the policy loads)."""
+    check_serve_limits(args.max_batch, args.max_wait_ms, args.policy_timeout, args.port)
+    quiet_logging()
     max_message_bytes(args.max_message_mb, "--max-message-mb")  # before the policy loads
     kwargs = key_values(args.policy_arg, "-a")
     from rsb_maniskill.plugins import load_plugins
@@ -424,6 +471,7 @@ def run_server(args: argparse.Namespace) -> int:
     if policy_spec(args.policy).needs_env:
         raise ValueError(f"policy {args.policy!r} is built with the env (it reads the simulator): it cannot be "
                          "served; run it with rsb eval")
+    _check_port(args.host, args.port)
     policy = load_policy(args.policy, check=False, **kwargs)
     has_act = all(callable(getattr(policy, m, None)) for m in ("reset", "act"))
     built = f"{args.policy} built a {type(policy).__name__}"
@@ -434,8 +482,8 @@ def run_server(args: argparse.Namespace) -> int:
         raise ValueError(f"{built}, which has neither infer() nor reset()/act() (nor reset_batch()/act_batch(), "
                          "nor answer())")
     serve_policy(policy, args.host, args.port, preset=make_preset(args.preset) if args.preset else None,
-                 max_batch=args.max_batch, max_wait_ms=args.max_wait_ms, batching=not args.serial,
-                 parent_pid=args.parent_pid, token=args.token or os.environ.get(TOKEN_ENV) or None,
+                 max_batch=args.max_batch, max_wait_ms=args.max_wait_ms, policy_timeout=args.policy_timeout or None,
+                 quiet=args.quiet, parent_pid=args.parent_pid, token=args.token or os.environ.get(TOKEN_ENV) or None,
                  max_message_mb=args.max_message_mb)
     return 0
 
@@ -446,11 +494,13 @@ def main(argv: list[str] | None = None) -> int:
                                             "batching the requests of every client (as `rsb serve`)")
     add_serve_args(p)
     args = p.parse_args(argv)
-    logging.basicConfig(level=logging.INFO)
     try:
         return run_server(args)
     except ValueError as err:
         p.error(str(err))
+    except ServeError as err:
+        print(f"rsb serve: error: {err}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:  # Ctrl-C while the policy loads
         return 130
 

@@ -3,8 +3,13 @@
 The policy is built once, in a server process of its own (``server.py``, batching); each worker
 builds the ``remote`` policy pointed at it over loopback instead of its own copy. The server stops
 with the run (and by itself if the run dies: ``--parent-pid``); a worker that dies only frees its
-rows. ``auto`` shares a policy that declares itself heavy (``registry.is_heavy``: a checkpoint or
-a GPU model) when there is more than one worker, and keeps the reference policies in the workers.
+rows. A policy call that outlasts the run's ``--policy-timeout`` fails in the server, as it would
+in a worker.
+
+``auto`` shares only where it pays: a policy that declares a model (``heavy``) computed on a GPU
+(``gpu``, ``registry.py``) on a machine with CUDA, with more than one worker. On the CPU a copy a
+worker is faster: a CPU forward pass grows with its rows and the batch's wait adds to every step
+(``benchmarks/policy_server.py``, recorded in ``benchmarks/results/policy_server.json``).
 """
 from __future__ import annotations
 
@@ -17,18 +22,29 @@ import threading
 from typing import Any, Callable, Mapping
 
 from rsb_maniskill.policies.errors import PolicyError
-from rsb_maniskill.policies.registry import is_heavy, policy_spec
+from rsb_maniskill.policies.registry import is_heavy, policy_spec, runs_on_gpu
 from rsb_maniskill.policies.remote.batching import DEFAULT_MAX_BATCH, DEFAULT_MAX_WAIT_MS
 
 POLICY_PROCESSES = ("auto", "shared", "worker")
 LOOPBACK = "127.0.0.1"
 STOP_WAIT_S = 10.0  # how long a stopped server may take to print its batch sizes before it is killed
 CHECK_WAIT_S = 2.0  # after workers failed: how long the server may take to be seen gone
+REPLY_GRACE_S = 5.0  # a worker waits this much past the policy timeout: the server's error line comes first
+MEASURED = "benchmarks/results/policy_server.json"  # where the CPU rule comes from
 
 
-def choose(mode: str, spec: str, num_procs: int, local: bool = True) -> tuple[str, str]:
+def cuda_available() -> bool:
+    """Whether this machine has a CUDA device torch can use (torch imported only when asked)."""
+    try:
+        import torch
+    except ImportError:  # pragma: no cover - torch is a dependency
+        return False
+    return bool(torch.cuda.is_available())
+
+
+def choose(mode: str, spec: str, num_procs: int, local: bool = True, cuda: bool | None = None) -> tuple[str, str]:
     """``(shared | worker, why)`` for ``--policy-process mode``; ValueError (one line) for a policy
-    ``shared`` cannot serve."""
+    ``shared`` cannot serve. ``cuda``: whether a GPU is there (None: asked of torch, when it matters)."""
     if mode not in POLICY_PROCESSES:
         raise ValueError(f"--policy-process must be one of {', '.join(POLICY_PROCESSES)}, got {mode!r}")
     if mode == "worker":
@@ -51,21 +67,33 @@ def choose(mode: str, spec: str, num_procs: int, local: bool = True) -> tuple[st
         return "worker", f"{spec} declares no model to share (heavy)"
     if num_procs <= 1:
         return "worker", "one worker: one copy either way"
-    return "shared", f"{spec} declares a model (heavy): loaded once for the {num_procs} workers"
+    if not runs_on_gpu(spec):
+        return "worker", (f"{spec}'s model runs on the CPU (it declares no gpu), where a copy a worker is faster than "
+                          f"one shared ({MEASURED}); --policy-process shared loads it once anyway")
+    if not (cuda_available() if cuda is None else cuda):
+        return "worker", (f"{spec}'s model runs on a GPU and this machine has none (CUDA): on the CPU a copy a worker "
+                          f"is faster ({MEASURED})")
+    return "shared", f"{spec}'s model runs on the GPU: loaded once and batched for the {num_procs} workers"
 
 
 class SharedServer:
     """A policy server process on a free loopback port; ``client_kwargs`` are the ``remote`` policy's
-    arguments that reach it. A context manager: stopped (SIGTERM, then killed) on exit."""
+    arguments that reach it. ``max_batch`` / ``max_wait_ms``: ``rsb serve``'s; ``policy_timeout``: the
+    run's (a call past it fails its rows); ``quiet``: the server prints errors only (``rsb eval -q``).
+    It inherits ``rsb --debug`` (``RSB_DEBUG``). A context manager: stopped (SIGTERM, then killed) on exit."""
 
     def __init__(self, spec: str, policy_kwargs: Mapping[str, Any], *, max_batch: int = DEFAULT_MAX_BATCH,
                  max_wait_ms: float = DEFAULT_MAX_WAIT_MS, start_timeout: float | None = None,
-                 request_timeout: float | None = None, log: Callable[[str], None] | None = None) -> None:
+                 policy_timeout: float | None = None, quiet: bool = False,
+                 log: Callable[[str], None] | None = None) -> None:
         self.spec = spec
-        self.request_timeout = request_timeout
+        self.policy_timeout = policy_timeout
         self.log = log or (lambda line: print(line, file=sys.stderr, flush=True))
         cmd = [sys.executable, "-m", "rsb_maniskill.policies.remote.server", spec, "--host", LOOPBACK, "--port", "0",
-               "--max-batch", str(max_batch), "--max-wait-ms", str(max_wait_ms), "--parent-pid", str(os.getpid())]
+               "--max-batch", str(max_batch), "--max-wait-ms", str(max_wait_ms), "--parent-pid", str(os.getpid()),
+               "--policy-timeout", str(policy_timeout or 0)]
+        if quiet:
+            cmd.append("--quiet")
         for key, value in policy_kwargs.items():
             cmd += ["-a", f"{key}={json.dumps(value)}"]
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))  # the specs this run resolves
@@ -100,9 +128,10 @@ class SharedServer:
             print(line, end="")  # the policy's own prints while it loads
 
     def client_kwargs(self) -> dict[str, Any]:
-        """The ``remote`` policy's arguments: this server, episode starts marked (rows reset on them)."""
+        """The ``remote`` policy's arguments: this server, episode starts marked (rows reset on them); a
+        reply waited for a little past the policy timeout, so that the server's error line comes first."""
         return {"host": LOOPBACK, "port": self.port, "mark_episode_start": True, "connect_timeout": 60.0,
-                "request_timeout": self.request_timeout}
+                "request_timeout": None if self.policy_timeout is None else self.policy_timeout + REPLY_GRACE_S}
 
     def dead(self) -> str | None:
         """None while serving; else one line saying it stopped."""

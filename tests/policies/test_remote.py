@@ -82,6 +82,9 @@ class EchoPolicy:
         self.calls += 1
         return np.full((T, D), self.calls, dtype=np.float32) + np.arange(T, dtype=np.float32)[:, None]
 
+    def fork(self):  # served: every env drives this one recorder (one client at a time here), so a test reads it
+        return self
+
 
 def _assert_same_tree(sent, got):
     assert set(sent) == set(got)
@@ -162,14 +165,13 @@ def test_no_server_fails_in_bounded_time():
         RemotePolicy("127.0.0.1", port, connect_timeout=1.0)
 
 
-def test_adapter_resets_on_prompt_change_and_flat_state_obs():
-    from rsb_maniskill.policies.remote.server import PolicyAdapter
-
+def test_server_resets_on_prompt_change_and_flat_state_obs():
     policy = EchoPolicy()
-    adapter = PolicyAdapter(policy)
-    for prompt in ("a", "a", "b", "b", "a"):
-        reply = adapter.infer(flatten_obs(sample_obs()) | {"prompt": prompt})
-        assert reply["actions"].shape == (T, D)
+    with PolicyServer(policy, host="127.0.0.1", port=0) as server:
+        conn = server.batcher.open()
+        for prompt in ("a", "a", "b", "b", "a"):
+            reply = server.respond(conn, flatten_obs(sample_obs()) | {"prompt": prompt})
+            assert reply["actions"].shape == (T, D)
     assert policy.resets == ["a", "b", "a"]
     state = np.arange(5, dtype=np.float32)  # obs_mode="state" gives one flat array
     assert np.array_equal(flatten_obs(state)["observation"], state)
@@ -217,14 +219,17 @@ def test_batch_false_sends_one_request_per_env():
 
 
 def test_batched_request_to_a_single_env_policy_is_served_one_row_at_a_time():
-    policy = EchoPolicy()
+    class OwnRows(EchoPolicy):
+        fork = None  # each env a deep copy of the policy as built
+
+    policy = OwnRows()
     with PolicyServer(policy, host="127.0.0.1", port=0) as server:
         with RemotePolicy("127.0.0.1", server.port, connect_timeout=10, request_timeout=10) as client:
             client.reset_batch(["a", "b"], {})
             chunks = client.act_batch({"agent": {"qpos": np.zeros((2, 14), np.float32)}}, [0, 1])
     assert [c.shape for c in chunks] == [(T, D), (T, D)]
-    # row 0 drives the object itself; row 1 a copy with its own episode state (its reset is its own)
-    assert policy.resets == ["a"] and policy.calls == 1 and policy.seen[0]["agent"]["qpos"].shape == (14,)
+    # each row a copy with its own episode state (its own call count: 1 each); the policy as built is never driven
+    assert [c[0, 0] for c in chunks] == [1, 1] and policy.resets == [] and policy.calls == 0
     assert server.batcher.sizes == {2: 1}  # both rows in one batch
 
 
@@ -244,7 +249,7 @@ def test_batched_requests_to_a_server_in_another_process(tmp_path):
     with open(log, "w") as err:
         proc = subprocess.Popen(["timeout", "60", sys.executable, "-m", "rsb_maniskill.policies.remote.server",
                                  "policy_fixtures:EnvIdPolicy", "--host", "127.0.0.1", "--port", "0"],
-                                stdout=subprocess.DEVNULL, stderr=err, env=env)
+                                stdout=err, stderr=err, env=env)  # the ready line (stdout) names the port
     try:
         deadline, port = time.monotonic() + 40, None
         while port is None and time.monotonic() < deadline and proc.poll() is None:

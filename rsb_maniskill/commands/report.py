@@ -113,9 +113,9 @@ def run_report(args: argparse.Namespace) -> int:
         return 2
     print(f"results: {results}\nreport: {path}")
     if not args.compare and not is_vla_eval_results(args.results_dir):
-        from rsb_maniskill.evaluation.provenance import check_records
+        from rsb_maniskill.reporting.results import run_provenance
 
-        print(check_records(records, runs=read_manifest(args.results_dir)).text())
+        print(run_provenance(records, args.results_dir).text())  # pinned kept where no data is at hand
     return 0
 
 

@@ -29,6 +29,7 @@ from typing import Any, Iterable, Mapping
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, DIGEST_FIELD, VERSION_FIELD, perturb_label
 
 PINNED, DIFFER, UNVERIFIED = "pinned", "differ", "unverified"  # a record's or a run's verdict
+NO_DATA = "no data"  # why an unverified record with this version's digest is: no question data at hand to check it
 # The evaluation split's question pools of the sources that read data, on the version's pinned
 # GSM8K / MMLU-Pro (semantic/data.py's revisions): :func:`pool_digest`. A source without a pin here
 # (a plugin's) is taken as its data makes it. tests/evaluation/test_episode_provenance.py checks
@@ -136,6 +137,13 @@ def _pinned_at_hand(suite_id: str, data_dir: str | None, env_data_dir: str | Non
 def record_verdict(record: Mapping[str, Any], data_dir: str | os.PathLike | None = None) -> str:
     """:data:`PINNED`, :data:`DIFFER` or :data:`UNVERIFIED` (no digest, another version's record, or
     no data at hand to check it on); ``data_dir``: the data the run was given (tried first)."""
+    verdict = _verdict(record, data_dir)
+    return UNVERIFIED if verdict == NO_DATA else verdict
+
+
+def _verdict(record: Mapping[str, Any], data_dir: str | os.PathLike | None = None) -> str:
+    """:func:`record_verdict`, with :data:`NO_DATA` where the record carries this version's digest and
+    no question data at hand can check it (its unverified for a reason a report names)."""
     from rsb_maniskill.semantic.errors import SemanticError
     from rsb_maniskill.version import BENCHMARK_VERSION
 
@@ -155,23 +163,42 @@ def record_verdict(record: Mapping[str, Any], data_dir: str | os.PathLike | None
         if pinned:
             return PINNED if same else DIFFER
         made_by_unpinned = made_by_unpinned or same
-    return DIFFER if made_by_unpinned else UNVERIFIED
+    return DIFFER if made_by_unpinned else NO_DATA
 
 
 @dataclass(frozen=True)
 class Provenance:
-    """Counts of records per verdict, and the suites holding a record that differs."""
+    """Counts of records per verdict, and the suites holding a record that differs; ``no_data``: how
+    many of the unverified carry this version's digest and found no question data to be checked on;
+    ``kept``: PINNED kept from an earlier check of the same records (:meth:`keep`)."""
 
     counts: Mapping[str, int] = field(default_factory=dict)
     differ_suites: tuple[str, ...] = ()
+    no_data: int = 0
+    kept: bool = False
 
     @property
     def verdict(self) -> str:
-        """:data:`DIFFER` if any record differs, else :data:`UNVERIFIED` if any is, else :data:`PINNED`."""
+        """:data:`DIFFER` if any record differs, else :data:`UNVERIFIED` if any is (unless an earlier
+        check's PINNED is kept), else :data:`PINNED`."""
+        if self.kept:
+            return PINNED
         for v in (DIFFER, UNVERIFIED):
             if self.counts.get(v):
                 return v
         return PINNED
+
+    @property
+    def unchecked(self) -> bool:
+        """Unverified only for want of question data: every unverified record carries this version's digest."""
+        return not self.counts.get(DIFFER) and 0 < self.counts.get(UNVERIFIED, 0) == self.no_data
+
+    def keep(self, earlier: str | None) -> "Provenance":
+        """This verdict, or :data:`PINNED` where an earlier check of the same records proved them the
+        version's (``earlier``: the verdict a results file gave them when they ran) and this one could
+        not check them for want of question data: a verdict proven once does not decay to unverified
+        because a report ran where the data is not."""
+        return dataclasses.replace(self, kept=True) if earlier == PINNED and self.unchecked else self
 
     def text(self, version: str | None = None) -> str:
         """One line: ``"episodes differ from RSB-MS 1.1 (RSB-HardMath-4: 3 of 3 episodes)"``."""
@@ -179,9 +206,16 @@ class Provenance:
 
         label = benchmark_label(version) if version else benchmark_label()
         n = sum(self.counts.values())
+        if self.kept:
+            return (f"episodes: {n} of {label}, pinned when they were checked before (results.json); not "
+                    f"re-checked: no data (no question data at hand; set RSB_DATA_DIR to re-check them)")
         if self.verdict == DIFFER:
             return (f"episodes differ from {label} ({', '.join(self.differ_suites)}: {self.counts[DIFFER]} of {n} "
                     "episodes are not the version's: other question data? check RSB_DATA_DIR and `rsb verify`)")
+        if self.unchecked:
+            return (f"episodes unverified: not checked, no data ({self.no_data} of {n} records carry digests of "
+                    f"{label}, and no question data is at hand to check them on; set RSB_DATA_DIR to the data "
+                    "they ran on)")
         if self.verdict == UNVERIFIED:
             return (f"episodes unverified ({self.counts[UNVERIFIED]} of {n} records: no episode digest of {label}, or "
                     "no question data at hand to check them on; set RSB_DATA_DIR to the data they ran on)")
@@ -201,10 +235,13 @@ def check_records(records: Iterable[Mapping[str, Any]], data_dir: str | os.PathL
     counts: Counter[str] = Counter()
     differ: set[str] = set()
     for r in records:
-        v = record_verdict(r, run_data_dir(runs, r.get("policy")) if runs else data_dir)
+        v = _verdict(r, run_data_dir(runs, r.get("policy")) if runs else data_dir)
         counts[v] += 1
         if v == DIFFER:
             differ.add(str(r.get("suite_id")))
     from rsb_maniskill.evaluation.metrics import suite_order
 
-    return Provenance(dict(counts), tuple(suite_order(differ)))
+    no_data = counts.pop(NO_DATA, 0)
+    if no_data:
+        counts[UNVERIFIED] += no_data
+    return Provenance(dict(counts), tuple(suite_order(differ)), no_data)

@@ -67,6 +67,7 @@ class Entry:
     short: bool = False  # a suite ran on fewer episodes than the protocol's
     off_seeds: bool = False  # a suite's episodes are not the protocol's seeds
     provenance: str = "unverified"  # its episodes: pinned / differ / unverified (evaluation/provenance.py)
+    unverified_why: str | None = None  # why unverified: NO_DATA, NO_DIGESTS or AS_FILED (:func:`unverified_notes`)
     differs: bool | None = None  # TSR differs significantly from the best row's (None: not tested, or the best)
     p_best: float | None = None  # the p-value of that test ("intervals": None, the intervals do or do not separate)
     test_best: str | None = None  # how it was tested: PAIRED or INTERVALS
@@ -416,8 +417,51 @@ def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, 
             label, row, run, average(views, over) if over else None,
             short=any(v["n"] < EPISODES_PER_SUITE for v in row["suites"].values()),
             off_seeds=any(not v["protocol_seeds"] or v["n"] > EPISODES_PER_SUITE for v in row["suites"].values()),
-            provenance=row.get("episodes", "unverified"), also=tuple(also.get(i, ()))))
+            provenance=row.get("episodes", "unverified"), also=tuple(also.get(i, ())),
+            unverified_why=unverified_why(run, row) if row.get("episodes", "unverified") == "unverified" else None))
     entries.sort(key=_sort_key)
     entries = mark_differences(entries, suites)
     entries.append(Entry(RANDOM, random_row(suites), None, random_average(suites, over) if over else None))
     return Leaderboard(version, protocol, suites, over, entries)
+
+# ---------------------------------------------------------------- why a row is unverified
+NO_DATA, NO_DIGESTS, AS_FILED = "no data", "no digests", "as filed"
+
+
+def unverified_why(run: Run, row: Mapping[str, Any]) -> str:
+    """Why ``row``'s episodes are unverified: :data:`NO_DATA` (its records carry this version's digests
+    and no question data is at hand to check them on), :data:`NO_DIGESTS` (records without them), or
+    :data:`AS_FILED` (a results.json read alone: checked, or not, where it was written)."""
+    from rsb_maniskill.evaluation.provenance import check_records
+    from rsb_maniskill.evaluation.records import perturb_label, row_label
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
+
+    folder = Path(run.source)
+    if not (folder / RECORDS_FILE).is_file():
+        return AS_FILED
+    records = [r for r in read_records(folder / RECORDS_FILE)
+               if row_label(str(r.get("policy", "?")), r.get("instruction_mode", "normal"), perturb_label(r))
+               == row["row"]]
+    return NO_DATA if check_records(records, runs=read_manifest(folder)).unchecked else NO_DIGESTS
+
+
+def unverified_notes(board: Leaderboard) -> list[str]:
+    """The notes naming the unverified rows, one for each reason they are."""
+    from rsb_maniskill.version import benchmark_label
+
+    label = benchmark_label(board.benchmark_version)
+    words = {
+        NO_DATA: "Episodes not checked: no question data at hand to check their digests on (set RSB_DATA_DIR to "
+                 "the data they ran on)",
+        NO_DIGESTS: f"Episodes unverified (records without episode digests of {label}: written before them, or by "
+                    "another version)",
+        AS_FILED: "Episodes unverified as their results.json says (written without the question data to check them "
+                  "on, or from records without digests; `rsb report` on the run's folder with its data checks them)",
+    }
+    out = []
+    for why, text in words.items():
+        rows = [e.label for e in board.entries if not e.random and e.provenance == "unverified"
+                and (e.unverified_why or AS_FILED) == why]
+        if rows:
+            out.append(f"{text}: {', '.join(rows)}.")
+    return out

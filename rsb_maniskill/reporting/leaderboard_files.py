@@ -19,7 +19,7 @@ from typing import Any, Mapping
 
 from rsb_maniskill.evaluation.metrics import num_choices
 from rsb_maniskill.reporting.cells import NA, ci, markdown_table, pct
-from rsb_maniskill.reporting.leaderboard import Entry, Leaderboard, protocol_text
+from rsb_maniskill.reporting.leaderboard import Entry, Leaderboard, protocol_text, unverified_notes
 
 PAGE_TEMPLATE = "leaderboard.html.j2"
 FILES = {"markdown": "leaderboard.md", "csv": "leaderboard.csv", "html": "index.html"}
@@ -123,10 +123,7 @@ def notes(board: Leaderboard) -> list[str]:
     if any(not e.random and e.provenance == "differ" for e in board.entries):
         out.append(f"{OTHER_EPISODES} episodes differ from {benchmark_label(board.benchmark_version)}: its records "
                    "asked other questions (other question data), not comparable with the others.")
-    unverified = [e.label for e in board.entries if not e.random and e.provenance == "unverified"]
-    if unverified:
-        out.append(f"Episodes unverified (records without episode digests, written before them): "
-                   f"{', '.join(unverified)}.")
+    out += unverified_notes(board)  # each reason the true one: no data at hand, no digests, as a file says
     out += difference_notes(board)
     out.append("Detectable TSR difference: the smallest difference from a row's TSR (pooled over its Avg suites) that "
                "a paired comparison on its episodes (the same seeds, McNemar's test at p < 0.05) finds 4 times in "

@@ -245,12 +245,13 @@ def default_title(policies: Sequence[str], shown: int = 3) -> str:
 
 def _version_line(records: Sequence[Mapping[str, Any]], results_dir: Path) -> str:
     """The page's benchmark line: the version, and the records' verdict where they are not its episodes."""
-    from rsb_maniskill.evaluation.provenance import PINNED, check_records
+    from rsb_maniskill.evaluation.provenance import PINNED
+    from rsb_maniskill.reporting.results import run_provenance
     from rsb_maniskill.version import benchmark_label
 
-    found = check_records(records, runs=read_manifest(results_dir))
+    found = run_provenance(records, results_dir)  # PINNED kept where no data is at hand to re-check
     version = benchmark_label(one_version(records) or "")
-    return version if found.verdict == PINNED else found.text()
+    return version if found.verdict == PINNED and not found.kept else found.text()
 
 
 def build_html(records: Sequence[Mapping[str, Any]], results_dir: Path, title: str | None = None) -> str:

@@ -15,10 +15,10 @@ import os
 from collections import defaultdict
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate, SuiteMetrics, average, num_choices, summarize
-from rsb_maniskill.evaluation.provenance import check_records
+from rsb_maniskill.evaluation.provenance import Provenance, check_records
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, one_version, perturb_label, row_label
 from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
 from rsb_maniskill.reporting.cells import NA, ci, delta, pct
@@ -42,37 +42,85 @@ def _suite(m: SuiteMetrics, seeds: set[int]) -> dict[str, Any]:
             "gsr": _rate(m.gsr), "tsr": _rate(m.tsr), "nsg": _rate(m.nsg)}
 
 
-def results_document(records: Iterable[Mapping[str, Any]], runs: Mapping[str, Mapping[str, Any]] | None = None
-                     ) -> dict[str, Any]:
-    """The results document of ``records`` (one benchmark version: VersionMixError otherwise);
-    ``runs`` is ``run.json``'s per-policy settings (checkpoint id, package version and commit of
-    the run), when the directory has one."""
-    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS, EVAL_SEED_BASE
-    from rsb_maniskill.version import BENCHMARK, version_fields
-
-    records = dedupe(records)
-    version = one_version(records)
+def _groups(records: Iterable[Mapping[str, Any]]) -> dict[tuple[str, str, str], list[Mapping[str, Any]]]:
+    """The records of each row (policy, instruction mode, perturbation); counterfactual ones are none's."""
     groups: dict[tuple[str, str, str], list[Mapping[str, Any]]] = defaultdict(list)
     for r in records:
         if r.get("instruction_mode") == COUNTERFACTUAL:  # a diagnosis, not a score: summary.json's counterfactual
             continue
         groups[(str(r.get("policy", "?")), r.get("instruction_mode", "normal"), perturb_label(r))].append(r)
+    return groups
+
+
+def _seeds_per_suite(recs: Iterable[Mapping[str, Any]]) -> dict[str, set[int]]:
+    seeds: dict[str, set[int]] = defaultdict(set)
+    for r in recs:
+        seeds[r["suite_id"]].add(int(r["seed"]))
+    return seeds
+
+
+def earlier_rows(results_dir: str | os.PathLike) -> dict[str, Mapping[str, Any]]:
+    """The rows of the ``results.json`` already in ``results_dir``, by label (none when it has none, or
+    one that cannot be read): what an earlier check found of its episodes."""
+    try:
+        doc = json.loads((Path(results_dir) / RESULTS_FILE).read_text(encoding="utf-8"))
+        return {str(row["row"]): row for row in doc["rows"] if isinstance(row, dict) and "row" in row}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
+
+
+def _earlier_verdict(earlier: Mapping[str, Any] | None, seeds: Mapping[str, set[int]]) -> str | None:
+    """The verdict an earlier results.json row gave the same episodes (its suites, each with as many of
+    the protocol's seeds or not, as ``seeds``), else None."""
+    from rsb_maniskill.evaluation.protocol import eval_seeds
+
+    if not earlier or not isinstance(earlier.get("suites"), dict):
+        return None
+    had = {s: (v.get("n"), v.get("protocol_seeds")) for s, v in earlier["suites"].items() if isinstance(v, dict)}
+    now = {s: (len(ss), ss == set(eval_seeds(s, len(ss)))) for s, ss in seeds.items()}
+    return earlier.get("episodes") if had == now else None
+
+
+def run_provenance(records: Sequence[Mapping[str, Any]], results_dir: str | os.PathLike) -> Provenance:
+    """Whether a results directory's records are the version's episodes (``provenance.check_records``
+    on the data each run was given), keeping the PINNED its results.json gave every row of the same
+    episodes when this check finds no question data to be made on (``Provenance.keep``)."""
+    found = check_records(records, runs=read_manifest(results_dir))
+    if not found.unchecked or any(r.get("instruction_mode") == COUNTERFACTUAL for r in records):
+        return found  # (counterfactual episodes have no row there: nothing proved them)
+    earlier = earlier_rows(results_dir)
+    verdicts = {_earlier_verdict(earlier.get(row_label(*key)), _seeds_per_suite(recs))
+                for key, recs in _groups(records).items()}
+    return found.keep(verdicts.pop() if len(verdicts) == 1 else None)
+
+
+def results_document(records: Iterable[Mapping[str, Any]], runs: Mapping[str, Mapping[str, Any]] | None = None,
+                     earlier: Mapping[str, Mapping[str, Any]] | None = None) -> dict[str, Any]:
+    """The results document of ``records`` (one benchmark version: VersionMixError otherwise);
+    ``runs`` is ``run.json``'s per-policy settings (checkpoint id, package version and commit of
+    the run), when the directory has one; ``earlier`` the rows of the results.json it replaces (a row
+    of the same episodes keeps the PINNED proven there where no question data is at hand now)."""
+    from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE, EVAL_ENV_KWARGS, EVAL_SEED_BASE
+    from rsb_maniskill.version import BENCHMARK, version_fields
+
+    records = dedupe(records)
+    version = one_version(records)
     rows = []
-    for (policy, mode, perturb), recs in groups.items():
+    for (policy, mode, perturb), recs in _groups(records).items():
         metrics = summarize(recs)
-        seeds: dict[str, set[int]] = defaultdict(set)
-        for r in recs:
-            seeds[r["suite_id"]].add(int(r["seed"]))
+        seeds = _seeds_per_suite(recs)
         suites = {s: _suite(m, seeds[s]) for s, m in metrics.items()}
         avg = average(metrics)
         run = (runs or {}).get(policy, {})
+        label = row_label(policy, mode, perturb)
+        found = check_records(recs, runs=runs).keep(_earlier_verdict((earlier or {}).get(label), seeds))
         rows.append({
-            "row": row_label(policy, mode, perturb), "policy": policy, "instruction_mode": mode, "perturb": perturb,
+            "row": label, "policy": policy, "instruction_mode": mode, "perturb": perturb,
             "checkpoint": run.get("checkpoint"), "rsb_maniskill_version": run.get("rsb_version"),
             "code_commit": run.get("code_commit"), "suites": suites,
             "average": {"suites": list(avg.present), "complete": avg.complete, "gsr": avg.gsr, "tsr": avg.tsr,
                         "nsg": avg.nsg},
-            "episodes": check_records(recs, runs=runs).verdict,  # pinned / differ / unverified (provenance.py)
+            "episodes": found.verdict,  # pinned / differ / unverified (provenance.py)
             "full_protocol": all(s in suites and suites[s]["n"] == EPISODES_PER_SUITE and suites[s]["protocol_seeds"]
                                  for s in PAPER_SUITES),
         })
@@ -92,7 +140,7 @@ def write_results(results_dir: str | os.PathLike, records: Iterable[Mapping[str,
     """Write ``results_dir/results.json`` for ``records`` (whole: a reader never sees half of it)."""
     path = Path(results_dir) / RESULTS_FILE
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    text = json.dumps(results_document(records, read_manifest(results_dir)), indent=1) + "\n"
+    text = json.dumps(results_document(records, read_manifest(results_dir), earlier_rows(results_dir)), indent=1) + "\n"
     try:
         tmp.write_text(text)
         os.replace(tmp, path)
@@ -107,7 +155,7 @@ def load_results(results_dir: str | os.PathLike) -> dict[str, Any]:
     current), else read from its ``results.json`` (a file shared alone)."""
     d = Path(results_dir)
     if (d / RECORDS_FILE).exists():
-        return results_document(read_records(d / RECORDS_FILE), read_manifest(d))
+        return results_document(read_records(d / RECORDS_FILE), read_manifest(d), earlier_rows(d))
     if (d / RESULTS_FILE).exists():
         return json.loads((d / RESULTS_FILE).read_text())
     raise FileNotFoundError(f"{d} holds neither {RECORDS_FILE} nor {RESULTS_FILE}: give an `rsb eval` --out directory")

@@ -20,7 +20,7 @@ from rsb_maniskill.evaluation.store import RECORDS_FILE, folder_name, read_recor
 from rsb_maniskill.outdirs import naming
 from rsb_maniskill.reporting import sections
 from rsb_maniskill.reporting.leaderboard_files import write_text
-from rsb_maniskill.reporting.results import write_results
+from rsb_maniskill.reporting.results import run_provenance, write_results
 from rsb_maniskill.reporting.summary import Results, plot_summary, write_csv, write_json, write_markdown
 
 REPORT_FILE = "report.html"
@@ -103,14 +103,15 @@ def mark_partial(paths: Mapping[str, Path], partial: str) -> None:
 
 def mark_episodes(paths: Mapping[str, Path], records: Sequence[Mapping[str, Any]], out: Path) -> None:
     """The records' verdict (``evaluation/provenance.py``) as results.json and the page give it: the
-    JSON's ``episodes``; a run whose episodes are not the version's says so on the Markdown's first line."""
-    from rsb_maniskill.evaluation.provenance import PINNED, check_records
-    from rsb_maniskill.evaluation.store import read_manifest
+    JSON's ``episodes``; a run whose episodes are not the version's, or were not re-checked (no
+    question data at hand, the version's as the results.json in ``out`` proved), says so on the
+    Markdown's first line."""
+    from rsb_maniskill.evaluation.provenance import PINNED
 
-    found = check_records(records, runs=read_manifest(out))
+    found = run_provenance(records, out)  # (before write_results replaces the results.json it reads)
     summary = json.loads(paths["json"].read_text(encoding="utf-8"))
     paths["json"].write_text(json.dumps({"episodes": found.verdict, **summary}, indent=2) + "\n", encoding="utf-8")
-    if found.verdict != PINNED:
+    if found.verdict != PINNED or found.kept:
         paths["markdown"].write_text(f"**{found.text()}**\n\n" + paths["markdown"].read_text(encoding="utf-8"),
                                      encoding="utf-8")
 

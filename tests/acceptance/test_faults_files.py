@@ -181,7 +181,8 @@ def _case_o_a_folder(tmp: Path) -> tuple[list[str], str]:  # -o named the result
 
 
 def _case_unknown_flag(tmp: Path) -> tuple[list[str], str]:
-    return ["eval", "oracle", *EVAL, "--bogus"], "rsb eval: error: unrecognized arguments: --bogus (see rsb eval --help)"
+    return ["eval", "oracle", *EVAL, "--bogus"], \
+        "rsb eval: error: unrecognized arguments: --bogus (see rsb eval --help)"
 
 
 USAGE_CASES = [_case_name_300_chars, _case_out_300_chars, _case_generate_out_300_chars, _case_questions_bad_split,
@@ -218,7 +219,8 @@ PLUGIN_CASES = [  # (plugin module, phrase of its one line)
 ]
 
 
-@pytest.mark.parametrize("body, phrase", PLUGIN_CASES, ids=["hangs", "sys.exit", "replaces-oracle", "KeyboardInterrupt"])
+@pytest.mark.parametrize("body, phrase", PLUGIN_CASES,
+                         ids=["hangs", "sys.exit", "replaces-oracle", "KeyboardInterrupt"])
 def test_a_plugin_that_hangs_exits_or_replaces_a_builtin_is_named_and_skipped(body, phrase, tmp_path):
     """Every command hung, exited 3 without a word, or ran an impostor as `oracle`: `rsb --version`
     needs no plugin; others name the plugin and how to go without it in one line, and run."""

@@ -19,7 +19,8 @@ from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
 REPO = Path(__file__).resolve().parents[2]
 
 
-def commands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], argparse.ArgumentParser]]:
+def commands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
+             ) -> list[tuple[tuple[str, ...], argparse.ArgumentParser]]:
     """Every command and sub-command of ``parser``, by its words (``("data", "download")``)."""
     found = []
     for action in parser._actions:

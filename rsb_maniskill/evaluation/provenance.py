@@ -15,6 +15,11 @@ data at hand is compared with its pinned digest (:data:`PINNED_POOLS`) first; th
 the run's own (``--data-dir``, from run.json), then ``$RSB_DATA_DIR`` / the hub cache. A record is
 *pinned* where pinned data makes its episode, *differs* where pinned data makes another or where
 only unpinned data makes it, *unverified* where no data at hand can tell.
+
+A verdict proven once does not decay: where no question data is at hand to check records that carry
+this version's digests (``rsb report`` on a laptop, ``RSB_OFFLINE=1``), :meth:`Provenance.keep` keeps
+the *pinned* an earlier check gave the same records (the results.json written when they ran,
+``reporting/results.py``), and the line says "not re-checked: no data".
 """
 from __future__ import annotations
 

@@ -70,9 +70,9 @@ def main() -> int:
         rows.append(["`rsb verify` (every suite's pinned episodes)", f"{figures['verify_s']:.0f}"])
         figures["doctor_s"], figures["doctor_exit"] = timed([rsb, "doctor"], cwd, env)
         rows.append(["`rsb doctor`", f"{figures['doctor_s']:.0f}"])
-    figures = {k: round(v, 1) for k, v in figures.items()}
-    write("first_hour", {**figures, "fresh": not args.no_fresh,
-                         "table": table(["command", "wall s"], rows)})
+        figures = {k: round(v, 1) for k, v in figures.items()}
+        write("first_hour", {**figures, "fresh": not args.no_fresh,  # before the clean-up (minutes for a venv)
+                             "table": table(["command", "wall s"], rows)})
     return 0
 
 

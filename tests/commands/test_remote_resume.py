@@ -75,3 +75,37 @@ def test_only_the_remote_policys_transport_is_left_out():
     assert kept == {"preset": "openpi-aloha"} and not set(kept) & set(TRANSPORT_ARGS)
     backbone = run_settings({"backbone": "remote", "backbone_kwargs": {"port": 1, "name": "qwen"}})
     assert backbone["backbone_kwargs"] == {"name": "qwen"}
+
+
+class Still:
+    """A served policy: every arm and gripper held where it is (zeros of the 14 joint targets' deltas)."""
+
+    def reset(self, instruction, obs) -> None:
+        pass
+
+    def act(self, obs):
+        import numpy as np
+
+        return np.zeros((1, 14), dtype=np.float32)
+
+    def fork(self) -> "Still":
+        return self
+
+
+def test_rsb_eval_remote_resumes_when_its_server_comes_back_on_another_port(tmp_path, capsys):
+    """The whole path: a run of one episode against a server on one port, then the same command with
+    -n 2 against the server restarted on another port adds the second episode to the same row."""
+    from rsb_maniskill.cli import main
+    from rsb_maniskill.policies.remote.server import PolicyServer
+
+    out = tmp_path / "r"
+    common = ["--suites", "RSB-Math-4", "-o", "state", "--max-steps", "3", "-q", "--name", "pi05", "--out", str(out)]
+    for n in (1, 2):
+        with PolicyServer(Still(), host="127.0.0.1", port=0) as server:  # a free port: another one each time
+            capsys.readouterr()
+            assert main(["eval", "remote", "-a", f"port={server.port}", "-a", "token=s3cret", "-a",
+                         "connect_timeout=30", "-n", str(n), *common]) == 0, capsys.readouterr().err
+    lines = (out / RECORDS_FILE).read_text().splitlines()
+    assert len(lines) == 2 and len({json.loads(line)[SETTINGS_FIELD] for line in lines}) == 1
+    assert json.loads((out / MANIFEST_FILE).read_text())["runs"]["pi05"]["policy_kwargs"] == {}
+    assert "s3cret" not in (out / MANIFEST_FILE).read_text() + (out / "report.html").read_text()

@@ -49,8 +49,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-a", "--backbone-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="keyword argument of the backbone factory (VALUE parsed as JSON, else a string); repeatable")
     add_suites_argument(p)
+    n_suites = len(p.get_default("suites"))
     p.add_argument("-n", "--num-episodes", type=int, default=EPISODES_PER_SUITE,
-                   help=f"episodes per suite (default {EPISODES_PER_SUITE}); the same seeds as rsb eval -n")
+                   help=f"episodes per suite (default {EPISODES_PER_SUITE}: {EPISODES_PER_SUITE * n_suites:,} "
+                        "questions to MODEL on the default suites); the same seeds as rsb eval -n")
     p.add_argument("--instruction", nargs="+", default=["normal"], choices=INSTRUCTION_MODES,
                    help="instruction given: normal, blank or shuffled (as rsb eval --instruction)")
     p.add_argument("--images", action="store_true",

@@ -17,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "first training episodes (questions, options, instructions, candidates, layout) and compares "
                     "their digests with "
                     "the ones pinned for this benchmark version. Exit status 1 when a suite differs or could "
-                    "not be checked. No simulator; about ten seconds for all suites.")
+                    "not be checked. No simulator: it samples the episodes and builds no env.")
     add_suites_argument(p, default=["all", "all-objects"], positional=True)
     p.add_argument("--data-dir", default=None,
                    help="GSM8K / MMLU-Pro directory (else $RSB_DATA_DIR, else the hub cache)")

@@ -27,10 +27,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     f"RESULTS_DIR/{RECORDS_FILE} (an `rsb eval` output directory), all from the same records. "
                     "RESULTS_DIR may also be a `vla-eval run` output directory (or its *_aggregate.json) of "
                     "RSBBenchmark: then the paper's tables are printed and written to summary.* beside it too. "
-                    "With --compare A B: the two runs' GSR / TSR / nSG per suite side by side, B - A, and whether "
-                    "their 95 % intervals separate; with both runs' episode records, paired tests that count "
-                    "scenes (counterfactual runs: follow and switch too) (Markdown). Records of two benchmark "
-                    "versions never pool.")
+                    "With --compare A B: the two runs' GSR / TSR / nSG per suite side by side (Wilson 95 % "
+                    "intervals) with B - A; with both runs' episode records, paired tests that count scenes "
+                    "(counterfactual runs: follow and switch too), else the two-proportion z test; Holm's "
+                    "correction over each table's tests (Markdown). "
+                    "Records of two benchmark versions never pool.")
     p.add_argument("results_dir", metavar="RESULTS_DIR", nargs="?")
     p.add_argument("--out", default=None, help="page to write (default: RESULTS_DIR/report.html)")
     add_old_spelling(p, "-o", "--out")
@@ -72,16 +73,21 @@ def run_report(args: argparse.Namespace) -> int:
             check_compare_args(args.results_dir, a, b)
             docs = [checked_results(d) for d in (a, b)]
             both_records = all((Path(d) / RECORDS_FILE).exists() for d in (a, b))
-            side = compare(*docs, (a, b), rows_optional=both_records)
+            side = compare(*docs, (a, b), rows_optional=both_records, paired=both_records)
             if both_records:
                 from rsb_maniskill.reporting.paired import compare_paired
 
-                paired = compare_paired(read_records(Path(a) / RECORDS_FILE), read_records(Path(b) / RECORDS_FILE),
-                                        (a, b))
+                recs = [read_records(Path(d) / RECORDS_FILE) for d in (a, b)]
+                paired = compare_paired(*recs, (a, b))
+                same = same_records(*recs)
             else:
-                paired = ("Not paired: episode records (episodes.jsonl) are needed in both directories; only the "
-                          "intervals were compared.\n")
-            print(side + "\n" + paired + "\n" + episodes_lines(a, b), end="")
+                paired = ("Not paired: episode records (episodes.jsonl) are needed in both directories; the rows "
+                          "were compared unpaired (the z test above).\n")
+                same = _without_stamp(docs[0]) == _without_stamp(docs[1])
+            note = (f"Note: {a} and {b} hold the same {'episode records' if both_records else 'results'} (a copy "
+                    "of one run?): every difference is 0 and no test can find one; compare two runs.\n\n"
+                    if same else "")
+            print(note + side + "\n" + paired + "\n" + episodes_lines(a, b), end="")
             return 0
         if not args.results_dir:
             raise ReportError("give RESULTS_DIR, or --compare DIR_A DIR_B")
@@ -130,20 +136,33 @@ def check_compare_args(results_dir: str | None, a: str, b: str) -> None:
         raise ReportError(f"--compare {a} {b} compares a run with itself (every difference is 0): give two runs")
 
 
+def same_records(a: list, b: list) -> bool:
+    """Whether two runs' records are the same records (a copied folder): the same episodes with the
+    same outcomes, field for field."""
+    import json
+
+    def key(recs: list) -> list[str]:
+        return sorted(json.dumps(r, sort_keys=True, default=str) for r in recs)
+
+    return bool(a) and len(a) == len(b) and key(a) == key(b)
+
+
+def _without_stamp(doc: dict) -> dict:
+    return {k: v for k, v in doc.items() if k != "created"}
+
+
 def checked_results(results_dir: str) -> dict:
     """The results document of a directory (``results.load_results``); one read from a results.json
     alone is checked field by field first: ReportError naming the file and the field."""
-    import json
-
     from rsb_maniskill.evaluation.store import RECORDS_FILE
     from rsb_maniskill.reporting.results import RESULTS_FILE, document_problem, load_results
     from rsb_maniskill.reporting.writer import ReportError
 
     d = Path(results_dir)
     try:
-        doc = load_results(d)
-    except json.JSONDecodeError as err:
-        raise ReportError(f"{d / RESULTS_FILE}: not a results document ({err})") from None
+        doc = load_results(d)  # a results.json that is not JSON, or nested too deep: ValueError naming it
+    except ValueError as err:
+        raise ReportError(str(err)) from None
     if (d / RECORDS_FILE).exists():
         return doc
     if not isinstance(doc, dict) or not isinstance(doc.get("rows"), list) or "benchmark_version" not in doc:

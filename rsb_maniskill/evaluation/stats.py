@@ -1,5 +1,6 @@
-"""Statistics a reviewer can defend: intervals that count clusters, paired tests that count scenes,
-many-cell corrections, and how many episodes a claim needs.
+"""Statistics a reviewer can defend: intervals that count clusters, paired and unpaired tests,
+one rule for a page of many marks, and how many episodes a claim needs, from the power of the
+test that is actually run.
 
 Episodes are not always independent: the counterfactual variants of one scene, or the perturbed
 episodes of one seed, move together, so an interval that counts them as independent is too narrow.
@@ -7,11 +8,14 @@ Such groups are *clusters*; :func:`clustered_rate` gives Wilson's interval at th
 size (``n`` over the :func:`design_effect`), with Student's t quantile over the clusters. Two runs of
 the same episodes (same suite and seed) are *paired*: :func:`scene_permutation` compares two rates
 by flipping whole scenes between the runs (exact; McNemar's test when every scene is one episode),
-:func:`mcnemar` is the exact test on independent pairs and :func:`paired_bootstrap` compares any
-statistic of column means (nSG), drawing until its p-value's Monte Carlo error cannot move the
-decision. :func:`holm` corrects the p-values of many cells at once. :func:`paired_sample_size` and
-:func:`minimum_detectable_difference` say how many episodes a claim needs (Connor 1987, with the
-design effect for clusters). numpy and scipy only: the reports and the audit import this.
+:func:`mcnemar` is the exact test on independent pairs. Two runs on other episodes are compared by
+:func:`two_proportions` (the pooled two-proportion z test). A page that marks many tests controls
+its family-wise error with Holm's step-down correction (:func:`holm`, :func:`holm_marks`).
+:func:`mcnemar_power`, :func:`unpaired_power` and :func:`scene_power` are those tests' power (the
+first two exact, the scene test's simulated); :func:`plan_paired`, :func:`plan_unpaired`,
+:func:`plan_scenes` the fewest episodes that reach a power, and
+:func:`minimum_detectable_difference` the smallest difference a run can detect. numpy and scipy
+only: the reports and the audit import this.
 """
 from __future__ import annotations
 
@@ -24,13 +28,15 @@ import numpy as np
 
 from rsb_maniskill.evaluation.metrics import Z95, Rate, wilson_interval
 
-BOOTSTRAP_RESAMPLES = 2000  # paired bootstrap draws to start with
-BOOTSTRAP_MAX_RESAMPLES = 256000  # at most this many while the p-value's Monte Carlo interval holds alpha
-BOOTSTRAP_SEED = 0  # the bootstrap is seeded: a report is the same every time it is written
-MC_Z = 3.29  # the p-value's Monte Carlo interval: 99.9 % (a mark decided outside it does not flip with the seed)
+PERMUTATION_SEED = 0  # Monte Carlo permutations are seeded: a report is the same every time it is written
+MC_Z = 3.29  # a Monte Carlo p-value's interval: 99.9 % (a mark decided outside it does not flip with the seed)
 EXACT_SCENES = 16  # up to this many scenes a permutation test enumerates every flip (2^16 = 65,536)
-PERMUTATIONS = 20000  # Monte Carlo flips a chunk beyond that, while the p-value's interval holds alpha
+PERMUTATIONS = 20000  # Monte Carlo flips a chunk beyond that, while the p-value's interval holds a level
+MAX_PERMUTATIONS = 16 * PERMUTATIONS  # the most flips one test draws: its cost is bounded
 ALPHA, POWER = 0.05, 0.8  # a claim: two-sided 5 % test, 80 % power
+MAX_EPISODES = 1_000_000  # the most episodes a run a plan answers with; beyond, "more than" that
+PLAN_SIMS = 10_000  # simulated run pairs behind a simulated power
+PLAN_MC_Z = 3.0  # a simulated power reaches a target when the estimate less 3 standard errors does
 
 
 # ---------------------------------------------------------------- clustered intervals
@@ -74,9 +80,9 @@ def cluster_quantile(clusters: int) -> float:
     """The two-sided 95 % quantile for a rate over ``clusters`` clusters: Student's t with one degree
     of freedom fewer (the variance is estimated from that many), the normal's 1.96 for one cluster
     or independent outcomes (many clusters: t tends to it)."""
-    from scipy.stats import t
+    from scipy.special import stdtrit
 
-    return Z95 if clusters < 2 else float(t.ppf(0.975, clusters - 1))
+    return Z95 if clusters < 2 else float(stdtrit(clusters - 1, 0.975))
 
 
 def clustered_rate(values: Sequence[bool] | np.ndarray, clusters: Sequence[Hashable] | np.ndarray) -> Rate:
@@ -149,9 +155,7 @@ class ScenePermutation:
 @lru_cache(maxsize=1024)
 def _half_binomial(c: int) -> np.ndarray:
     """The Bin(c, 1/2) probabilities of 0..c."""
-    from scipy.stats import binom
-
-    return binom.pmf(np.arange(c + 1), c, 0.5)
+    return _binom_pmf(np.arange(c + 1), c, 0.5)
 
 
 def sign_flip_p(d: Sequence[int] | np.ndarray) -> float:
@@ -175,14 +179,18 @@ def sign_flip_p(d: Sequence[int] | np.ndarray) -> float:
 
 
 def scene_permutation(num_a: Sequence[float], den_a: Sequence[float], num_b: Sequence[float],
-                      den_b: Sequence[float], seed: int = BOOTSTRAP_SEED) -> ScenePermutation:
+                      den_b: Sequence[float], seed: int = PERMUTATION_SEED,
+                      levels: Sequence[float] = (ALPHA,)) -> ScenePermutation:
     """Compare ``sum(num_b) / sum(den_b)`` with ``sum(num_a) / sum(den_a)`` (one entry per scene
     both runs played) by flipping whole scenes between A and B: under the null hypothesis that the
     runs are exchangeable within a scene, every flip is as likely. Where the denominators agree scene
     by scene (GSR, TSR: the same episodes) the difference is a sum of integers and the test is exact
-    (:func:`sign_flip_p`); otherwise (follow, switch: each run's grasps decide its denominator) every
-    flip is enumerated up to :data:`EXACT_SCENES` scenes, else drawn until the p-value's Monte Carlo
-    interval leaves :data:`ALPHA` (at most 16 x :data:`PERMUTATIONS` flips)."""
+    (:func:`sign_flip_p`); otherwise (follow, switch, nSG's share of grasps on the target: each run's
+    grasps decide its denominator) every flip of the scenes that differ is enumerated up to
+    :data:`EXACT_SCENES` of them, else drawn until the p-value's Monte Carlo interval holds none of
+    ``levels`` (the thresholds a family's correction may compare it with), at most
+    :data:`MAX_PERMUTATIONS` flips. Scenes alike in both runs flip to themselves and are left out
+    of the flips (not of ``scenes``). With fewer than 6 scenes that differ no p is below 1/32."""
     na, da, nb, db = (np.asarray(x, dtype=float) for x in (num_a, den_a, num_b, den_b))
     keep = (da + db) > 0
     na, da, nb, db = na[keep], da[keep], nb[keep], db[keep]
@@ -192,102 +200,57 @@ def scene_permutation(num_a: Sequence[float], den_a: Sequence[float], num_b: Seq
     diff = float(nb.sum() / db.sum() - na.sum() / da.sum())
     if np.array_equal(da, db) and np.allclose(na, np.round(na)) and np.allclose(nb, np.round(nb)):
         return ScenePermutation(diff, sign_flip_p(np.round(nb - na).astype(int)), c)
+    moves = (na != nb) | (da != db)  # a scene alike in both runs adds the same to both sums under any flip
+    fa, fda, fb, fdb = na[moves], da[moves], nb[moves], db[moves]
+    sa0, sda0 = float(na[~moves].sum()), float(da[~moves].sum())
+    k = int(moves.sum())
 
-    def flipped(swap: np.ndarray) -> np.ndarray:  # swap: (draws, c) of 0/1, 1 = the scene's runs exchanged
+    def flipped(swap: np.ndarray) -> np.ndarray:  # swap: (draws, k) of 0/1, 1 = the scene's runs exchanged
         keep_ = 1.0 - swap
-        sb, sdb = keep_ @ nb + swap @ na, keep_ @ db + swap @ da
-        sa, sda = keep_ @ na + swap @ nb, keep_ @ da + swap @ db
+        sb, sdb = keep_ @ fb + swap @ fa + sa0, keep_ @ fdb + swap @ fda + sda0
+        sa, sda = keep_ @ fa + swap @ fb + sa0, keep_ @ fda + swap @ fdb + sda0
         with np.errstate(invalid="ignore", divide="ignore"):
             return sb / sdb - sa / sda  # nan: a draw where a run grasped nothing (left out)
 
     tol = 1e-12
-    if c <= EXACT_SCENES:
-        swaps = ((np.arange(2 ** c)[:, None] >> np.arange(c)) & 1).astype(float)
+    if k <= EXACT_SCENES:
+        swaps = ((np.arange(2 ** k)[:, None] >> np.arange(k)) & 1).astype(float)
         t = flipped(swaps)
         t = t[np.isfinite(t)]
         return ScenePermutation(diff, float(np.mean(np.abs(t) >= abs(diff) - tol)), c)
     rng = np.random.default_rng(seed)
     hits = draws = 0
-    rows = min(PERMUTATIONS, max(1000, 4_000_000 // c))  # a chunk: at most ~4M flips of a scene in memory
-    while draws < 16 * PERMUTATIONS:
-        t = flipped(rng.integers(0, 2, (rows, c)).astype(float))
+    rows = min(PERMUTATIONS, max(1000, 4_000_000 // k))  # a chunk: at most ~4M flips of a scene in memory
+    while draws < MAX_PERMUTATIONS:
+        bits = rng.integers(0, 256, (rows, (k + 7) // 8), dtype=np.uint8)
+        t = flipped(np.unpackbits(bits, axis=1, count=k).astype(float))
         t = t[np.isfinite(t)]
         hits, draws = hits + int(np.sum(np.abs(t) >= abs(diff) - tol)), draws + len(t)
         p = (hits + 1) / (draws + 1)
         half = MC_Z * math.sqrt(p * (1 - p) / max(draws, 1))
-        if not p - half < ALPHA <= p + half or not len(t):
+        if not any(p - half < level <= p + half for level in levels) or not len(t):
             break
     return ScenePermutation(diff, p, c, exact=False, p_low=max(0.0, p - half), p_high=min(1.0, p + half),
                             draws=draws)
 
 
-@dataclass(frozen=True)
-class PairedDifference:
-    """``statistic(a) - statistic(b)`` over paired rows, its 95 % bootstrap interval and two-sided p,
-    with that p's Monte Carlo 99.9 % interval (``p_low``, ``p_high``)."""
-
-    difference: float | None
-    low: float | None
-    high: float | None
-    p: float | None
-    resamples: int
-    p_low: float | None = None
-    p_high: float | None = None
-
-    @property
-    def decided(self) -> bool:
-        """Whether the p-value's Monte Carlo interval lies on one side of :data:`ALPHA`."""
-        return self.p_low is None or not self.p_low < ALPHA <= self.p_high
+MIN_EXPECTED = 5  # the z test's rule: at least this many expected successes and failures in each run
 
 
-def paired_bootstrap(a: np.ndarray, b: np.ndarray, statistic: Callable[[np.ndarray], np.ndarray],
-                     clusters: Sequence[Hashable] | None = None, resamples: int = BOOTSTRAP_RESAMPLES,
-                     seed: int = BOOTSTRAP_SEED, max_resamples: int = BOOTSTRAP_MAX_RESAMPLES,
-                     ) -> PairedDifference:
-    """Bootstrap of ``statistic(a) - statistic(b)`` where row ``i`` of ``a`` and of ``b`` are the same
-    episode; rows are resampled together (by cluster when ``clusters`` is given: a scene's variants
-    move together). ``statistic`` maps column means, an array ``(..., k)``, to values (nan where
-    undefined, e.g. nSG without grasps; such draws are dropped), so every draw is one matrix product.
-    The p-value is the two-sided share of draws on the other side of 0 (percentile method); draws
-    are added (doubling, up to ``max_resamples``) while its Monte Carlo 99.9 % interval holds
-    :data:`ALPHA`, so a mark decided on it does not depend on the seed."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    if len(a) != len(b):
-        raise ValueError(f"paired rows need equal lengths, got {len(a)} and {len(b)}")
-    if len(a) == 0:
-        return PairedDifference(None, None, None, None, 0)
-    a2, b2 = a.reshape(len(a), -1), b.reshape(len(b), -1)
-    full = statistic(a2.mean(0)) - statistic(b2.mean(0))
-    if not np.all(np.isfinite(full)):
-        return PairedDifference(None, None, None, None, 0)
-    group = np.arange(len(a)) if clusters is None else _groups(clusters)[0]
-    c = int(group.max()) + 1
-    sums_a = np.stack([np.bincount(group, weights=col, minlength=c) for col in a2.T], axis=1)
-    sums_b = np.stack([np.bincount(group, weights=col, minlength=c) for col in b2.T], axis=1)
-    sizes = np.bincount(group, minlength=c).astype(float)
-    rng = np.random.default_rng(seed)
-    diffs: list[np.ndarray] = []
-    todo, drawn = resamples, 0
-    while True:
-        for start in range(0, todo, 2000):  # chunks: a (draws x clusters) weight matrix each
-            w = rng.multinomial(c, np.full(c, 1.0 / c), size=min(2000, todo - start)).astype(float)
-            n = (w @ sizes)[:, None]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                d = statistic(w @ sums_a / n) - statistic(w @ sums_b / n)
-            diffs.append(np.asarray(d, dtype=float).reshape(-1))
-        drawn += todo
-        d = np.concatenate(diffs)
-        d = d[np.isfinite(d)]
-        if len(d) == 0:
-            return PairedDifference(float(full), None, None, None, 0)
-        share = min(np.mean(d <= 0), np.mean(d >= 0))
-        p = max(min(1.0, 2 * float(share)), 1.0 / len(d))
-        half = 2 * MC_Z * math.sqrt(max(share * (1 - share), 0.25 / len(d)) / len(d))
-        if not p - half < ALPHA <= p + half or drawn >= max_resamples:
-            break
-        todo = min(drawn, max_resamples - drawn)
-    lo, hi = (float(x) for x in np.percentile(d, [2.5, 97.5]))
-    return PairedDifference(float(full), lo, hi, p, len(d), max(0.0, p - half), min(1.0, p + half))
+def two_proportions(k_a: int, n_a: int, k_b: int, n_b: int) -> float | None:
+    """Two-sided p-value of the pooled two-proportion z test (Pearson's chi-square without
+    continuity correction) of ``k_b / n_b`` against ``k_a / n_a``: runs on other episodes, nothing to
+    pair. None (no test) where either run expects fewer than :data:`MIN_EXPECTED` successes or
+    failures at the pooled rate: there the normal approximation's size is not its alpha."""
+    from scipy.special import ndtr
+
+    if n_a < 1 or n_b < 1:
+        return None
+    pooled = (k_a + k_b) / (n_a + n_b)
+    if min(n_a, n_b) * min(pooled, 1 - pooled) < MIN_EXPECTED:
+        return None
+    z = abs(k_b / n_b - k_a / n_a) / math.sqrt(pooled * (1 - pooled) * (1 / n_a + 1 / n_b))
+    return float(min(1.0, 2 * ndtr(-z)))
 
 
 def holm(pvalues: Sequence[float | None]) -> list[float | None]:
@@ -304,135 +267,400 @@ def holm(pvalues: Sequence[float | None]) -> list[float | None]:
     return out
 
 
-# ---------------------------------------------------------------- how many episodes a claim needs
-def _z(q: float) -> float:
-    from scipy.stats import norm
+@dataclass(frozen=True)
+class FamilyMark:
+    """One test of a family after :func:`holm_marks`: its Holm-adjusted p, whether it is
+    significant, and whether that is decided (a Monte Carlo p whose interval straddles its Holm
+    threshold is not: the table prints ``?``)."""
 
-    return float(norm.ppf(q))
-
-
-def paired_sample_size(p_a: float, p_b: float, alpha: float = ALPHA, power: float = POWER,
-                       design: float = 1.0) -> int | None:
-    """Episodes each run needs (the same episodes in both) for a two-sided paired test at ``alpha``
-    to tell ``p_a`` from ``p_b`` with probability ``power``: Connor's (1987) McNemar sample size over
-    the discordant share ``psi = p_a (1 - p_b) + p_b (1 - p_a)`` (the runs' outcomes on an episode
-    taken as independent: any positive correlation between them only shrinks it), times the
-    ``design`` effect of clustered episodes. None when the rates are equal."""
-    delta = abs(p_b - p_a)
-    if delta == 0:
-        return None
-    psi = p_a * (1 - p_b) + p_b * (1 - p_a)
-    za, zb = _z(1 - alpha / 2), _z(power)
-    n = (za * math.sqrt(psi) + zb * math.sqrt(max(psi - delta ** 2, 0.0))) ** 2 / delta ** 2
-    return max(1, math.ceil(n * design))
+    p_holm: float | None
+    significant: bool
+    decided: bool = True
 
 
-def unpaired_sample_size(p_a: float, p_b: float, alpha: float = ALPHA, power: float = POWER,
-                         design: float = 1.0) -> int | None:
-    """Episodes each run needs when the two runs share no episode (two published rows on other
-    seeds): the two-proportion sample size, times the ``design`` effect. None when the rates are equal."""
-    delta = abs(p_b - p_a)
-    if delta == 0:
-        return None
-    bar = (p_a + p_b) / 2
-    za, zb = _z(1 - alpha / 2), _z(power)
-    n = (za * math.sqrt(2 * bar * (1 - bar)) + zb * math.sqrt(p_a * (1 - p_a) + p_b * (1 - p_b))) ** 2 / delta ** 2
-    return max(1, math.ceil(n * design))
+def holm_marks(tests: Sequence[tuple[float | None, float | None, float | None]], alpha: float = ALPHA,
+               ) -> list[FamilyMark]:
+    """Holm's correction over one page's tests, each ``(p, p_low, p_high)`` (the Monte Carlo interval
+    of a drawn p, else None, None). A test is significant where its adjusted p is below ``alpha``;
+    decided where the same holds at the low and the high ends of every drawn interval (Holm's
+    rejections only grow as p-values shrink, so the two ends bound every value in between)."""
+    ps = [t[0] for t in tests]
+    lows = [t[0] if t[1] is None else t[1] for t in tests]
+    highs = [t[0] if t[2] is None else t[2] for t in tests]
+    adjusted, low, high = holm(ps), holm(lows), holm(highs)
+    return [FamilyMark(a, a is not None and a < alpha,
+                       a is None or (lo is not None and hi is not None and (lo < alpha) == (hi < alpha)))
+            for a, lo, hi in zip(adjusted, low, high)]
+
+
+# ---------------------------------------------------------------- the power of the tests that are run
+def _binom_pmf(k: np.ndarray | float, n: np.ndarray | float, p: float) -> np.ndarray:
+    """Bin(n, p) probabilities of ``k`` (0 outside 0..n), from scipy.special (quick to import)."""
+    from scipy.special import gammaln, xlog1py, xlogy
+
+    k, n = np.asarray(k, dtype=float), np.asarray(n, dtype=float)
+    inside = (k >= 0) & (k <= n)
+    kk = np.clip(k, 0, n)
+    log = gammaln(n + 1) - gammaln(kk + 1) - gammaln(n - kk + 1) + xlogy(kk, p) + xlog1py(n - kk, -p)
+    return np.where(inside, np.exp(log), 0.0)
+
+
+def _binom_cdf(k: np.ndarray | float, n: np.ndarray | float, p: float) -> np.ndarray:
+    """P(X <= k) for X ~ Bin(n, p): 0 below 0, 1 from n on."""
+    from scipy.special import bdtr
+
+    k, n = np.floor(np.asarray(k, dtype=float)), np.asarray(n, dtype=float)
+    if p <= 0 or p >= 1:
+        return np.where(k < 0, 0.0, np.where(k >= n, 1.0, float(p <= 0)))
+    kk, nn = np.broadcast_arrays(np.clip(k, 0, n).astype(np.int64), n.astype(np.int64))
+    return np.where(k < 0, 0.0, np.where(k >= n, 1.0, bdtr(kk, nn, p)))
+
+
+def _window(n: int, rate: float, width: float = 9.0) -> tuple[int, int]:
+    """The counts 0..n of a Bin(n, rate) outside which less than ~1e-18 of its mass lies."""
+    sd = math.sqrt(n * rate * (1 - rate))
+    return max(0, math.floor(n * rate - width * sd - 1)), min(n, math.ceil(n * rate + width * sd + 1))
+
+
+def _mcnemar_critical(d: np.ndarray, alpha: float) -> np.ndarray:
+    """For ``d`` discordant pairs, the count of A-only pairs ``k`` below which the exact test rejects
+    (``2 P(X <= k) < alpha``, X ~ Bin(d, 1/2)); by symmetry it also rejects above ``d - crit``."""
+    from scipy.special import ndtri
+
+    d = np.asarray(d, dtype=float)
+    crit = np.clip(np.floor(d / 2 + ndtri(alpha / 2) * np.sqrt(d) / 2), 0, d)  # the normal's guess: then stepped
+    while True:  # to the smallest k with P(X <= k) >= alpha / 2 (a few steps from the guess)
+        down = (crit > 0) & (_binom_cdf(crit - 1, d, 0.5) >= alpha / 2)
+        up = _binom_cdf(crit, d, 0.5) < alpha / 2
+        if not down.any() and not up.any():
+            return crit
+        crit = crit - down + up
+
+
+_BLOCK = 256  # discordant counts whose rejection probabilities are computed (and cached) together
+
+
+@lru_cache(maxsize=1024)
+def _critical_block(alpha: float, block: int) -> np.ndarray:
+    """:func:`_mcnemar_critical` of one block of discordant counts (cached: it depends on alpha alone)."""
+    return _mcnemar_critical(np.maximum(np.arange(block * _BLOCK, (block + 1) * _BLOCK, dtype=float), 1), alpha)
+
+
+@lru_cache(maxsize=4096)
+def _mcnemar_rejects(share: float, alpha: float, block: int) -> np.ndarray:
+    """For d = block * _BLOCK ... (block + 1) * _BLOCK - 1 discordant pairs, each won by A with
+    probability ``share``: the probability that the exact test at ``alpha`` rejects (cached: a plan's
+    search asks for the same d at many n)."""
+    d = np.arange(block * _BLOCK, (block + 1) * _BLOCK, dtype=float)
+    crit = _critical_block(alpha, block)
+    reject = _binom_cdf(crit - 1, d, share) + 1 - _binom_cdf(d - crit, d, share)
+    return np.where((crit >= 1) & (d >= 1), reject, 0.0)
 
 
 def mcnemar_power(p_a: float, p_b: float, n: int, alpha: float = ALPHA) -> float:
     """The exact probability that McNemar's exact test at ``alpha`` rejects on ``n`` paired episodes
     when run A succeeds with probability ``p_a``, run B with ``p_b``, independently on each episode:
-    over the number ``d`` of discordant pairs, the binomial test's rejection region (``k`` of them
-    won by A with ``2 P(X <= k) < alpha`` under X ~ Bin(d, 1/2), or the mirror)."""
-    from scipy.stats import binom
-
+    the sum over the number ``d ~ Bin(n, psi)`` of discordant pairs (``psi = p_a (1 - p_b) + p_b
+    (1 - p_a)``) of the binomial test's rejection probability on ``d`` (``k`` of them won by A with
+    ``2 P(X <= k) < alpha`` under X ~ Bin(d, 1/2), or the mirror). Under 6 discordant pairs a test at
+    0.05 cannot reject: n < 6 has power 0. Counts where Bin(n, psi) has no mass (< 1e-18) are skipped."""
     psi = p_a * (1 - p_b) + p_b * (1 - p_a)
-    if psi == 0 or n < 1:
+    if psi <= 0 or n < 1:
         return 0.0
     share = p_a * (1 - p_b) / psi  # of a discordant pair: A won
-    d = np.arange(1, n + 1)
-    crit = binom.ppf(alpha / 2, d, 0.5)  # the smallest k with P(X <= k) >= alpha / 2: reject below it
-    crit = np.where(binom.cdf(crit, d, 0.5) < alpha / 2, crit + 1, crit)  # float round-off at the edge
-    reject = binom.cdf(crit - 1, d, share) + binom.sf(d - crit, d, share)
-    return float(np.sum(binom.pmf(d, n, psi) * np.where(crit >= 1, reject, 0.0)))
+    lo, hi = _window(n, psi)
+    lo = max(1, lo)
+    if hi < lo:
+        return 0.0
+    first, last = lo // _BLOCK, hi // _BLOCK
+    reject = np.concatenate([_mcnemar_rejects(share, alpha, b) for b in range(first, last + 1)])
+    d = np.arange(lo, hi + 1)
+    return float(min(1.0, np.sum(_binom_pmf(d, n, psi) * reject[d - first * _BLOCK])))
 
 
-def clustered_power(p_a: float, p_b: float, scenes: int, size: int, icc: float, alpha: float = ALPHA,
-                    sims: int = 1000, seed: int = 0) -> float:
-    """The share of simulated run pairs on which the scene test (:func:`sign_flip_p`) rejects at
-    ``alpha``: ``scenes`` scenes of ``size`` episodes each, each run's success probability a scene
-    drawn from a beta law of mean ``p_a`` (``p_b``) and intraclass correlation ``icc``."""
-    rng = np.random.default_rng(seed)
-    if icc > 0:
+def unpaired_power(p_a: float, p_b: float, n: int, alpha: float = ALPHA) -> float:
+    """The exact probability that :func:`two_proportions` rejects at ``alpha`` with ``n`` episodes in
+    each run, A succeeding with probability ``p_a`` and B with ``p_b``: for each count ``x`` of A, the
+    counts ``u`` of B where it rejects lie outside the two roots of a quadratic (``|z| > z_alpha``,
+    squared) and where both runs expect enough successes and failures (``x + u`` within
+    ``2 MIN_EXPECTED .. 2n - 2 MIN_EXPECTED``), so the power is one sum over ``x``."""
+    from scipy.special import ndtri
+
+    if n < 1:
+        return 0.0
+    lo, hi = _window(n, p_a)
+    x = np.arange(lo, hi + 1, dtype=float)
+    k = ndtri(alpha / 2) ** 2 / (2 * n)
+    # (u - x)^2 > k (x + u)(2n - x - u): (1 + k) u^2 - (2x + k (2n - 2x)) u + x^2 - k x (2n - x) > 0
+    qa, qb, qc = 1 + k, -(2 * x + k * (2 * n - 2 * x)), x * x - k * x * (2 * n - x)
+    root = np.sqrt(np.maximum(qb * qb - 4 * qa * qc, 0.0))
+    r1, r2 = (-qb - root) / (2 * qa), (-qb + root) / (2 * qa)
+    least, most = np.maximum(0, 2 * MIN_EXPECTED - x), np.minimum(n, 2 * n - 2 * MIN_EXPECTED - x)
+
+    def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # P(a <= u <= b), u ~ Bin(n, p_b)
+        return np.where(b >= a, _binom_cdf(b, n, p_b) - _binom_cdf(a - 1, n, p_b), 0.0)
+
+    reject = between(least, np.minimum(np.ceil(r1) - 1, most)) + between(np.maximum(np.floor(r2) + 1, least), most)
+    return float(min(1.0, np.sum(_binom_pmf(x, n, p_a) * reject)))
+
+
+def sign_flip_pvalues(d: np.ndarray) -> np.ndarray:
+    """:func:`sign_flip_p` of every row of ``d`` (runs x scenes, integers) at once: the scene test of
+    many simulated run pairs (``scene_power``, the tests). Equal to it within 1e-12."""
+    d = np.asarray(d, dtype=np.int64)
+    mags = np.abs(d)
+    top = int(mags.max(initial=0))
+    counts = np.stack([(mags == j).sum(1) for j in range(1, top + 1)], 1) if top else np.zeros((len(d), 0))
+    return _sign_flip_from_counts(counts, np.abs(d.sum(1)))
+
+
+def _sign_flip_from_counts(counts: np.ndarray, obs: np.ndarray, chunk: int = 1000) -> np.ndarray:
+    """Exact two-sided sign-flip p-values from ``counts[r, j-1]``, the scenes of run pair ``r`` whose
+    difference has magnitude ``j``, and ``obs[r] = |sum of the differences|``. Under the flips the sum
+    is ``2U - M`` with ``U = sum_j j X_j``, X_j ~ Bin(c_j, 1/2) and ``M = sum_j j c_j``; U's law is
+    read from its characteristic function ``prod_j ((1 + e^{ijt}) / 2)^{c_j}`` by one inverse FFT a
+    row (rows of similar M share a chunk)."""
+    sims = len(obs)
+    out = np.ones(sims)
+    if counts.shape[1] == 0:
+        return out
+    j = np.arange(1, counts.shape[1] + 1)
+    counts = counts.astype(float)
+    total = counts @ j
+    order = np.argsort(total, kind="stable")
+    for start in range(0, sims, chunk):
+        rows = order[start:start + chunk]
+        c, m, o = counts[rows], total[rows], obs[rows]
+        size = 1 << int(math.ceil(math.log2(m.max() + 2)))  # U in 0..M: no wrap-around
+        k = np.arange(size // 2 + 1)
+        half = np.cos(np.pi * np.outer(j, k) / size)  # (1 + e^{ijt}) / 2 = e^{ijt/2} cos(jt/2), t = 2 pi k / size
+        real = np.exp(c @ np.log(np.maximum(np.abs(half), 1e-300)))
+        real *= 1 - 2 * ((c @ (half < 0)) % 2)
+        # the phase e^{-iMt/2} (irfft sums e^{+iut}: the conjugate), from a table of the 2 size roots of unity
+        turn = np.exp(-1j * np.pi * np.arange(2 * size) / size)
+        pmf = np.fft.irfft(real * turn[np.outer(m.astype(np.int64), k) % (2 * size)], n=size, axis=1)
+        # reject |2U - M| >= obs: U <= (M - obs) / 2 or U >= (M + obs) / 2; by symmetry twice one tail
+        upper = np.ceil((m + o) / 2 - 1e-9).astype(int)
+        p = 2 * np.sum(np.where(np.arange(size) >= upper[:, None], pmf, 0.0), axis=1)
+        p = np.where(o == 0, 1.0, p)
+        out[rows] = np.clip(p * (1 + 1e-12), 0.0, 1.0)
+    return out
+
+
+def scene_difference(p_a: float, p_b: float, size: int, icc: float) -> tuple[np.ndarray, np.ndarray]:
+    """The law of a scene's difference ``d = X_b - X_a`` (values -size..size and their
+    probabilities): each run's ``size`` counted episodes of a scene succeed with a probability drawn
+    from a beta law of mean ``p_a`` (``p_b``) and intraclass correlation ``icc``: binomial at ICC 0,
+    all or none of them at ICC 1 (beta-binomial between)."""
+    from scipy.special import betaln, gammaln
+
+    k = np.arange(size + 1)
+
+    def law(p: float) -> np.ndarray:
+        if p <= 0 or p >= 1 or icc <= 0:
+            return _binom_pmf(k, size, p)
+        if icc >= 1:
+            out = np.zeros(size + 1)
+            out[0], out[-1] = 1 - p, p
+            return out
         s = 1 / icc - 1
-        qa = rng.beta(max(p_a, 1e-9) * s, max(1 - p_a, 1e-9) * s, (sims, scenes))
-        qb = rng.beta(max(p_b, 1e-9) * s, max(1 - p_b, 1e-9) * s, (sims, scenes))
-    else:
-        qa, qb = np.full((sims, scenes), p_a), np.full((sims, scenes), p_b)
-    d = rng.binomial(size, qb) - rng.binomial(size, qa)
-    return float(np.mean([sign_flip_p(row) < alpha for row in d]))
+        a, b = p * s, (1 - p) * s
+        return np.exp(gammaln(size + 1) - gammaln(k + 1) - gammaln(size - k + 1) + betaln(k + a, size - k + b)
+                      - betaln(a, b))
+
+    pmf = np.convolve(law(p_b), law(p_a)[::-1])  # d = -size..size
+    pmf = np.clip(pmf, 0.0, None)
+    return np.arange(-size, size + 1), pmf / pmf.sum()
 
 
+def scene_power(p_a: float, p_b: float, scenes: int, size: int, icc: float, alpha: float = ALPHA,
+                sims: int = PLAN_SIMS, seed: int = 0) -> tuple[float, float]:
+    """The share of ``sims`` simulated run pairs on which the exact scene test (:func:`sign_flip_p`,
+    what ``rsb report --compare`` runs) rejects at ``alpha``, and its Monte Carlo standard error:
+    ``scenes`` scenes of ``size`` counted episodes, drawn as :func:`scene_difference` says (a
+    scene's differences are independent of other scenes', so a run pair's are one multinomial draw)."""
+    values, pmf = scene_difference(p_a, p_b, size, icc)
+    counts = np.random.default_rng(seed).multinomial(scenes, pmf, size=sims)
+    obs = np.abs(counts @ values)
+    mags = counts[:, size + 1:] + counts[:, size - 1::-1]  # magnitudes 1..size
+    hits = _sign_flip_from_counts(mags, obs) < alpha
+    est = float(hits.mean())
+    return est, math.sqrt(max(est * (1 - est), 1.0 / sims) / sims)
+
+
+def _scene_power_normal(values: np.ndarray, pmf: np.ndarray, scenes: float, alpha: float) -> float:
+    """The scene test's power by the normal approximation of its statistic ``sum d / sqrt(sum d^2)``
+    (delta method over a scene's moments): the search's starting point, and the answer where
+    simulating would cost too much (many scenes, where the approximation is close)."""
+    from scipy.special import ndtr, ndtri
+
+    mu, m2, m3, m4 = (float(pmf @ values ** i) for i in (1, 2, 3, 4))
+    if m2 <= 0:
+        return 0.0
+    var = m2 - mu * mu
+    sd = math.sqrt(max(var / m2 + mu * mu * (m4 - m2 * m2) / (4 * m2 ** 3) - mu * (m3 - mu * m2) / m2 ** 2, 1e-12))
+    shift, z = math.sqrt(scenes) * mu / math.sqrt(m2), -ndtri(alpha / 2)
+    return float(ndtr((shift - z) / sd) + ndtr((-shift - z) / sd))
+
+
+# ---------------------------------------------------------------- how many episodes a claim needs
 @dataclass(frozen=True)
 class Plan:
-    """What a claim needs: ``scenes`` of ``size`` episodes each (``episodes`` in all) per run, and the
-    power that the test reaches there (exact, or simulated where ``simulated``)."""
+    """What a claim needs: ``scenes`` of ``size`` episodes each per run (None: more than
+    :data:`MAX_EPISODES` episodes), and the power the test reaches there, ``how`` it was found."""
 
-    scenes: int
+    scenes: int | None
     size: int
-    episodes: int
-    power: float
-    simulated: bool
+    power: float | None
+    how: str  # "exact", "simulated" or "normal approximation"
+
+    @property
+    def episodes(self) -> int | None:
+        return None if self.scenes is None else self.scenes * self.size
 
 
-def plan_episodes(p_a: float, p_b: float, alpha: float = ALPHA, power: float = POWER, size: int = 1,
-                  icc: float = 0.0, seed: int = 0) -> Plan | None:
-    """The fewest scenes (of ``size`` episodes sharing a scene, at intraclass correlation ``icc``)
-    each run needs for the paired scene test at ``alpha`` to tell ``p_a`` from ``p_b`` with
-    probability ``power``: Connor's formula with the design effect ``1 + (size - 1) icc`` to start,
-    then stepped up until the test's power (exact for independent episodes, else simulated with
-    2,000 run pairs) reaches ``power`` (the exact tests are conservative: the formula alone falls
-    2-5 points short). None when the rates are equal."""
-    design = 1 + (size - 1) * icc
-    n = paired_sample_size(p_a, p_b, alpha, power, design)
-    if n is None:
-        return None
-    simulated = size > 1
+def _fewest(reaches: Callable[[int], bool], start: int, cap: int, step: float = 0.1) -> int | None:
+    """The smallest n in [1, cap] where ``reaches(n)``, searched from ``start`` both ways: down while
+    it reaches, up while it does not (steps of ``step`` times n), then bisected between the last miss
+    and the first hit. None when ``cap`` does not reach."""
+    seen: dict[int, bool] = {}
 
-    def reach(scenes: int) -> float:
-        return (clustered_power(p_a, p_b, scenes, size, icc, alpha, 2000, seed) if simulated
-                else mcnemar_power(p_a, p_b, scenes, alpha))
+    def hit(n: int) -> bool:
+        if n not in seen:
+            seen[n] = reaches(n)
+        return seen[n]
 
-    low, high = None, max(2, math.ceil(n / size))
-    while reach(high) < power:  # grow 10 % at a time past the formula's answer
-        low, high = high, math.ceil(high * 1.1)
-    while low is not None and high - low > 1:  # then the fewest scenes that reach it, between a miss and a hit
-        mid = (low + high) // 2
-        low, high = (low, mid) if reach(mid) >= power else (mid, high)
-    return Plan(high, size, high * size, reach(high), simulated)
+    n = min(max(1, start), cap)
+    if hit(n):
+        lo, hi = None, n
+        while lo is None and hi > 1:
+            down = max(1, int(hi * step))
+            lo, hi = (None, hi - down) if hit(hi - down) else (hi - down, hi)
+        if lo is None:
+            return 1
+    else:
+        lo, hi = n, None
+        while hi is None:
+            if lo >= cap:
+                return None
+            up = min(cap, lo + max(1, int(lo * step)))
+            lo, hi = (lo, up) if hit(up) else (up, None)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if hit(mid) else (mid, hi)
+    return hi
+
+
+def _connor(p_a: float, p_b: float, alpha: float, power: float) -> float:
+    """Connor's (1987) McNemar sample size: the search's starting point."""
+    from scipy.special import ndtri
+
+    delta = abs(p_b - p_a)
+    psi = p_a * (1 - p_b) + p_b * (1 - p_a)
+    za, zb = -ndtri(alpha / 2), ndtri(power)
+    return (za * math.sqrt(psi) + zb * math.sqrt(max(psi - delta ** 2, 0.0))) ** 2 / delta ** 2
+
+
+def plan_paired(p_a: float, p_b: float, alpha: float = ALPHA, power: float = POWER, size: int = 1) -> Plan:
+    """The fewest paired episodes (``size`` > 1: scenes whose ``size`` episodes all go one way) for
+    McNemar's exact test at ``alpha`` to tell ``p_a`` from ``p_b`` with probability ``power``, its power
+    computed exactly (:func:`mcnemar_power`), searched both ways from Connor's formula. The two runs'
+    outcomes on an episode are taken as independent (runs that fail the same episodes need fewer)."""
+    if p_a == p_b:
+        raise ValueError("equal rates: no number of episodes tells a rate from itself")
+    cap = MAX_EPISODES // size
+    n = _fewest(lambda m: mcnemar_power(p_a, p_b, m, alpha) >= power,
+                math.ceil(min(_connor(p_a, p_b, alpha, power), 2 * cap)), cap)
+    return Plan(n, size, None if n is None else mcnemar_power(p_a, p_b, n, alpha), "exact")
+
+
+def plan_unpaired(p_a: float, p_b: float, alpha: float = ALPHA, power: float = POWER) -> Plan:
+    """The fewest episodes each of two runs on other episodes needs for :func:`two_proportions` at
+    ``alpha`` to tell ``p_a`` from ``p_b`` with probability ``power``, its power computed exactly
+    (:func:`unpaired_power`), searched both ways from the normal formula."""
+    from scipy.special import ndtri
+
+    if p_a == p_b:
+        raise ValueError("equal rates: no number of episodes tells a rate from itself")
+    bar, za, zb = (p_a + p_b) / 2, -ndtri(alpha / 2), ndtri(power)
+    start = (za * math.sqrt(2 * bar * (1 - bar)) + zb * math.sqrt(p_a * (1 - p_a) + p_b * (1 - p_b))) ** 2 / (
+        p_b - p_a) ** 2
+    n = _fewest(lambda m: unpaired_power(p_a, p_b, m, alpha) >= power, math.ceil(min(start, 2 * MAX_EPISODES)),
+                MAX_EPISODES)
+    return Plan(n, 1, None if n is None else unpaired_power(p_a, p_b, n, alpha), "exact")
+
+
+SIM_BUDGET = 15_000_000  # what one simulated power may cost: scenes x counted episodes x run pairs
+
+
+def plan_scenes(p_a: float, p_b: float, alpha: float = ALPHA, power: float = POWER, size: int = 4,
+                counted: int | None = None, icc: float = 0.5, sims: int = PLAN_SIMS, seed: int = 0) -> Plan:
+    """The fewest scenes of ``size`` episodes, ``counted`` of them compared (default all; follow
+    counts a counterfactual scene's K - 1 changed variants), each run needs for the exact scene test
+    (:func:`sign_flip_p`, as ``rsb report --compare`` runs it) at ``alpha`` to tell ``p_a`` from ``p_b``
+    with probability ``power``, a scene's episodes at intraclass correlation ``icc``
+    (:func:`scene_difference`). One counted episode a scene, or ICC 1 (a scene's episodes all alike),
+    is McNemar's test over scenes: exact. Otherwise the search starts at the normal approximation's
+    answer and every n it tries is simulated (:func:`scene_power`, ``sims`` run pairs): an n reaches
+    ``power`` when the estimate less :data:`PLAN_MC_Z` standard errors does, so Monte Carlo error
+    cannot put the printed n under it. Where that would cost more than :data:`SIM_BUDGET` (many
+    scenes, where the test's discreteness no longer matters) the normal approximation answers."""
+    counted = size if counted is None else counted
+    if not 1 <= counted <= size:
+        raise ValueError(f"counted episodes a scene {counted} must lie in 1..{size}")
+    if counted == 1 or icc >= 1:
+        return plan_paired(p_a, p_b, alpha, power, size=size)
+    values, pmf = scene_difference(p_a, p_b, counted, icc)
+    cap = MAX_EPISODES // size
+    # the approximation's answer for the target plus the margin a simulated power must clear
+    margin = PLAN_MC_Z * math.sqrt(power * (1 - power) / sims)
+    approx = _fewest(lambda c: _scene_power_normal(values, pmf, c, alpha) >= min(power + margin, 0.999), 8, cap)
+    if approx is None:
+        return Plan(None, size, None, "normal approximation")
+    if approx * counted * sims > SIM_BUDGET:
+        return Plan(approx, size, _scene_power_normal(values, pmf, approx, alpha), "normal approximation")
+    cache: dict[int, tuple[float, float]] = {}
+
+    def reach(c: int) -> bool:
+        cache[c] = scene_power(p_a, p_b, c, counted, icc, alpha, sims, seed)
+        return cache[c][0] - PLAN_MC_Z * cache[c][1] >= power
+
+    n = _fewest(reach, approx, cap, step=0.03)
+    return Plan(n, size, None if n is None else cache[n][0], "simulated")
 
 
 def minimum_detectable_difference(p: float, n: int, alpha: float = ALPHA, power: float = POWER,
                                   design: float = 1.0) -> float | None:
-    """The smallest difference from a rate ``p`` that a paired comparison on ``n`` episodes (as
-    :func:`paired_sample_size`) detects with probability ``power``: the larger of the differences up
-    and down from ``p`` (the harder direction), where that stays within [0, 1]. None when no
-    difference within [0, 1] can be told at this ``n``."""
-    if n < 1:
+    """The smallest difference from a rate ``p`` that McNemar's exact test on ``n`` paired episodes
+    (over ``design``: clustered episodes count as ``n / design`` independent ones, the scene test's
+    effective size) detects with probability ``power`` (:func:`mcnemar_power`, the two runs' outcomes
+    on an episode independent): the larger of the differences up and down from ``p`` that stay within
+    [0, 1] and can be detected. None ("none at this n") when no difference within [0, 1] can: under
+    6 effective episodes the test at 0.05 cannot reject at all."""
+    n_eff = int(n / design + 1e-9)
+    if n_eff < 1:
         return None
     found = []
     for sign in (1, -1):
         room = 1 - p if sign > 0 else p
-        if room <= 0 or (paired_sample_size(p, p + sign * room, alpha, power, design) or n + 1) > n:
+        if room <= 0:
             continue
-        lo, hi = 0.0, room  # bisect: need(lo) > n >= need(hi)
-        for _ in range(40):
-            mid = (lo + hi) / 2
-            if paired_sample_size(p, p + sign * mid, alpha, power, design) <= n:
-                hi = mid
+        gap = lambda delta: mcnemar_power(p, p + sign * delta, n_eff, alpha) - power  # noqa: E731
+        lo, hi, f_lo, f_hi = 0.0, room, -power, gap(room)
+        if f_hi < 0:
+            continue
+        side = 0
+        for _ in range(40):  # Illinois (regula falsi): keeps gap(lo) < 0 <= gap(hi), to a millionth of the room
+            if hi - lo <= 1e-6 * room or f_hi == 0:
+                break
+            mid = min(max(hi - f_hi * (hi - lo) / (f_hi - f_lo), lo + 1e-9 * room), hi - 1e-9 * room)
+            f_mid = gap(mid)
+            if f_mid >= 0:
+                hi, f_hi = mid, f_mid
+                f_lo, side = (f_lo / 2 if side == 1 else f_lo), 1
             else:
-                lo = mid
+                lo, f_lo = mid, f_mid
+                f_hi, side = (f_hi / 2 if side == -1 else f_hi), -1
         found.append(hi)
     return max(found) if found else None
 

@@ -44,3 +44,27 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
              "|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|"]
     lines += ["| " + " | ".join(map(cell, r)) + " |" for r in rows]
     return "\n".join(lines)
+
+
+NONE_AT_N = "none at this n"  # a detectable difference where the test cannot reach its power at any difference
+
+
+def p_value(p: float | None, alpha: float = 0.05) -> str:
+    """A p-value beside its mark: 3 decimals, more where rounding would carry it to the other side of
+    ``alpha`` or onto it (``0.0498 *``, ``0.0501``: never ``0.050 *``); ``<0.001`` below 0.001."""
+    if p is None:
+        return NA
+    if p < 0.001 <= alpha:
+        return "<0.001"
+    for digits in range(3, 10):
+        text = f"{p:.{digits}f}"
+        shown = float(text)
+        if (shown < alpha) == (p < alpha) and (shown != alpha or p == alpha):
+            return text
+    return f"{p:.3e}"
+
+
+def points(x: float | None, undefined: str = NA) -> str:
+    """A detectable difference in points, ``"±8.4"``; ``undefined`` where the rate is not defined,
+    :data:`NONE_AT_N` is the caller's for a rate whose test cannot detect any difference."""
+    return undefined if x is None else f"\u00b1{100 * x:.1f}"

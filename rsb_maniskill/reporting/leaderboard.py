@@ -19,7 +19,7 @@ import os
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from rsb_maniskill.evaluation.metrics import (
     Average,
@@ -33,10 +33,12 @@ from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
 from rsb_maniskill.reporting.results import (
     RESULTS_FILE,
     SCHEMA_ID,
-    SCHEMA_VERSION,
+    ResultsFileError,
     document_problem,
     load_results,
+    read_results_file,
     results_document,
+    version_problem,
 )
 
 RANDOM = "Random (1/N)"  # the random-selection line of the paper's tables
@@ -69,8 +71,10 @@ class Entry:
     provenance: str = "unverified"  # its episodes: pinned / differ / unverified (evaluation/provenance.py)
     unverified_why: str | None = None  # why unverified: NO_DATA, NO_DIGESTS or AS_FILED (:func:`unverified_notes`)
     differs: bool | None = None  # TSR differs significantly from the best row's (None: not tested, or the best)
-    p_best: float | None = None  # the p-value of that test ("intervals": None, the intervals do or do not separate)
-    test_best: str | None = None  # how it was tested: PAIRED or INTERVALS
+    p_best: float | None = None  # the p-value of that test
+    p_holm: float | None = None  # ... Holm-adjusted over every pair of rows (the family: see mark_differences)
+    test_best: str | None = None  # how it was tested: PAIRED or UNPAIRED
+    family: int = 0  # the tests Holm's correction was over (every pair of rows that could be tested)
     also: tuple[str, ...] = ()  # other runs given that hold this same row (listed once)
 
     @property
@@ -80,7 +84,8 @@ class Entry:
     @property
     def tsr_mde(self) -> float | None:
         """The smallest TSR difference from this row that a paired run on its episodes (pooled over its
-        Avg suites, else all of its suites) detects with 80 % power at 5 % (``stats``)."""
+        Avg suites, else all of its suites) detects with 80 % power at 5 % (``stats``, McNemar's exact
+        test); None where the rate is undefined or no difference can be detected at its n."""
         from rsb_maniskill.evaluation.stats import minimum_detectable_difference
 
         if self.random:
@@ -122,7 +127,7 @@ def load_run(path: str | os.PathLike) -> Run:
     p = Path(path)
     try:
         if p.is_file():
-            doc = json.loads(p.read_text(encoding="utf-8"))
+            doc = read_results_file(p)
             if not isinstance(doc, dict):
                 raise LeaderboardError(f"{p}: not a results document (a JSON object)")
             if "tasks" in doc and "rows" not in doc:  # vla-eval's results file
@@ -135,15 +140,16 @@ def load_run(path: str | os.PathLike) -> Run:
             raise LeaderboardError(f"{p}: no such file or directory: give a results.json or a results directory")
     except LeaderboardError:
         raise
+    except ResultsFileError as err:  # names the file itself
+        raise LeaderboardError(str(err)) from None
     except FileNotFoundError as err:
         raise LeaderboardError(str(err)) from None
     except (ValueError, OSError) as err:  # a bad JSON file, two versions in one run, not RSB's records
         raise LeaderboardError(f"{p}: {err}") from None
     if doc.get("schema") != SCHEMA_ID:
         raise LeaderboardError(f"{p}: not an RSB results.json ({SCHEMA_ID}) nor vla-eval results of RSBBenchmark")
-    if doc.get("schema_version") != SCHEMA_VERSION:
-        raise LeaderboardError(f"{p}: results schema version {doc.get('schema_version')}, this rsb_maniskill reads "
-                               f"{SCHEMA_VERSION}: run the rsb_maniskill that wrote it")
+    if version_problem(doc):
+        raise LeaderboardError(f"{p}: {version_problem(doc)}")
     if not doc.get("rows"):
         raise LeaderboardError(f"{p}: holds no episode records yet")
     problem = document_problem(doc)
@@ -301,7 +307,7 @@ def _sort_key(e: Entry) -> tuple:
     return (e.random, tsr is None, -(tsr or 0.0), e.label.lower())
 
 
-PAIRED, INTERVALS = "paired", "intervals"  # how a row was tested against the best
+PAIRED, UNPAIRED = "paired", "unpaired"  # how a row was tested against the best
 ALPHA = 0.05
 
 
@@ -328,39 +334,82 @@ def _pooled_tsr(row: Mapping[str, Any], suites: Sequence[str]) -> Rate:
     return Rate(k / n, *wilson_interval(k, n))
 
 
-def mark_differences(entries: list[Entry], suites: Sequence[str]) -> list[Entry]:
-    """Each model row tested against the best (the first by Avg TSR whose episodes are not known to
-    differ from the version's) on TSR over the suites both ran:
-    exact McNemar over the paired episodes where both runs' records share seeds (``PAIRED``), else
-    whether their pooled Wilson 95 % intervals separate (``INTERVALS``)."""
-    from dataclasses import replace
-
-    from rsb_maniskill.evaluation.stats import mcnemar
+def pair_test(row_a: Mapping[str, Any], row_b: Mapping[str, Any], recs_a: list | None, recs_b: list | None,
+              suites: Sequence[str]) -> tuple[float | None, str | None]:
+    """TSR of two rows over ``suites`` (both ran them): McNemar's exact test over the episodes both
+    runs' records share (``PAIRED``), else the pooled two-proportion z test of their TSR pooled over
+    those suites (``UNPAIRED``; None where a run expects too few successes or failures for it)."""
+    from rsb_maniskill.evaluation.stats import mcnemar, two_proportions
     from rsb_maniskill.reporting.paired import pair_records
 
-    ranked = [e for e in entries if e.provenance != "differ" and e.avg is not None and e.avg.tsr is not None]
-    if len(entries) < 2 or not ranked:
-        return entries
-    best = ranked[0]  # the best row of the version's episodes (a row of other episodes is never the yardstick)
-    best_recs = _records(best, suites)
-    out = []
-    for e in entries:
-        if e is best:
-            out.append(e)
-            continue
-        shared = [s for s in suites if s in e.row["suites"] and s in best.row["suites"]]
-        recs = _records(e, shared) if best_recs is not None else None
-        pairs = pair_records(best_recs, recs)[0] if recs else []
-        pairs = [p for p in pairs if p[0]["suite_id"] in shared]
+    if recs_a and recs_b:
+        pairs = [p for p in pair_records([r for r in recs_a if r["suite_id"] in suites],
+                                         [r for r in recs_b if r["suite_id"] in suites])[0]]
         if pairs:
             t = mcnemar([bool(a.get("success")) for a, _ in pairs], [bool(b.get("success")) for _, b in pairs])
-            out.append(replace(e, differs=t.p < ALPHA, p_best=t.p, test_best=PAIRED))
-            continue
-        a, b = _pooled_tsr(best.row, shared), _pooled_tsr(e.row, shared)
-        if a.value is None or b.value is None:
+            return t.p, PAIRED
+
+    def counts(row: Mapping[str, Any]) -> tuple[int, int]:
+        ss = [row["suites"][s] for s in suites if row["suites"][s]["tsr"]["value"] is not None]
+        return sum(round(s["tsr"]["value"] * s["n"]) for s in ss), sum(s["n"] for s in ss)
+
+    (ka, na), (kb, nb) = counts(row_a), counts(row_b)
+    return two_proportions(ka, na, kb, nb), UNPAIRED
+
+
+def differences_from_best(pvalues: Mapping[tuple[int, int], float | None], best: int,
+                          ) -> dict[int, tuple[float | None, float | None]]:
+    """Per row ``j``, the p of its test against row ``best`` and that p Holm-adjusted over the family of
+    every pair of rows (``pvalues`` by ``(i, j)``, i < j): the best row is the observed maximum, a pick
+    from the data, so its comparisons are among every pair's and only a correction over all pairs holds
+    the family-wise error at alpha (over the rows compared with the best alone, five identical rows
+    would get a mark about 8 % of the time)."""
+    from rsb_maniskill.evaluation.stats import holm
+
+    keys = list(pvalues)
+    adjusted = dict(zip(keys, holm([pvalues[k] for k in keys])))
+    out = {}
+    for (i, j), p in pvalues.items():
+        if best in (i, j):
+            out[j if i == best else i] = (p, adjusted[(i, j)])
+    return out
+
+
+def mark_differences(entries: list[Entry], suites: Sequence[str],
+                     records_of: Callable[[Entry, Sequence[str]], list | None] | None = None) -> list[Entry]:
+    """Each model row tested against the best (the first by Avg TSR whose episodes are not known to
+    differ from the version's) on TSR over the suites both ran (:func:`pair_test`), marked where that
+    test's p, Holm-adjusted over every pair of rows (:func:`differences_from_best`), is below
+    :data:`ALPHA`."""
+    from dataclasses import replace
+
+    records_of = records_of or _records
+    ranked = [e for e in entries if e.provenance != "differ" and e.avg is not None and e.avg.tsr is not None]
+    models = [e for e in entries if not e.random and any(s["tsr"]["value"] is not None
+                                                         for s in e.row["suites"].values())]
+    if len(models) < 2 or not ranked:
+        return entries
+    best = ranked[0]  # the best row of the version's episodes (a row of other episodes is never the yardstick)
+    recs = [records_of(e, suites) for e in models]
+    pvalues: dict[tuple[int, int], float | None] = {}
+    tests: dict[tuple[int, int], str | None] = {}
+    for i, j in ((i, j) for i in range(len(models)) for j in range(i + 1, len(models))):
+        shared = [s for s in suites if s in models[i].row["suites"] and s in models[j].row["suites"]]
+        if shared:
+            pvalues[(i, j)], tests[(i, j)] = pair_test(models[i].row, models[j].row, recs[i], recs[j], shared)
+    pos = {id(e): k for k, e in enumerate(models)}
+    b = pos[id(best)]
+    found = differences_from_best(pvalues, b)
+    out = []
+    for e in entries:
+        j = pos.get(id(e))
+        if e is best or j is None or j not in found:
             out.append(e)
             continue
-        out.append(replace(e, differs=a.high < b.low or b.high < a.low, test_best=INTERVALS))
+        p, adjusted = found[j]  # p None: too few episodes for the z test, not tested (the notes say so)
+        out.append(replace(e, differs=None if p is None else adjusted < ALPHA, p_best=p, p_holm=adjusted,
+                           test_best=tests[(min(b, j), max(b, j))],
+                           family=sum(v is not None for v in pvalues.values())))
     return out
 
 
@@ -423,6 +472,7 @@ def build_leaderboard(runs: Sequence[Run], instruction_mode: str | None = None, 
     entries = mark_differences(entries, suites)
     entries.append(Entry(RANDOM, random_row(suites), None, random_average(suites, over) if over else None))
     return Leaderboard(version, protocol, suites, over, entries)
+
 
 # ---------------------------------------------------------------- why a row is unverified
 NO_DATA, NO_DIGESTS, AS_FILED = "no data", "no digests", "as filed"

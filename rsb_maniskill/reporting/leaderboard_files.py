@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from rsb_maniskill.evaluation.metrics import num_choices
-from rsb_maniskill.reporting.cells import NA, ci, markdown_table, pct
+from rsb_maniskill.reporting.cells import NA, NONE_AT_N, ci, markdown_table, p_value, pct, points
 from rsb_maniskill.reporting.leaderboard import Entry, Leaderboard, protocol_text, unverified_notes
 
 PAGE_TEMPLATE = "leaderboard.html.j2"
@@ -37,7 +37,8 @@ UNDEFINED = "not defined"  # the Random line's GSR
 CSV_FIELDS = (
     "model", "suite_id", "n_choices", "n_episodes", "protocol_seeds", "gsr", "gsr_low", "gsr_high", "tsr", "tsr_low",
     "tsr_high", "nsg", "nsg_low", "nsg_high", "avg_complete", "short", "off_seeds", "episodes", "differs_from_best",
-    "vs_best_test", "vs_best_p", "tsr_detectable_difference", "checkpoint", "instruction_mode", "perturb", "split",
+    "vs_best_test", "vs_best_p", "vs_best_p_holm", "tsr_detectable_difference", "checkpoint", "instruction_mode",
+    "perturb", "split",
     "instructions", "benchmark_version", "run",
 )
 
@@ -56,9 +57,14 @@ def marks(e: Entry, metric: str | None = "tsr") -> str:
 
 
 def mde_text(e: Entry) -> str:
-    """The TSR difference the row's episodes can detect, in points (``"±12.3"``)."""
-    mde = e.tsr_mde
-    return MISSING if e.random else NA if mde is None else f"\u00b1{100 * mde:.1f}"
+    """The TSR difference the row's episodes can detect, in points (``"±12.3"``; "none at this n" where
+    McNemar's exact test cannot reach 80 % power at any difference)."""
+    if e.random:
+        return MISSING
+    over = e.avg.present if e.avg and e.avg.present else list(e.row["suites"])
+    if all(e.row["suites"][s]["tsr"]["value"] is None for s in over if s in e.row["suites"]):
+        return NA
+    return points(e.tsr_mde, NONE_AT_N)
 
 
 def protocol_tag(board: Leaderboard) -> tuple[str, str]:
@@ -126,8 +132,9 @@ def notes(board: Leaderboard) -> list[str]:
     out += unverified_notes(board)  # each reason the true one: no data at hand, no digests, as a file says
     out += difference_notes(board)
     out.append("Detectable TSR difference: the smallest difference from a row's TSR (pooled over its Avg suites) that "
-               "a paired comparison on its episodes (the same seeds, McNemar's test at p < 0.05) finds 4 times in "
-               "5; a smaller one needs more episodes (`rsb plan`).")
+               "a paired comparison on its episodes (the same seeds, McNemar's exact test at p < 0.05, its power "
+               f"computed exactly) finds 4 times in 5; {NONE_AT_N}: that test cannot reach it at any difference "
+               "(under 6 episodes it cannot reject at all); a smaller one needs more episodes (`rsb plan`).")
     twice = [f"{e.label} ({e.run.source}; also in {', '.join(e.also)})" for e in board.entries if e.also]
     if twice:
         out.append("The same run given twice, listed once: " + "; ".join(twice) + ".")
@@ -135,22 +142,29 @@ def notes(board: Leaderboard) -> list[str]:
 
 
 def difference_notes(board: Leaderboard) -> list[str]:
-    """How each row was tested against the best row, and what the test said."""
+    """How each row was tested against the best row, the family, and what the test said."""
     from rsb_maniskill.reporting.leaderboard import ALPHA, PAIRED
 
     tested = [e for e in board.entries if e.test_best]
     if not tested:
         return []
     best = next(e for e in board.entries if not e.random and not e.test_best and e.provenance != "differ")
+    models = sum(not e.random for e in board.entries)
     words = []
     for e in tested:
-        how = (f"paired, exact McNemar p = {e.p_best:.3g}" if e.test_best == PAIRED
-               else "intervals (no shared episodes to pair): pooled TSR intervals " +
-               ("separate" if e.differs else "overlap"))
-        words.append(f"{e.label}{' ' + DIFFERS if e.differs else ''}: {how}")
-    return [f"{DIFFERS} TSR differs significantly from the best row's ({best.label}): paired (an exact "
-            f"McNemar test over the episodes both ran, p < {ALPHA}) where their records share seeds, else from "
-            f"their pooled Wilson 95 % intervals over the suites both ran. " + "; ".join(words) + "."]
+        how = "paired, exact McNemar" if e.test_best == PAIRED else "unpaired, two-proportion z test"
+        if e.p_best is None:
+            words.append(f"{e.label}: {how}: not tested (under 5 expected successes or failures a run)")
+            continue
+        words.append(f"{e.label}{' ' + DIFFERS if e.differs else ''}: {how} p = {p_value(e.p_best)}, "
+                     f"Holm p = {p_value(e.p_holm)}")
+    return [f"{DIFFERS} TSR differs significantly from the best row's ({best.label}): Holm p < {ALPHA}. Test: paired "
+            "(McNemar's exact test over the episodes both ran, in the suites both ran) where their records share "
+            "episodes, else unpaired (the pooled two-proportion z test of their TSR over those suites; none where a "
+            f"run expects under 5 successes or failures). Family: every pair of the {models} rows "
+            f"({max(e.family for e in tested)} tests), Holm's correction: the best row is picked from the data, "
+            "so only a correction over all pairs keeps the chance of any mark between identical rows at "
+            f"{ALPHA}. " + "; ".join(words) + "."]
 
 
 def leaderboard_markdown(board: Leaderboard, title: str) -> str:
@@ -186,7 +200,8 @@ def csv_rows(board: Leaderboard) -> list[dict[str, Any]]:
     for e in board.entries:
         common = {"model": e.label, "checkpoint": e.row.get("checkpoint"), "short": e.short, "off_seeds": e.off_seeds,
                   "episodes": None if e.random else e.provenance, "differs_from_best": e.differs,
-                  "vs_best_test": e.test_best, "vs_best_p": e.p_best, "tsr_detectable_difference": e.tsr_mde,
+                  "vs_best_test": e.test_best, "vs_best_p": e.p_best, "vs_best_p_holm": e.p_holm,
+                  "tsr_detectable_difference": e.tsr_mde,
                   "instruction_mode": p["instruction_mode"], "perturb": p["perturb"], "split": p["split"],
                   "instructions": p["instructions"], "benchmark_version": board.benchmark_version,
                   "run": e.run.source if e.run else None}

@@ -21,7 +21,7 @@ from rsb_maniskill.evaluation.metrics import PAPER_SUITES, Rate, SuiteMetrics, a
 from rsb_maniskill.evaluation.provenance import Provenance, check_records
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, one_version, perturb_label, row_label
 from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
-from rsb_maniskill.reporting.cells import NA, ci, delta, pct
+from rsb_maniskill.reporting.cells import NA, ci, delta, p_value, pct
 
 RESULTS_FILE = "results.json"
 METRIC_NAMES = {"gsr": "GSR", "tsr": "TSR", "nsg": "nSG"}  # as the paper and every table write them
@@ -150,6 +150,45 @@ def write_results(results_dir: str | os.PathLike, records: Iterable[Mapping[str,
     return path
 
 
+MAX_DEPTH = 32  # a results document nests 6 levels; one nested deeper is not one (and costs recursion)
+
+
+class ResultsFileError(ValueError):
+    """A results file that cannot be read as JSON: one line that names it."""
+
+
+def read_results_file(path: str | os.PathLike) -> Any:
+    """The JSON of a results file; ResultsFileError (one line, naming the file and where) for text that is not
+    JSON, or JSON nested deeper than :data:`MAX_DEPTH` levels (read without recursion, so a 10,000-deep
+    file is named, not a RecursionError)."""
+    path = Path(path)
+    text = path.read_text(encoding="utf-8", errors="replace")
+    deep = _too_deep(text)
+    if deep is not None:
+        raise ResultsFileError(f"{path}: not a results document: JSON nested over {MAX_DEPTH} levels deep at character "
+                         f"{deep:,} (a results.json nests 6)")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ResultsFileError(f"{path}: not a results document: {err}") from None
+
+
+def _too_deep(text: str) -> int | None:
+    """The offset where ``text``'s brackets (outside strings) first nest deeper than MAX_DEPTH, else None."""
+    import re
+
+    depth = 0
+    for m in re.finditer(r'"(?:[^"\\]|\\.)*"|[\[\]{}]', text):
+        ch = m.group()
+        if ch in "[{":
+            depth += 1
+            if depth > MAX_DEPTH:
+                return m.start()
+        elif ch in "]}":
+            depth -= 1
+    return None
+
+
 def load_results(results_dir: str | os.PathLike) -> dict[str, Any]:
     """The results document of a directory, computed from its ``episodes.jsonl`` (so that it is
     current), else read from its ``results.json`` (a file shared alone)."""
@@ -157,20 +196,13 @@ def load_results(results_dir: str | os.PathLike) -> dict[str, Any]:
     if (d / RECORDS_FILE).exists():
         return results_document(read_records(d / RECORDS_FILE), read_manifest(d), earlier_rows(d))
     if (d / RESULTS_FILE).exists():
-        return json.loads((d / RESULTS_FILE).read_text())
+        return read_results_file(d / RESULTS_FILE)
     raise FileNotFoundError(f"{d} holds neither {RECORDS_FILE} nor {RESULTS_FILE}: give an `rsb eval` --out directory")
 
 
 # ---------------------------------------------------------------------------------- --compare
 def _ci(r: Mapping[str, float | None]) -> str:
     return ci(r["value"], r["low"], r["high"])
-
-
-def separate(a: Mapping[str, float | None], b: Mapping[str, float | None]) -> bool | None:
-    """Whether two rates' 95 % intervals do not overlap (None when either is undefined)."""
-    if a["value"] is None or b["value"] is None:
-        return None
-    return a["high"] < b["low"] or b["high"] < a["low"]
 
 
 def _pairs(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], Mapping[str, Any]]]:
@@ -181,12 +213,27 @@ def _pairs(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[tuple[Mapping[str
     return [(r, rb[r["row"]]) for r in a["rows"] if r["row"] in rb]
 
 
+def _counts(suite: Mapping[str, Any], key: str) -> tuple[int, int] | None:
+    """What a suite's rate counts: successes (GSR, TSR: of its episodes; nSG: of its grasps, the
+    share nSG rescales), None where undefined."""
+    n = suite["n"]
+    if key == "nsg":
+        s, g = suite["tsr"]["value"], suite["gsr"]["value"]
+        return None if s is None or not g else (round(s * n), round(g * n))
+    v = suite[key]["value"]
+    return None if v is None else (round(v * n), n)
+
+
 def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] = ("A", "B"),
-            rows_optional: bool = False) -> str:
-    """Markdown: two runs' rows side by side, per suite and metric, with B - A and whether the
-    Wilson intervals separate. ValueError (one line) when their benchmark versions differ, or when
-    no row pairs (unless ``rows_optional``: runs of counterfactual scenes alone have no row, their
-    paired comparison of records is all there is; a line says so)."""
+            rows_optional: bool = False, paired: bool = False) -> str:
+    """Markdown: two runs' rows side by side, per suite and metric, with B - A. Unpaired (``paired``
+    False: no records of the same episodes to pair) each cell is tested by the pooled two-proportion z
+    test (``stats.two_proportions``; nSG as its share of grasps on the target), Holm-corrected over
+    the table; paired, the paired comparison that follows tests them and this table shows values
+    only. ValueError (one line) when their benchmark versions differ, or when no row pairs (unless
+    ``rows_optional``: runs of counterfactual scenes alone have no row, their paired comparison of
+    records is all there is; a line says so)."""
+    from rsb_maniskill.evaluation.stats import ALPHA, holm_marks, two_proportions
     from rsb_maniskill.version import benchmark_label
 
     if a["benchmark_version"] != b["benchmark_version"]:
@@ -206,26 +253,49 @@ def compare(a: Mapping[str, Any], b: Mapping[str, Any], names: tuple[str, str] =
         raise ValueError(f"{names[0]} ({', '.join(sorted({s for r in a['rows'] for s in r['suites']}))}) and "
                          f"{names[1]} ({', '.join(sorted({s for r in b['rows'] for s in r['suites']}))}) share "
                          "no suite: nothing to compare")
-    pairs = shared
-    out = [f"Benchmark: {benchmark_label(a['benchmark_version'])}. A = {names[0]}, B = {names[1]}; intervals: "
-           "Wilson 95 %; \"separate\": the two intervals do not overlap."]
-    for ra, rb in pairs:
-        lines = ["| Suite | Metric | A (n) | B (n) | B - A | Intervals |", "|---|---|:---:|:---:|:---:|:---:|"]
+    cells = [(ra, rb, suite, key) for ra, rb in shared for suite in ra["suites"] if suite in rb["suites"]
+             for key in METRIC_NAMES]
+    ps: list[float | None] = []
+    for ra, rb, suite, key in cells:
+        x, y = _counts(ra["suites"][suite], key), _counts(rb["suites"][suite], key)
+        ps.append(None if paired or x is None or y is None else two_proportions(*x, *y))
+    marks = holm_marks([(p, None, None) for p in ps])
+    tested = sum(p is not None for p in ps)
+    if paired:
+        how = ("intervals: Wilson 95 % (estimates, not a test: the two runs share episodes, and the paired "
+               "comparison below tests them).")
+    else:
+        how = (f"intervals: Wilson 95 %. Test: the pooled two-proportion z test of A against B (nSG: as its share "
+               f"of grasps on the target), {MIN_EXPECTED_TEXT}; family: the {tested} tests of this table, Holm's "
+               f"correction; * : Holm p < {ALPHA}. Overlapping intervals are not a test.")
+    out = [f"Benchmark: {benchmark_label(a['benchmark_version'])}. A = {names[0]}, B = {names[1]}; {how}"]
+    found = {(id(ra), suite, key): (p, mk) for (ra, _, suite, key), p, mk in zip(cells, ps, marks)}
+    for ra, rb in shared:
+        head = "| Suite | Metric | A (n) | B (n) | B - A |" + ("" if paired else " z test p | Holm p |")
+        lines = [head, "|---|---|:---:|:---:|:---:|" + ("" if paired else ":---:|:---:|")]
         for suite in [s for s in ra["suites"] if s in rb["suites"]]:
             sa, sb = ra["suites"][suite], rb["suites"][suite]
             for key in METRIC_NAMES:
                 x, y = sa[key], sb[key]
-                diff = delta(y["value"], x["value"])
-                sep = {None: NA, True: "separate", False: "overlap"}[separate(x, y)]
-                lines.append(f"| {suite} | {METRIC_NAMES[key]} | {_ci(x)} ({sa['n']}) | {_ci(y)} ({sb['n']}) | "
-                             f"{diff} | {sep} |")
+                row = f"| {suite} | {METRIC_NAMES[key]} | {_ci(x)} ({sa['n']}) | {_ci(y)} ({sb['n']}) | " \
+                      f"{delta(y['value'], x['value'])} |"
+                if not paired:
+                    p, mk = found[(id(ra), suite, key)]
+                    holm_p = NA if p is None else p_value(mk.p_holm) + (" *" if mk.significant else "")
+                    row += f" {NA if p is None else p_value(p)} | {holm_p} |"
+                lines.append(row)
         for key in METRIC_NAMES:
             x, y = ra["average"][key], rb["average"][key]
-            lines.append(f"| Avg | {METRIC_NAMES[key]} | {pct(x)} | {pct(y)} | {delta(y, x)} | |")
+            lines.append(f"| Avg | {METRIC_NAMES[key]} | {pct(x)} | {pct(y)} | {delta(y, x)} |"
+                         + ("" if paired else " | |"))
         only = sorted(set(ra["suites"]) ^ set(rb["suites"]))
         note = f"\n\nIn one run only: {', '.join(only)}." if only else ""
         out.append(f"### {ra['row']} (A) vs {rb['row']} (B), %\n\n" + "\n".join(lines) + note)
     return "\n\n".join(out) + "\n"
+
+
+MIN_EXPECTED_TEXT = ("n/a where a run expects under 5 successes or failures at the pooled rate (the z test's rule: "
+                     "there its size is not 5 %)")
 
 
 # ---------------------------------------------------------------------------------- checking one
@@ -274,11 +344,45 @@ def shape_problem(doc: Any) -> str | None:
     return None
 
 
+def version_problem(doc: Mapping[str, Any]) -> str | None:
+    """``"schema_version: what"`` where a document's schema version is not this code's, else None."""
+    v = doc.get("schema_version")
+    if "schema_version" not in doc:
+        return f"schema_version: missing (a results.json of this rsb_maniskill has {SCHEMA_VERSION})"
+    if isinstance(v, bool) or not isinstance(v, int):
+        kind = {"str": "string", "float": "number", "dict": "JSON object", "list": "list", "NoneType": "null"}
+        return (f"schema_version: {json.dumps(v)} is a {kind.get(type(v).__name__, type(v).__name__)} where the "
+                f"number {SCHEMA_VERSION} is due")
+    if v != SCHEMA_VERSION:
+        return (f"schema_version: {v}, this rsb_maniskill reads {SCHEMA_VERSION}: run the rsb_maniskill that "
+                "wrote it")
+    return None
+
+
+def _interval_problem(rate: Mapping[str, Any], n: int) -> str | None:
+    """Where a GSR / TSR's value and interval are not those of ``n`` episodes (the count value x n a
+    whole number, the interval Wilson's at n): an edited n (10^30 beside an interval of 2 episodes)."""
+    from rsb_maniskill.evaluation.metrics import wilson_interval
+
+    v, lo, hi = rate.get("value"), rate.get("low"), rate.get("high")
+    if v is None or lo is None or hi is None:
+        return None
+    k = v * n
+    if abs(k - round(k)) > 1e-6 * max(1.0, k):
+        return f"a rate of {100 * v:g} % is no whole number of {n:,} episodes"
+    want = wilson_interval(round(k), n)
+    if abs(want[0] - lo) > 1e-6 or abs(want[1] - hi) > 1e-6:
+        return (f"[{100 * lo:.1f}, {100 * hi:.1f}] % is not the Wilson interval of {round(k):,} of {n:,} episodes "
+                f"([{100 * want[0]:.1f}, {100 * want[1]:.1f}] %): its n or its rate was edited")
+    return None
+
+
 def document_problem(doc: Mapping[str, Any]) -> str | None:
-    """The first thing wrong with a results document, as ``"field: what"`` (None if none): episode
-    counts and the rates' types and ranges (finite, within [0, 1], nSG within [-1, 1], low <= value
-    <= high), checked in code; then the shipped schema, where jsonschema is installed."""
-    shape = shape_problem(doc)
+    """The first thing wrong with a results document, as ``"field: what"`` (None if none): its schema
+    version, episode counts and the rates' types and ranges (finite, within [0, 1], nSG within
+    [-1, 1], low <= value <= high, GSR / TSR intervals Wilson's at the suite's n), checked in code;
+    then the shipped schema, where jsonschema is installed."""
+    shape = shape_problem(doc) or version_problem(doc)
     if shape:
         return shape
     for i, row in enumerate(doc.get("rows") or []):
@@ -298,6 +402,9 @@ def document_problem(doc: Mapping[str, Any]) -> str | None:
                 v, lo, hi = rate.get("value"), rate.get("low"), rate.get("high")
                 if v is not None and lo is not None and hi is not None and not lo <= v <= hi:
                     return f"{where}.{key}: its interval [{lo}, {hi}] does not hold its value {v}"
+                edited = _interval_problem(rate, n) if key != "nsg" else None
+                if edited:
+                    return f"{where}.n: {n:,} episodes do not fit {where}.{key}: {edited}"
         avg = row.get("average")
         for key, (low, high) in RATE_RANGES.items():
             bad = _number_problem(avg.get(key), low, high) if isinstance(avg, Mapping) else None

@@ -23,10 +23,10 @@ from rsb_maniskill.evaluation.metrics import (
     suite_order,
     summarize,
 )
-from rsb_maniskill.evaluation.records import dedupe, one_version, record_row
+from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, one_version, record_row
 from rsb_maniskill.objects.family import OBJECTS_SUFFIX
 from rsb_maniskill.reporting.blocks import Block, Grid, Heading, Inline, Note, Strong, to_markdown
-from rsb_maniskill.reporting.cells import NA, ci, pct
+from rsb_maniskill.reporting.cells import NA, NONE_AT_N, ci, pct, points
 
 Results = Mapping[str, Mapping[str, SuiteMetrics]]
 # The heading of paper Table 7 (the last table): the page shows it in its error analysis section.
@@ -41,7 +41,38 @@ def results_from_records(records: Iterable[Mapping[str, Any]]) -> dict[str, dict
     rows: dict[str, list[Mapping[str, Any]]] = {}
     for r in records:
         rows.setdefault(record_row(r), []).append(r)
-    return {label: summarize(recs) for label, recs in rows.items()}
+    out = {label: summarize(recs) for label, recs in rows.items()}
+    for label, recs in rows.items():
+        if any(r.get("instruction_mode") == COUNTERFACTUAL for r in recs):
+            for suite, m in out[label].items():
+                out[label][suite] = by_scene(m, [r for r in recs if r["suite_id"] == suite])
+    return out
+
+
+def by_scene(m: SuiteMetrics, records: Sequence[Mapping[str, Any]]) -> SuiteMetrics:
+    """A counterfactual row's GSR, TSR and nSG with intervals that count scenes (the K variants of a
+    seed go one way together: ``stats.clustered_rate``), and each rate's design effect over scenes in
+    ``extra["design_effect"]`` (its detectable difference counts n / design effect episodes)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from rsb_maniskill.evaluation.metrics import Rate, outcome
+    from rsb_maniskill.evaluation.stats import clustered_rate, design_effect
+
+    kinds = [outcome(r) for r in records]
+    seeds = np.array([int(r["seed"]) for r in records])
+    grasped = np.array([k != "no_grasp" for k in kinds])
+    success = np.array([k == "success" for k in kinds])
+    design = {"gsr": design_effect(grasped, seeds), "tsr": design_effect(success, seeds), "nsg": None}
+    nsg = Rate(None, None, None)
+    if grasped.any():
+        share = clustered_rate(success[grasped], seeds[grasped])
+        chance = 1.0 / m.n_choices
+        nsg = Rate(*((x - chance) / (1 - chance) for x in (share.value, share.low, share.high)))
+        design["nsg"] = design_effect(success[grasped], seeds[grasped])
+    return replace(m, gsr=clustered_rate(grasped, seeds), tsr=clustered_rate(success, seeds), nsg=nsg,
+                   extra={**m.extra, "scenes": len(set(seeds.tolist())), "design_effect": design})
 
 
 def suite_columns(results: Results) -> list[str]:
@@ -51,24 +82,32 @@ def suite_columns(results: Results) -> list[str]:
 
 def detectable(m: SuiteMetrics) -> dict[str, float | None]:
     """Per metric, the smallest difference from this suite's value that a paired comparison on the
-    same episodes detects with 80 % power at p < 0.05 (``stats.minimum_detectable_difference``);
-    nSG's through its share of grasps on the target (TSR / GSR over the grasped episodes), scaled
-    like nSG. None where no difference within [0, 1] can be told at this n."""
+    same episodes detects with 80 % power at p < 0.05: McNemar's exact test, its power computed
+    exactly (``stats.minimum_detectable_difference``), at the run's design effect over scenes for a
+    counterfactual row (the scene test: n / design effect effective episodes); nSG's through its share
+    of grasps on the target (TSR / GSR over the grasped episodes), scaled like nSG. None where the
+    rate is undefined, or where no difference within [0, 1] can be detected at this n (under 6
+    effective episodes the test cannot reject at all)."""
     from rsb_maniskill.evaluation.stats import minimum_detectable_difference as mdd
 
+    design = m.extra.get("design_effect") or {}
     out: dict[str, float | None] = {
-        "gsr": None if m.gsr.value is None else mdd(m.gsr.value, m.n_episodes),
-        "tsr": None if m.tsr.value is None else mdd(m.tsr.value, m.n_episodes), "nsg": None}
+        "gsr": None if m.gsr.value is None else mdd(m.gsr.value, m.n_episodes, design=design.get("gsr") or 1.0),
+        "tsr": None if m.tsr.value is None else mdd(m.tsr.value, m.n_episodes, design=design.get("tsr") or 1.0),
+        "nsg": None}
     if m.n_grasped:
-        cond = mdd(m.n_success / m.n_grasped, m.n_grasped)
+        cond = mdd(m.n_success / m.n_grasped, m.n_grasped, design=design.get("nsg") or 1.0)
         out["nsg"] = None if cond is None else cond / (1 - 1 / m.n_choices)
     return out
 
 
 DETECTABLE_NOTE = Note("Detectable difference (TSR, points): the smallest TSR difference from this run that a paired "
-                       "comparison on the same episodes (McNemar's test, p < 0.05) finds 4 times in 5; summary.json "
-                       "holds it for GSR and nSG too (detectable_difference). `rsb plan` gives the episodes another "
-                       "claim needs.")
+                       "comparison on the same episodes (McNemar's exact test, p < 0.05, its power computed exactly; "
+                       "counterfactual rows: over scenes, at the run's design effect) finds 4 times in 5; "
+                       f"{NONE_AT_N}: that test cannot reach it at any difference (under 6 episodes it cannot reject "
+                       "at all). summary.json holds it for GSR and nSG too (detectable_difference). `rsb plan` gives "
+                       "the episodes another claim needs. Counterfactual rows: Wilson 95 % intervals over scenes "
+                       "(a seed's variants counted at the effective sample size).")
 
 
 def summary_dict(results: Results, benchmark_version: str | None = None) -> dict[str, Any]:
@@ -77,8 +116,10 @@ def summary_dict(results: Results, benchmark_version: str | None = None) -> dict
     return {
         **({"benchmark_version": benchmark_version} if benchmark_version else {}),
         "avg_suites": list(PAPER_SUITES),
-        "detectable_difference": "the smallest difference from the value that a paired comparison on the same "
-                                 "episodes detects with 80 % power at p < 0.05 (fractions; null: none at this n)",
+        "detectable_difference": "the smallest difference from the value that McNemar's exact test on the same "
+                                 "episodes detects with 80 % power at p < 0.05, its power computed exactly "
+                                 "(counterfactual rows: at n / design_effect, the scene test's effective size; "
+                                 "fractions; null: the rate is undefined, or none at this n)",
         "rows": {
             label: {
                 "suites": {s: {**m.to_dict(), "detectable_difference": detectable(m)} for s, m in row.items()},
@@ -176,7 +217,7 @@ def summary_blocks(results: Results, benchmark_version: str | None = None) -> li
         row = results[label]
         detail = [[s, str(m.n_episodes), ci(m.gsr.value, m.gsr.low, m.gsr.high),
                    ci(m.tsr.value, m.tsr.low, m.tsr.high), ci(m.nsg.value, m.nsg.low, m.nsg.high),
-                   f"{100 / m.n_choices:.1f}", _points(detectable(m)["tsr"])] for s, m in row.items()]
+                   f"{100 / m.n_choices:.1f}", _points(detectable(m)["tsr"], m.tsr.value)] for s, m in row.items()]
         out += [Heading(f"{label}: per suite with Wilson 95% intervals (%)"),
                 Grid(["Suite", "Episodes", "GSR", "TSR", "nSG", "Random TSR (1/N)", "Detectable TSR difference"],
                      detail)]
@@ -205,8 +246,8 @@ def summary_blocks(results: Results, benchmark_version: str | None = None) -> li
     return out
 
 
-def _points(x: float | None) -> str:
-    return NA if x is None else f"\u00b1{100 * x:.1f}"
+def _points(x: float | None, rate: float | None = 0.0) -> str:
+    return NA if rate is None else points(x, NONE_AT_N)
 
 
 def markdown_tables(results: Results, benchmark_version: str | None = None) -> str:

@@ -1,6 +1,6 @@
 """evaluation/stats.py: intervals that count clusters hold their coverage (at 0 %, 100 %, one cluster and
-unequal sizes too), paired tests and Holm's correction give the textbook numbers, and the episodes a claim
-needs are enough (simulated power)."""
+unequal sizes too), paired tests and Holm's correction give the textbook numbers. The powers, plans and
+detectable differences are checked in tests/evaluation/test_power.py."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,17 +10,12 @@ from rsb_maniskill.evaluation.metrics import Rate, wilson_interval
 from rsb_maniskill.evaluation.stats import (
     ALPHA,
     cluster_quantile,
-    clustered_power,
     clustered_rate,
     confusion,
     design_effect,
     holm,
     mcnemar,
     mcnemar_power,
-    minimum_detectable_difference,
-    paired_bootstrap,
-    paired_sample_size,
-    plan_episodes,
     sign_flip_p,
     size_design_effect,
 )
@@ -75,19 +70,6 @@ def test_holm_steps_down_and_keeps_none():
     assert holm([0.01, 0.04, 0.03, None]) == pytest.approx([0.03, 0.06, 0.06, None])
     assert holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])  # 2 x 0.5, then never below it
     assert holm([]) == []
-
-
-def test_paired_bootstrap_finds_a_real_difference_and_not_a_null_one():
-    rng = np.random.default_rng(0)
-    base = rng.random(300) < 0.5
-    better = base | (rng.random(300) < 0.3)  # the same episodes, more successes
-    mean = lambda means: means[..., 0]  # noqa: E731
-    d = paired_bootstrap(better, base, mean, resamples=500)
-    assert d.difference > 0 and d.low > 0 and d.p < 0.01 and d.decided
-    same = paired_bootstrap(base, base.copy(), mean, resamples=200)
-    assert same.difference == 0 and same.p == 1.0
-    undefined = paired_bootstrap(base, base, lambda means: np.full(means.shape[:-1], np.nan))
-    assert undefined.difference is None and undefined.resamples == 0
 
 
 def test_confusion_counts_chosen_against_correct():
@@ -174,16 +156,7 @@ def test_the_scene_sign_test_is_mcnemar_with_one_episode_a_scene_and_exact_other
     assert sign_flip_p([0, 0]) == 1.0
 
 
-# ---------------------------------------------------------------- how many episodes a claim needs
-def test_connor_sample_size_and_the_detectable_difference_invert_each_other():
-    n = paired_sample_size(0.3, 0.45)
-    mde = minimum_detectable_difference(0.3, n)
-    assert mde == pytest.approx(0.15, abs=0.01)
-    assert paired_sample_size(0.3, 0.3) is None and minimum_detectable_difference(0.5, 0) is None
-    assert minimum_detectable_difference(0.3, 4 * n) < mde / 1.8  # a quarter of the error: about half the difference
-    assert paired_sample_size(0.3, 0.45, design=2.0) == pytest.approx(2 * n, abs=1)
-
-
+# ---------------------------------------------------------------- power
 def test_exact_mcnemar_power_agrees_with_simulation():
     rng = np.random.default_rng(4)
     n, sims = 60, 3000
@@ -193,22 +166,6 @@ def test_exact_mcnemar_power_agrees_with_simulation():
     simulated = np.mean([tested[c] < ALPHA for c in zip(np.sum(a & ~b, axis=1).tolist(),
                                                         np.sum(~a & b, axis=1).tolist())])
     assert simulated == pytest.approx(mcnemar_power(0.3, 0.5, n), abs=3 * np.sqrt(0.25 / sims))
-
-
-@pytest.mark.parametrize("p_a, p_b, size, icc", [
-    (0.3, 0.5, 1, 0.0), (0.05, 0.2, 1, 0.0), (0.8, 0.95, 1, 0.0),  # independent episodes: exact McNemar
-    (0.3, 0.5, 4, 0.5), (0.1, 0.3, 4, 0.8), (0.25, 0.6, 3, 0.8),  # counterfactual scenes of K variants
-])
-def test_at_the_planned_episodes_the_test_rejects_four_times_in_five(p_a, p_b, size, icc):
-    """What `rsb plan` prints is enough: simulated afresh (another seed, 3,000 run pairs, each run's scenes
-    drawn from a beta law of ICC ``icc``), the scene test rejects at least 80 % of the time (less 2 Monte
-    Carlo standard errors, 1.5 points); Connor's formula alone fell 2-5 points short."""
-    plan = plan_episodes(p_a, p_b, size=size, icc=icc)
-    assert plan.episodes == plan.scenes * size and plan.power >= 0.8
-    power = clustered_power(p_a, p_b, plan.scenes, size, icc, sims=3000, seed=1234)
-    assert power >= 0.8 - 2 * np.sqrt(0.8 * 0.2 / 3000), (plan, power)
-    short = plan_episodes(p_a, p_b, power=0.5, size=size, icc=icc)
-    assert short.scenes < plan.scenes
 
 
 def test_the_monte_carlo_scene_permutation_says_its_own_error():

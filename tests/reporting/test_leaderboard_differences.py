@@ -1,5 +1,7 @@
 """`rsb leaderboard` marks rows whose TSR differs significantly from the best row's: paired (exact
-McNemar) where their records share seeds, else from the pooled intervals, and says which."""
+McNemar) where their records share seeds, else the pooled two-proportion z test, Holm-corrected over every
+pair of rows, and says which test and which family. (Its family-wise error over five identical rows:
+tests/evaluation/test_power.py.)"""
 from __future__ import annotations
 
 import csv
@@ -11,6 +13,7 @@ from scipy.stats import binomtest
 
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.protocol import EVAL_SEED_BASE
+from rsb_maniskill.evaluation.stats import two_proportions
 from rsb_maniskill.reporting.results import results_document
 
 
@@ -41,10 +44,14 @@ def test_paired_where_seeds_match(tmp_path, capsys):
     far = write_dir(tmp_path / "far", records("poor", 4, 16))  # 10 discordant pairs: p = 0.002
     md, avg, out = board(tmp_path, capsys, best, close, far)
     assert avg["poor"]["differs_from_best"] == "True" and avg["poor"]["vs_best_test"] == "paired"
-    assert abs(float(avg["poor"]["vs_best_p"]) - binomtest(10, 10, 0.5).pvalue) < 1e-9
+    p = binomtest(10, 10, 0.5).pvalue
+    assert abs(float(avg["poor"]["vs_best_p"]) - p) < 1e-9
+    # Holm over the 3 pairs of rows (good-poor 2 / 2^10, close-poor 2 / 2^8, good-close 1 / 2): 3 x poor's p
+    assert abs(float(avg["poor"]["vs_best_p_holm"]) - 3 * p) < 1e-9
     assert avg["close"]["differs_from_best"] == "False" and float(avg["close"]["vs_best_p"]) == 1.0 / 2
     assert avg["good"]["differs_from_best"] == "" and avg["good"]["vs_best_test"] == ""
-    assert "| poor †§ |" in md and "| close † |" in md and "poor §: paired, exact McNemar p = 0.00195" in md
+    assert "| poor †§ |" in md and "| close † |" in md and "poor §: paired, exact McNemar p = 0.002, Holm p = " \
+        "0.006" in md and "Family: every pair of the 3 rows (3 tests), Holm's correction" in md
     assert "Episodes unverified (records without episode digests" in md  # these records carry none
     assert "poor §" in (out / "index.html").read_text()
 
@@ -54,8 +61,10 @@ def test_from_the_intervals_without_shared_seeds(tmp_path, capsys):
     other = tmp_path / "other.json"  # a results.json alone: no records to pair
     other.write_text(json.dumps(results_document(records("poor", 3, 17, first=0))))
     md, avg, _ = board(tmp_path, capsys, best, other)
-    assert avg["poor"]["differs_from_best"] == "True" and avg["poor"]["vs_best_test"] == "intervals"
-    assert avg["poor"]["vs_best_p"] == "" and "poor §: intervals" in md
+    assert avg["poor"]["differs_from_best"] == "True" and avg["poor"]["vs_best_test"] == "unpaired"
+    assert float(avg["poor"]["vs_best_p"]) == two_proportions(18, 20, 3, 20)
+    assert "poor §: unpaired, two-proportion" in md
+    assert "Overlap" not in md and "intervals separate" not in md
 
 
 def test_the_mark_stands_on_tsr_only_and_each_row_says_what_it_can_detect(tmp_path, capsys):

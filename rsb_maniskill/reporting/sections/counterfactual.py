@@ -25,8 +25,8 @@ unswitched). Follow and switch are the means over all variants / pairs, their in
 the effective number of them (``stats.clustered_rate``: Kish's design effect over scenes, the
 scenes' sizes where it cannot be estimated, at 0 % or 100 %, and Student's t over the scenes);
 stuck counts one a scene. Each rate's ``detectable`` difference is the smallest one a paired
-comparison on the same scenes finds 4 times in 5 (``stats.minimum_detectable_difference`` at the
-same design effect).
+comparison on the same scenes finds 4 times in 5 (``stats.minimum_detectable_difference``: McNemar's
+exact test at n over the same design effect).
 """
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ from rsb_maniskill.evaluation.metrics import Rate, num_choices
 from rsb_maniskill.evaluation.records import COUNTERFACTUAL, dedupe, record_row
 from rsb_maniskill.evaluation.stats import clustered_rate, design_effect, minimum_detectable_difference
 from rsb_maniskill.reporting.blocks import Block, Grid, Heading, Inline, Note, Strong, to_markdown
-from rsb_maniskill.reporting.cells import NA, pct, rate_cell
+from rsb_maniskill.reporting.cells import NA, NONE_AT_N, pct, points, rate_cell
 from rsb_maniskill.reporting.figures import png_uri, png_with_legend_below, rate_bars
 from rsb_maniskill.reporting.sections.base import Section, write_rows
 
@@ -169,7 +169,8 @@ def scene_rate(counts: Counts, hits: str, of: str) -> Rate:
 
 def scene_detectable(counts: Counts, hits: str, of: str) -> float | None:
     """The smallest difference from ``sum(hits) / sum(of)`` that a paired comparison on the same
-    scenes detects with 80 % power at p < 0.05, at this run's design effect over scenes."""
+    scenes detects with 80 % power at p < 0.05: McNemar's exact test at the effective sample size
+    (n over this run's design effect over scenes). None where there is no rate, or none at this n."""
     values, clusters = scene_values(counts, hits, of)
     if not values:
         return None
@@ -288,7 +289,9 @@ NOTE = ("Follow: the grasped candidate is the variant's target, over the changed
         "not independent, so follow and switch are counted at their effective number of scenes (Kish's design "
         "effect; at 0 % or 100 % the scenes' sizes: a scene counts once) with Student's t over the scenes; stuck "
         "counts one a scene. Detectable: the smallest difference in follow / switch a paired comparison on the "
-        "same scenes finds 4 times in 5 (points).")
+        "same scenes finds 4 times in 5 (points): McNemar's exact test's power, computed exactly, at the effective "
+        f"number of them (n / design effect, as the scene test counts them); {NONE_AT_N}: that test cannot reach "
+        "it at any difference.")
 
 
 def _n(value: int | None) -> str:
@@ -301,7 +304,7 @@ def _cells(suite: Inline, m: CounterfactualMetrics) -> list[Inline]:
             rate_cell(m.follow_by_kind["requestion"]), rate_cell(m.switch), pct(m.chance_switch),
             rate_cell(m.switched_and_followed), rate_cell(m.stuck), pct(m.chance_stuck),
             " / ".join(str(m.spread.get(k, 0)) for k in ("all", "some", "none")),
-            " / ".join(NA if m.detectable.get(k) is None else f"\u00b1{100 * m.detectable[k]:.1f}"
+            " / ".join(NA if getattr(m, k).value is None else points(m.detectable.get(k), NONE_AT_N)
                        for k in ("follow", "switch"))]
 
 

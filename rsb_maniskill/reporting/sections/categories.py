@@ -19,7 +19,7 @@ from typing import Any, Iterable, Mapping, Sequence
 from rsb_maniskill.evaluation.metrics import Rate, group_by_suite, nsg, num_choices, outcome, suite_order
 from rsb_maniskill.evaluation.records import CATEGORIES_FIELD, dedupe, record_row
 from rsb_maniskill.reporting.blocks import SMALL_MARK, Block, Cell, Grid, Heading, Inline, Note, Strong, to_markdown
-from rsb_maniskill.reporting.cells import rate_cell
+from rsb_maniskill.reporting.cells import p_value, rate_cell
 from rsb_maniskill.reporting.sections.base import Section, write_rows
 from rsb_maniskill.semantic.categories import DIMENSIONS, SUITE_KIND, value_label, value_order
 
@@ -180,8 +180,8 @@ class DimensionTest:
         if self.p is None:
             return f"{self.name}: not tested (fewer than two values)"
         verdict = "TSR differs" if self.differs else "no difference shown"
-        return (f"{self.name}: {verdict} (p = {self.p:.2g}, Holm-adjusted "
-                f"{self.p_holm:.2g})")
+        return (f"{self.name}: {verdict} (p = {p_value(self.p, FAMILY_ALPHA)}, Holm-adjusted "
+                f"{p_value(self.p_holm, FAMILY_ALPHA)})")  # as many digits as the verdict needs
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "differs": self.differs}

@@ -82,10 +82,10 @@ def short_source(record: dict[str, Any]) -> str:
 
 def source_line(record: dict[str, Any], page: Path, results: Path = RESULTS) -> str:
     link = os.path.relpath(results / f"{record['name']}.json", page.parent)
-    what = f"`{record['command']}`, {short_source(record)}"
-    if record.get("recorded_from"):
-        return f"*Recorded from an earlier run in [{record['name']}.json]({link}): {what}; {record['recorded_from']}.*"
-    return f"*Recorded in [{record['name']}.json]({link}): {what}.*"
+    if record.get("recorded_from"):  # its command (often several) is in the file
+        return (f"*Recorded from an earlier run in [{record['name']}.json]({link}): {short_source(record)}; "
+                f"{record['recorded_from']}.*")
+    return f"*Recorded in [{record['name']}.json]({link}): `{record['command']}`, {short_source(record)}.*"
 
 
 def markdown_table(table: dict[str, Any]) -> str:
@@ -176,7 +176,7 @@ def gpu_figures(page: Path, results: Path) -> str:
          "before the batched observation) steps/s", "the probe and H200 rows"],
         ["the same, 16 x 4 envs, chunks of 10", _duration(steps / chunked),
          f"projected: 64 envs / ({physics} ms physics + {render} ms render / 10) a batch = {chunked:,.0f} steps/s",
-         "the probe's per-batch figures"],
+         "the probe row (its per-batch figures)"],
         [f"the paper's six training sets ({TRAINING_FRAMES / 1e6:.2f} M frames), one env a process",
          _duration(TRAINING_FRAMES / peak), f"projected: {TRAINING_FRAMES / 1e6:.2f} M / {peak} frames/s (the peak)",
          "the H100 aggregate row"],
@@ -208,7 +208,46 @@ def today_rows(page: Path, results: Path) -> list[list[str]]:
              f"{lookup(check, 'training_frames_s'):,.0f} frames/s", f"measured ({gpu}); target >= 2,200", src]]
 
 
-RENDERERS: dict[str, Callable[[Path, Path], str]] = {"gpu_figures": gpu_figures}
+def episode_cost(page: Path, results: Path) -> str:
+    """docs/scale.md's cost of a step and of an episode: the random policy (every episode to the step limit),
+    state observations, and rgb rendered every step or on demand, from eval_throughput's two files."""
+    state, rgb = read("eval_throughput_random", results), read("eval_throughput_rgb", results)
+    (run,) = lookup(state, "runs")[:1]
+    every, lazy = lookup(rgb, "every_step"), lookup(rgb, "on_demand")
+    chunk = lookup(rgb, "chunk")
+    rows = [["state", f"{run['ms_per_step']:.1f} ms", f"{run['s_per_episode']:.2f} s",
+             f"{run['steps_per_episode']:.0f}", f"`{state['command']}`"],
+            ["rgb, cameras rendered every step", f"{every['ms_per_step']:.0f} ms", f"{every['s_per_episode']:.1f} s",
+             f"{every['steps_per_episode']:.0f}", f"`{rgb['command']}`"],
+            [f"rgb, render on demand, chunks of {chunk}", f"{lazy['ms_per_step']:.1f} ms",
+             f"{lazy['s_per_episode']:.1f} s", f"{lazy['steps_per_episode']:.0f}", "same run"]]
+    table = {"columns": ["observations", "per step", "per episode", "steps an episode", "measured with"],
+             "align": "lrrrl", "rows": rows}
+    return (markdown_table(table) + "\n\n" + source_line(state, page, results) + "\n\n" +
+            source_line(rgb, page, results))
+
+
+CLUSTER_EPISODES = PAPER_EVAL_EPISODES * 10  # ten models
+CLUSTER_WORKERS = (16, 64, 256)
+
+
+def cluster_cpu(page: Path, results: Path) -> str:
+    """docs/scale.md's cluster arithmetic: ten models' paper evaluations on CPU workers, projected from the
+    per-episode costs of episode_cost (one core a worker, every episode to the step limit)."""
+    state, rgb = read("eval_throughput_random", results), read("eval_throughput_rgb", results)
+    costs = [("state", lookup(state, "runs")[0]["s_per_episode"]),
+             ("rgb, every step", lookup(rgb, "every_step")["s_per_episode"]),
+             (f"rgb, on demand, chunks of {lookup(rgb, 'chunk')}", lookup(rgb, "on_demand")["s_per_episode"])]
+    rows = [[what, f"{cost:.2f} s", f"{CLUSTER_EPISODES * cost / 3600:,.0f}",
+             *(_duration(CLUSTER_EPISODES * cost / n) for n in CLUSTER_WORKERS)] for what, cost in costs]
+    table = {"columns": ["observations", "per episode (measured above)", "core-hours",
+                         *(f"on {n} workers" for n in CLUSTER_WORKERS)], "align": "lrrrrr", "rows": rows}
+    return markdown_table(table) + (f"\n\n*Projected: {CLUSTER_EPISODES:,} episodes x the cost of an episode "
+                                    "above, divided by N workers of one core each.*")
+
+
+RENDERERS: dict[str, Callable[[Path, Path], str]] = {"gpu_figures": gpu_figures, "episode_cost": episode_cost,
+                                                    "cluster_cpu": cluster_cpu}
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -230,15 +269,27 @@ def render_value(name: str, key: str, fmt: str | None, results: Path = RESULTS) 
     return format(value, fmt) if fmt else str(value)
 
 
-def render(text: str, page: Path, results: Path = RESULTS) -> str:
-    """The page's text with every marked region rendered from its file."""
+def render(text: str, page: Path, results: Path = RESULTS, errors: list[str] | None = None) -> str:
+    """The page's text with every marked region rendered from its file. A region that cannot be rendered
+    raises FigureError, or, given ``errors``, is left as it is and its error appended there."""
+    def guarded(fn: Callable[[re.Match], str]) -> Callable[[re.Match], str]:
+        def sub(m: re.Match) -> str:
+            try:
+                return fn(m)
+            except FigureError as e:
+                if errors is None:
+                    raise
+                errors.append(str(e))
+                return m.group(0)
+        return sub
+
     def block(m: re.Match) -> str:
         return m.group(1) + render_block(m["name"], m["table"], page, results) + "\n" + m.group(5)
 
     def inline(m: re.Match) -> str:
         return m.group(1) + render_value(m["name"], m["key"], m["fmt"], results) + m.group(6)
 
-    return INLINE.sub(inline, BLOCK.sub(block, text))
+    return INLINE.sub(guarded(inline), BLOCK.sub(guarded(block), text))
 
 
 def regions(text: str) -> list[tuple[str, str]]:
@@ -250,21 +301,21 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--check", action="store_true", help="change nothing; exit 1 naming each page that differs")
     args = ap.parse_args(argv)
-    stale = []
+    stale, broken = [], []
     for page in pages():
         text = page.read_text(encoding="utf-8")
-        try:
-            new = render(text, page)
-        except FigureError as e:
+        errors: list[str] = []
+        new = render(text, page, errors=errors)
+        for e in errors:  # the other regions are rendered all the same
             print(f"{page.relative_to(ROOT)}: {e}", file=sys.stderr)
-            return 1
+        broken += errors
         if new != text:
             stale.append(page.relative_to(ROOT))
             if not args.check:
                 page.write_text(new, encoding="utf-8")
     verb = "differ from their recorded figures" if args.check else "re-rendered"
     print(f"{len(stale)} page(s) {verb}" + ("".join(f"\n  {p}" for p in stale)))
-    return 1 if args.check and stale else 0
+    return 1 if broken or (args.check and stale) else 0
 
 
 if __name__ == "__main__":

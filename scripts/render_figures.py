@@ -25,6 +25,9 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
+from rsb_maniskill.env_ids import PAPER_SUITES, TASK_MAX_EPISODE_STEPS  # light: no simulator
+from rsb_maniskill.evaluation.protocol import EPISODES_PER_SUITE
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 PAGES = ("README.md", "docs/*.md")
@@ -113,8 +116,9 @@ def recorded_table(name: str, table: str | None, page: Path, results: Path) -> s
 # Tables built from several files
 
 
-PAPER_EVAL_EPISODES = 6 * 500 * 3  # 6 suites x 500 protocol episodes x 3 instruction modes (one model)
-EPISODE_STEPS = 300  # the worst case: every episode to the step limit
+# one model's paper evaluation: the paper's suites x the protocol's episodes x normal, blank, shuffled
+PAPER_EVAL_EPISODES = len(PAPER_SUITES) * EPISODES_PER_SUITE * 3
+EPISODE_STEPS = TASK_MAX_EPISODE_STEPS  # the worst case: every episode to the step limit
 TRAINING_FRAMES = 2_640_000  # the six training sets, three cameras a frame (docs/demos.md)
 
 

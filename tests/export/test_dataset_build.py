@@ -28,8 +28,10 @@ STRAY = re.compile(r"\.tmp|\.partial|\.part\d|write-probe")  # what a half-done 
 SMALL = {"camera_size": (64, 48)}  # the pipeline is the same at 320x240, only slower
 
 
-def build(out: Path, num_procs: int, shard_size: int = 2, **kw) -> list[dict]:
-    cfg = BuildConfig(suites=[SUITE], out=str(out), questions="0:4", shard_size=shard_size, num_procs=num_procs,
+def build(out: Path, num_procs: int, shard_size: int = 2, questions: str = "0:4", **kw) -> list[dict]:
+    """What RUN's script below builds, in this process (a rerun that is not about the process reuses
+    the simulator this process has loaded)."""
+    cfg = BuildConfig(suites=[SUITE], out=str(out), questions=questions, shard_size=shard_size, num_procs=num_procs,
                       progress=False, env_kwargs=dict(SMALL), **kw)
     return build_datasets(cfg)
 
@@ -185,8 +187,7 @@ def test_kill_9_then_rerun_resumes_without_duplicates(one_proc, tmp_path):
     proc.wait()
     assert first.exists() and not (out / SUITE).exists()
     assert not (out / WORK_DIR / SUITE / "shards" / "shard-00001").exists()
-    res = subprocess.run([sys.executable, str(script), str(out)], capture_output=True, text=True, timeout=600)
-    assert res.returncode == 0, res.stderr[-2000:]
+    assert not build(out, 1)[0]["already_built"]  # the same build, rerun (here: the kill was the process's)
     assert fingerprint(out / SUITE) == fingerprint(one_proc)
     assert not list((out / WORK_DIR / SUITE / "tmp").glob("*"))  # the killed run's partial shard is gone
     assert [p.name for p in (out / SUITE).rglob("*") if STRAY.search(p.name)] == []  # nor a half-done write
@@ -228,8 +229,7 @@ def test_sigterm_stops_keeping_finished_shards_and_rerun_completes(procs, tmp_pa
     assert all((work / "shards" / d / "meta" / "rsb_shard.json").is_file() for d in kept)  # whole or absent
     assert not list((work / "tmp").glob("*"))  # the shard in flight was dropped, not left half-written
     inode = {d: (work / "shards" / d / "meta" / "rsb_shard.json").stat().st_ino for d in kept}
-    res = subprocess.run([sys.executable, str(script), str(out)], capture_output=True, text=True, timeout=600)
-    assert res.returncode == 0, res.stderr[-2000:]
+    build(out, procs, questions="0:6")  # the script's build, rerun in this process (its workers: processes)
     data = read_data(out / SUITE)
     eps = pq.read_table(out / SUITE / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
     assert [e["rsb/seed"] for e in eps] == [0, 1, 2, 3, 4, 5]  # each question once, in order
@@ -272,30 +272,40 @@ def test_missing_question_data_offline(tmp_path, capsys, monkeypatch):
     assert "rsb data download" in err and not (tmp_path / "out").exists()
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("dataset", ["one_proc", "one_shard"])
-def test_lerobot_loads_the_merged_dataset(dataset, request):
-    one_proc = request.getfixturevalue(dataset)  # two shards merged, or one
+@pytest.fixture(scope="module")
+def lerobot_reads(one_proc, one_shard) -> dict[str, dict]:
+    """What LeRobot's own loader (in its venv) reads of each dataset, both in one process (one LeRobot
+    import): dataset name -> the figures below."""
     py = _lerobot_python()
     code = textwrap.dedent(f"""
         import json
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset
-        ds = LeRobotDataset("local/rsb-math-4", root={str(one_proc)!r})
-        last = ds[len(ds) - 1]
-        # the card's dataset_info.features, read by `datasets` (what the hub runs), is the data files' schema
         import pyarrow.parquet as pq, yaml
         from datasets import Features
-        header = yaml.safe_load(open({str(one_proc / "README.md")!r}).read().split("---")[1])
-        card = Features._from_yaml_list(header["dataset_info"]["features"])
-        files = Features.from_arrow_schema(pq.read_schema({str(one_proc / "data/chunk-000/file-000.parquet")!r}))
-        print(json.dumps(dict(frames=len(ds), episodes=ds.num_episodes, last_ep=int(last["episode_index"]),
-                              last_index=int(last["index"]), shape=list(last["observation.images.cam_high"].shape),
-                              task=last["task"], card_features=card == files)))
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+        got = {{}}
+        for name, root in {{"one_proc": {str(one_proc)!r}, "one_shard": {str(one_shard)!r}}}.items():
+            ds = LeRobotDataset("local/rsb-math-4", root=root)
+            last = ds[len(ds) - 1]
+            # the card's dataset_info.features, read by `datasets` (what the hub runs), is the data files' schema
+            header = yaml.safe_load(open(root + "/README.md").read().split("---")[1])
+            card = Features._from_yaml_list(header["dataset_info"]["features"])
+            files = Features.from_arrow_schema(pq.read_schema(root + "/data/chunk-000/file-000.parquet"))
+            got[name] = dict(frames=len(ds), episodes=ds.num_episodes, last_ep=int(last["episode_index"]),
+                             last_index=int(last["index"]), shape=list(last["observation.images.cam_high"].shape),
+                             task=last["task"], card_features=card == files)
+        print(json.dumps(got))
     """)
     res = subprocess.run([str(py), "-c", code], capture_output=True, text=True, timeout=600,
                          env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
     assert res.returncode == 0, res.stderr[-3000:]
-    got = json.loads(res.stdout.strip().splitlines()[-1])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dataset", ["one_proc", "one_shard"])
+def test_lerobot_loads_the_merged_dataset(dataset, lerobot_reads, request):
+    one_proc = request.getfixturevalue(dataset)  # two shards merged, or one
+    got = lerobot_reads[dataset]
     data = read_data(one_proc)
     assert got["frames"] == len(data["index"]) and got["episodes"] == 4 and got["last_ep"] == 3
     assert got["last_index"] == len(data["index"]) - 1 and got["shape"] == [3, 48, 64]

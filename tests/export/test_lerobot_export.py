@@ -38,14 +38,23 @@ def exported(demos, tmp_path_factory) -> Path:
     return out
 
 
-def _head_frame(demos: Path, episode: int, t: int) -> np.ndarray:
-    """The head camera at step t of a demo, rendered here from its recorded state."""
+@pytest.fixture(scope="module")
+def robotwin(demos, tmp_path_factory) -> Path:
+    """`rsb export lerobot --naming robotwin` (5 fps: fewer frames to render, the same keys), rendered in
+    this process (its simulator is loaded; the worker processes' export is the parallel test's)."""
+    out = tmp_path_factory.mktemp("robotwin") / "rsb-math-4-robotwin"
+    assert main(["export", "lerobot", str(demos), "--out", str(out), "--naming", "robotwin", "--fps", "5",
+                 "--num-procs", "1"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def head_frames(demos) -> list[np.ndarray]:
+    """The head camera at every step of each demo, rendered here from its recorded states (once: the
+    video and LeRobot checks below compare frames of it)."""
     from rsb_maniskill.export.render_demos import render_episodes
 
-    for i, ep in enumerate(render_episodes(demos, ("head",), 1)):
-        if i == episode:
-            return ep.frames["head"][t]
-    raise IndexError(episode)
+    return [ep.frames["head"] for ep in render_episodes(demos, ("head",), 1)]
 
 
 def test_demos_rendered_together_on_a_vector_env_give_the_same_frames(demos):
@@ -106,7 +115,7 @@ def test_v3_layout_and_contents(demos, exported):
     assert stats["action"]["count"] == [n_frames] and np.asarray(stats[keys[0]]["mean"]).shape == (3, 1, 1)
 
 
-def test_video_frames_are_the_rendered_frames(demos, exported):
+def test_video_frames_are_the_rendered_frames(demos, exported, head_frames):
     cap = cv2.VideoCapture(str(exported / "videos/observation.images.cam_high/chunk-000/file-001.mp4"))
     frames = []
     while True:
@@ -117,7 +126,7 @@ def test_video_frames_are_the_rendered_frames(demos, exported):
     src = json.loads(demos.with_suffix(".json").read_text())
     assert len(frames) == src["episodes"][1]["elapsed_steps"]
     t = 40
-    err = np.abs(frames[t].astype(int) - _head_frame(demos, 1, t).astype(int)).mean()
+    err = np.abs(frames[t].astype(int) - head_frames[1][t].astype(int)).mean()
     assert err < 6, err  # MPEG-4 is lossy; a wrong frame or camera differs by tens
 
 
@@ -152,12 +161,13 @@ def test_the_dataset_names_its_benchmark_version_and_takes_one(demos, exported, 
     assert not (tmp_path / "mixed").exists()
 
 
-@pytest.mark.slow
-def test_lerobot_loads_the_export(demos, exported, tmp_path):
+@pytest.fixture(scope="module")
+def lerobot_reads(exported, robotwin, head_frames, tmp_path_factory) -> dict[str, dict]:
+    """What LeRobot's own loader (in its venv) reads of the default and the RoboTwin-named export, both
+    in one process (one LeRobot import)."""
     py = _lerobot_python()
-    expected = _head_frame(demos, 0, 30)
-    np.save(tmp_path / "frame.npy", expected)
-    src = json.loads(demos.with_suffix(".json").read_text())
+    frame = tmp_path_factory.mktemp("frame") / "frame.npy"
+    np.save(frame, head_frames[0][30])
     code = textwrap.dedent(f"""
         import json, numpy as np
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -165,17 +175,27 @@ def test_lerobot_loads_the_export(demos, exported, tmp_path):
         item = ds[30]  # episode 0, frame 30
         img = (item["observation.images.cam_high"].numpy().transpose(1, 2, 0) * 255).round()
         eps = ds.meta.episodes
-        print(json.dumps(dict(frames=len(ds), episodes=ds.num_episodes, task=item["task"],
-                              tasks=sorted(ds.meta.tasks.index), letter=eps[0]["rsb/correct_letter"],
-                              options=eps[0]["rsb/options"], rationale=eps[0]["rsb/rationale"],
-                              correct_option=eps[0]["rsb/correct_option"],
-                              err=float(np.abs(img - np.load({str(tmp_path / "frame.npy")!r})).mean()),
-                              keys=sorted(item))))
+        rsb = dict(frames=len(ds), episodes=ds.num_episodes, task=item["task"],
+                   tasks=sorted(ds.meta.tasks.index), letter=eps[0]["rsb/correct_letter"],
+                   options=eps[0]["rsb/options"], rationale=eps[0]["rsb/rationale"],
+                   correct_option=eps[0]["rsb/correct_option"],
+                   err=float(np.abs(img - np.load({str(frame)!r})).mean()), keys=sorted(item))
+        ds = LeRobotDataset("local/rsb-math-4-robotwin", root={str(robotwin)!r})
+        item = ds[3]
+        robotwin = dict(frames=len(ds), cameras=sorted(ds.meta.camera_keys),
+                        shape=list(item["observation.images.head_camera"].shape))
+        print(json.dumps(dict(rsb=rsb, robotwin=robotwin)))
     """)
     res = subprocess.run([str(py), "-c", code], capture_output=True, text=True, timeout=600,
                          env={**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": ""})
     assert res.returncode == 0, res.stderr[-3000:]
-    got = json.loads(res.stdout.strip().splitlines()[-1])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+def test_lerobot_loads_the_export(demos, lerobot_reads):
+    got = lerobot_reads["rsb"]
+    src = json.loads(demos.with_suffix(".json").read_text())
     assert got["frames"] == sum(e["elapsed_steps"] for e in src["episodes"]) and got["episodes"] == 2
     assert got["task"] == src["episodes"][0]["instruction"]
     assert got["tasks"] == sorted({e["instruction"] for e in src["episodes"]})
@@ -186,19 +206,12 @@ def test_lerobot_loads_the_export(demos, exported, tmp_path):
     assert {"observation.state", "action", "observation.images.cam_left_wrist", "task_index"} <= set(got["keys"])
 
 
-def test_parallel_export_is_the_same_dataset(demos, exported, tmp_path):
-    """Two worker processes, one shard each, merged: the same files as the default export."""
-    export_lerobot([demos], tmp_path / "par", progress=False, num_procs=2, shard_size=1)
-    assert fingerprint(tmp_path / "par") == fingerprint(exported)
+def test_parallel_export_is_the_same_dataset(demos, robotwin, tmp_path):
+    """Two worker processes, one shard each, merged: the same files as the export in this process (the
+    RoboTwin one at 5 fps: the workers render a fifth of the frames; the merge is the same)."""
+    export_lerobot([demos], tmp_path / "par", fps=5, naming="robotwin", progress=False, num_procs=2, shard_size=1)
+    assert fingerprint(tmp_path / "par") == fingerprint(robotwin)
     assert not (tmp_path / ".par.work").exists()  # the shards go once merged
-
-
-@pytest.fixture(scope="module")
-def robotwin(demos, tmp_path_factory) -> Path:
-    """`rsb export lerobot --naming robotwin` (5 fps: fewer frames to render, the same keys)."""
-    out = tmp_path_factory.mktemp("robotwin") / "rsb-math-4-robotwin"
-    assert main(["export", "lerobot", str(demos), "--out", str(out), "--naming", "robotwin", "--fps", "5"]) == 0
-    return out
 
 
 def test_robotwin_naming_writes_robotwin_camera_keys(demos, robotwin):
@@ -220,20 +233,8 @@ def test_robotwin_naming_writes_robotwin_camera_keys(demos, robotwin):
 
 
 @pytest.mark.slow
-def test_lerobot_loads_the_robotwin_export(robotwin):
-    py = _lerobot_python()
-    code = textwrap.dedent(f"""
-        import json
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset
-        ds = LeRobotDataset("local/rsb-math-4-robotwin", root={str(robotwin)!r})
-        item = ds[3]
-        print(json.dumps(dict(frames=len(ds), cameras=sorted(ds.meta.camera_keys),
-                              shape=list(item["observation.images.head_camera"].shape))))
-    """)
-    res = subprocess.run([str(py), "-c", code], capture_output=True, text=True, timeout=600,
-                         env={**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": ""})
-    assert res.returncode == 0, res.stderr[-3000:]
-    got = json.loads(res.stdout.strip().splitlines()[-1])
+def test_lerobot_loads_the_robotwin_export(robotwin, lerobot_reads):
+    got = lerobot_reads["robotwin"]
     assert got["cameras"] == ["observation.images.head_camera", "observation.images.left_camera",
                               "observation.images.right_camera"]
     assert got["shape"] == [3, 240, 320]

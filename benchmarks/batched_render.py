@@ -33,6 +33,8 @@ import sys
 import tempfile
 import time
 
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 
 class FakeGroup:
     """A camera group whose render costs nothing: the pictures of every camera of K envs, preallocated
@@ -57,7 +59,7 @@ class FakeGroup:
         return self.pictures
 
 
-def fake_render(suite: str, k: int, steps: int, size: list[int]) -> None:
+def fake_render(suite: str, k: int, steps: int, size: list[int]) -> list:
     import torch
 
     from rsb_maniskill.vector import RSBVectorEnv
@@ -86,6 +88,7 @@ def fake_render(suite: str, k: int, steps: int, size: list[int]) -> None:
     print("| K | step (physics) | observation (get_obs) | loop (step + observation) |")
     print("|---|---:|---:|---:|")
     print(f"| {k} | {physics:.1f} | {obs:.1f} | {loop:.1f} |", flush=True)
+    return [k, f"{physics:.1f}", f"{obs:.1f}", f"{loop:.1f}"]
 
 
 def _worker(args: tuple) -> dict:
@@ -137,13 +140,13 @@ def _worker(args: tuple) -> dict:
     return out
 
 
-def grid(suite: str, procs: list[int], envs: list[int], steps: int, size: list[int]) -> None:
+def grid(suite: str, procs: list[int], envs: list[int], steps: int, size: list[int]) -> list[list[str]]:
     ctx = mp.get_context("spawn")
     print(f"{suite}, rgb, 3 cameras {size[0]}x{size[1]}, {steps} steps; times per batch of K envs (ms)")
     print("| procs x K | physics | render per scene | render group | reset + group rebuild | "
           "aggregate rgb env-steps/s (renderer) |")
     print("|---|---:|---:|---:|---:|---:|")
-    why = None
+    why, rows = None, []
     for p in procs:
         for k in envs:
             with ctx.Manager() as manager, ctx.Pool(p) as pool:
@@ -157,16 +160,19 @@ def grid(suite: str, procs: list[int], envs: list[int], steps: int, size: list[i
                 return f"{1000 * sum(vals) / len(vals):.1f}" if vals else "n/a"
 
             why = res[0]["group_unavailable"]
-            print(f"| {p} x {k} | {ms('physics_s')} | {ms('per_scene_s')} | {ms('group_s')} | "
-                  f"{ms('reset_and_group_s')} | {rate:.1f} ({res[0]['renderer']}) |", flush=True)
+            rows.append([f"{p} x {k}", ms("physics_s"), ms("per_scene_s"), ms("group_s"), ms("reset_and_group_s"),
+                         f"{rate:.1f} ({res[0]['renderer']})"])
+            print("| " + " | ".join(rows[-1]) + " |", flush=True)
     if why:
         print(f"group: n/a: {why}")
+    return rows
 
 
-def eval_end_to_end(suite: str, procs: list[int], envs: list[int], episodes: int) -> None:
+def eval_end_to_end(suite: str, procs: list[int], envs: list[int], episodes: int) -> list[list[str]]:
     print(f"\nrsb eval random -o rgb, {suite}, {episodes} episodes x 20 steps (start-up included)")
     print("| procs x K | wall s | env-steps/s |")
     print("|---|---:|---:|")
+    rows = []
     for p in procs:
         for k in envs:
             with tempfile.TemporaryDirectory() as out:
@@ -176,8 +182,10 @@ def eval_end_to_end(suite: str, procs: list[int], envs: list[int], episodes: int
                 t = time.perf_counter()
                 rc = subprocess.run(cmd, capture_output=True, text=True).returncode
                 wall = time.perf_counter() - t
-            print(f"| {p} x {k} | {wall:.1f} | {episodes * 20 / wall:.1f}{'' if rc == 0 else f' (exit {rc})'} |",
-                  flush=True)
+            said = f"{episodes * 20 / wall:.1f}" + ("" if rc == 0 else f" (exit {rc})")
+            rows.append([f"{p} x {k}", f"{wall:.1f}", said])
+            print("| " + " | ".join(rows[-1]) + " |", flush=True)
+    return rows
 
 
 def main() -> None:
@@ -193,12 +201,17 @@ def main() -> None:
     args = ap.parse_args()
     print(json.dumps({"cpus": len(os.sched_getaffinity(0))}))
     if args.fake_render:
-        for k in args.envs:
-            fake_render(args.suite, k, args.steps, args.camera_size)
+        rows = [fake_render(args.suite, k, args.steps, args.camera_size) for k in args.envs]
+        write("batched_render_fake", {"suite": args.suite, "steps": args.steps, "table": table(
+            ["K", "step (physics)", "observation (get_obs)", "loop (step + observation)"], rows, "rrrr")})
         return
-    grid(args.suite, args.procs, args.envs, args.steps, args.camera_size)
+    tables = {"grid": table(["procs x K", "physics", "render per scene", "render group", "reset + group rebuild",
+                             "aggregate rgb env-steps/s (renderer)"],
+                            grid(args.suite, args.procs, args.envs, args.steps, args.camera_size), "lrrrrr")}
     if args.eval_episodes:
-        eval_end_to_end(args.suite, args.procs, args.envs, args.eval_episodes)
+        tables["eval"] = table(["procs x K", "wall s", "env-steps/s"],
+                               eval_end_to_end(args.suite, args.procs, args.envs, args.eval_episodes), "lrr")
+    write("batched_render", {"suite": args.suite, "steps": args.steps, "tables": tables})
 
 
 if __name__ == "__main__":

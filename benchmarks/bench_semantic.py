@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from recorded import write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 from rsb_maniskill.semantic import SUITE_IDS, DataNotFoundError, EpisodeSampler, clear_cache, parse_suite_id
 from rsb_maniskill.semantic.gsm8k import gsm8k_pool
 from rsb_maniskill.semantic.pools import get_pool
@@ -20,6 +22,8 @@ def main() -> int:
     args = ap.parse_args()
 
     clear_cache()
+    loads: dict[str, float] = {}
+    spec_ms: dict[str, float] = {}
     try:
         t = time.perf_counter()
         for split in ("train", "test"):
@@ -29,6 +33,7 @@ def main() -> int:
         for split in ("train", "test"):
             get_pool("General", split, args.data_dir)
         t_gen = time.perf_counter() - t
+        loads.update(gsm8k_s=round(t_gsm, 3), general_s=round(t_gen, 3))
         print(f"load GSM8K (train+test, parse + build questions): {t_gsm:.3f} s")
         print(f"load MMLU + commonsense (General train+test pools): {t_gen:.3f} s")
     except DataNotFoundError as err:
@@ -48,6 +53,8 @@ def main() -> int:
                 s.sample(seed)
             ms = (time.perf_counter() - t) / args.episodes * 1e3
             print(f"{sid:<18}{split:<7}{ms:>9.3f}")
+            spec_ms[f"{sid} {split}"] = round(ms, 4)
+    write("bench_semantic", {"load": loads, "ms_per_spec": spec_ms, "episodes": args.episodes})
     return 0
 
 

@@ -14,8 +14,9 @@ processes / 1 process, both at T threads a process) and the absolute gain of 2 p
 process with lavapipe's own threads. It then times the expert alone on the same questions to split a
 demo's cost into the expert's share and the rendering + writing share, and projects the wall time of
 the six paper training sets (every training question of each suite, pools as the code has them) on
-this machine and on a 16-core machine with an NVIDIA GPU, whose three-camera render step was
-measured at 5.9 ms (docs/gpu.md). Run it on an otherwise idle machine:
+this machine (on a GPU rendering does not scale with processes: docs/gpu.md's table of GPU figures
+projects it). The figures go to `benchmarks/results/dataset_throughput.json`. Run it on an
+otherwise idle machine:
 
     python benchmarks/dataset_throughput.py --questions 16
 """
@@ -31,8 +32,8 @@ import tempfile
 import time
 from pathlib import Path
 
-GPU_STEP_S = 5.9e-3  # three 320x240 cameras, physx_cpu, one process, NVIDIA H100 (docs/gpu.md)
-GPU_BOX_CORES = 16
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 PAPER_POOLS_FALLBACK = {"Math": 500, "HardMath": 7473, "General": 4380}  # without question data here
 
 
@@ -163,13 +164,16 @@ def main() -> None:
     best = max(runs, key=lambda k: runs[k]["frames"] / runs[k]["wall"])
     here = total_frames / (runs[best]["frames"] / runs[best]["wall"])
     print(f"projected here at the best measured rate ({best}): {here / 3600:.1f} h")
-    # GPU box: the expert and the encoding scale with cores (counted in full, not overlapped); a
-    # render step costs GPU_STEP_S per process (measured with one process).
-    gpu = (demos * expert_per_demo + total_frames * (GPU_STEP_S + encode_per_frame)) / GPU_BOX_CORES
-    serial = total_frames * GPU_STEP_S  # worst case: the GPU renders one process at a time
-    print(f"projected on a {GPU_BOX_CORES}-core NVIDIA GPU machine: {gpu / 3600:.2f} h (render steps of "
-          f"{1e3 * GPU_STEP_S:.1f} ms spread over {GPU_BOX_CORES} processes; target <= 2 h); if the GPU served "
-          f"one process at a time: {serial / 3600:.1f} h")
+    write("dataset_throughput", {
+        "runs": {label: {k: round(v, 3) if isinstance(v, float) else v for k, v in r.items()}
+                 for label, r in runs.items()},
+        "worker_scaling": round(fps[2] / fps[1], 2), "two_procs_over_default": round(fps[2] / fps[0], 2),
+        "expert_s_per_demo": round(expert_per_demo, 3), "frame_ms": round(1e3 * render_per_frame, 1),
+        "encode_ms": round(1e3 * encode_per_frame, 1), "paper_sets_projected_h_here": round(here / 3600, 1),
+        "table": table(["build", "demos", "frames", "wall", "demos/min", "rendered frames/s", "CPU cores busy"],
+                       [[label, r["episodes"], f"{r['frames']:,}", f"{r['wall']:.1f} s",
+                         f"{60 * r['episodes'] / r['wall']:.1f}", f"{r['frames'] / r['wall']:.1f}",
+                         f"{r['cores']:.2f}"] for label, r in runs.items()])})
 
 
 if __name__ == "__main__":

@@ -13,6 +13,8 @@ import json
 import tempfile
 from pathlib import Path
 
+from recorded import write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 from rsb_maniskill.baselines.diffusion_policy.train import main as train_main
 
 EXPERIMENT = ["--prediction", "sample", "--unet-dims", "32", "64", "128", "--batch-size", "128", "--lr", "1e-3",
@@ -38,6 +40,9 @@ def main() -> int:
     lang = "off" if args.no_language else "on"
     print(f"threads {args.threads}, language {lang}: {per_iter:.4f} s/iteration (iterations 100-{args.iters}); "
           f"{args.total:,} iterations = {per_iter * args.total / 60:.1f} min")
+    write("dp_train_speed", {"threads": args.threads, "language": not args.no_language,
+                             "s_per_iteration": round(per_iter, 4), "total_iterations": args.total,
+                             "projected_min": round(per_iter * args.total / 60, 1)})
     return 0
 
 

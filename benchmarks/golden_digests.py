@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from recorded import write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 from rsb_maniskill.audit import golden
 from rsb_maniskill.objects.family import split_env_id
 from rsb_maniskill.semantic import EpisodeSampler
@@ -48,6 +50,9 @@ def main() -> int:
     print(f"{f'sample {n:,} episodes (reference)':<48}{t2 - t1:>8.2f}")
     print(f"{f'digest {n:,} episodes ({len(env_ids)} suites, with layouts)':<48}{t3 - t2:>8.2f}")
     print(f"{'rsb verify, all suites (pools + digests)':<48}{t1 - t0 + t3 - t2:>8.2f}")
+    write("golden_digests", {"episodes": n, "suites": len(env_ids), "load_pools_s": round(t1 - t0, 2),
+                             "sample_s": round(t2 - t1, 2), "digest_s": round(t3 - t2, 2),
+                             "verify_work_s": round(t1 - t0 + t3 - t2, 2)})
     return 0
 
 

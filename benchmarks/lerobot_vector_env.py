@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 
 def _time(vector: bool, suite: str, n: int, steps: int, size: tuple[int, int], renderer: str) -> tuple[float, float]:
     from rsb_maniskill.integrations.lerobot_env import create_rsb_envs
@@ -44,11 +46,15 @@ def main() -> None:
     size = (a.camera_size[0], a.camera_size[1])
     print(f"{a.suite}, rgb {size[0]}x{size[1]} x 3 cameras, {a.steps} steps, renderer {a.renderer}")
     print("| B | path | reset s | s per batched step | rgb env-steps/s |\n|---:|---|---:|---:|---:|")
+    rows = []
     for n in a.envs:
         for vector in (False, True):
             reset_s, step_s = _time(vector, a.suite, n, a.steps, size, a.renderer)
             name = "RSBLeRobotVectorEnv" if vector else "SyncVectorEnv of one-env envs"
-            print(f"| {n} | {name} | {reset_s:.2f} | {step_s:.3f} | {n / step_s:.1f} |", flush=True)
+            rows.append([n, name, f"{reset_s:.2f}", f"{step_s:.3f}", f"{n / step_s:.1f}"])
+            print("| " + " | ".join(map(str, rows[-1])) + " |", flush=True)
+    write("lerobot_vector_env", {"suite": a.suite, "steps": a.steps, "renderer": a.renderer, "table": table(
+        ["B", "path", "reset s", "s per batched step", "rgb env-steps/s"], rows, "rlrrr")})
 
 
 if __name__ == "__main__":

@@ -18,6 +18,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "helpers"))
 
+from recorded import write  # noqa: E402  (benchmarks/recorded.py: the figures to benchmarks/results/)
+
 from net_helpers import COMMANDS, no_data_env, silent_proxy_server  # noqa: E402
 
 
@@ -33,11 +35,15 @@ def main() -> int:
         dropped = {**base, "HTTPS_PROXY": proxy, "https_proxy": proxy}
         switch = {**base, "RSB_OFFLINE": "1"}
         print(f"{'command':<16}{'packets dropped s':>19}{'RSB_OFFLINE=1 s':>17}{'exit':>6}")
-        print(f"{'rsb --help':<16}{seconds(['--help'], dropped)[0]:>19.2f}{seconds(['--help'], switch)[0]:>17.2f}")
+        help_s = (seconds(['--help'], dropped)[0], seconds(['--help'], switch)[0])
+        print(f"{'rsb --help':<16}{help_s[0]:>19.2f}{help_s[1]:>17.2f}")
+        figures = {"rsb --help": {"packets_dropped_s": round(help_s[0], 2), "offline_s": round(help_s[1], 2)}}
         for name, args in COMMANDS.items():
             args = [a.format(tmp=tmp) for a in args]
             (t_drop, rc), (t_off, _) = seconds(args, dropped), seconds(args, switch)
             print(f"{name:<16}{t_drop:>19.2f}{t_off:>17.2f}{rc:>6}")
+            figures[name] = {"packets_dropped_s": round(t_drop, 2), "offline_s": round(t_off, 2), "exit": rc}
+    write("offline_latency", figures)
     return 0
 
 

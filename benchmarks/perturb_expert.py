@@ -25,6 +25,8 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 from rsb_maniskill.parallel.pool import InProcess, ProcessPool
 
 TARGET = 0.97
@@ -136,6 +138,13 @@ def main() -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(dict(rows=rows, pooled=pooled, wall_s=wall, seeds=args.seeds, image_seeds=n_image),
                               indent=1) + "\n")
+    cell = lambda r: f"{100 * r['success']:.1f} [{100 * r['low']:.1f}, {100 * r['high']:.1f}]"  # noqa: E731
+    write("perturb_expert", {
+        "suites": args.suites, "episodes": len(records), "failures": sum(not r["success"] for r in records),
+        "wall_s": round(wall, 1), "worst_pct": round(100 * worst, 1), "pooled": pooled,
+        "table": table(["axis", "level", "episodes", "success % [95 % interval]"],
+                       [[f"`{r['axis']}`" if r["axis"] != "none" else "none (level 0)", r["level"], r["episodes"],
+                         cell(r)] for r in pooled], "lrrl")})
     return 0 if worst >= TARGET else 1
 
 

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
 from vla_eval.api import evaluate, serve_background
 from vla_eval.model_servers.predict import PredictModelServer
 from vla_eval.specs import RAW
@@ -116,13 +117,19 @@ def main() -> None:
     print(f"\nrandom chunks of {args.chunk} on {args.suite}, rgb obs (3 cameras, 320x240), {args.steps} steps/episode, "
           f"{args.rounds} rounds of {args.num} episodes per row, 1 process, {os.cpu_count()} CPUs visible")
     print(f"{'run':>28} {'s/episode':>9} {'x native':>8} {'steps/ep':>8} {'inferences/ep':>13}")
+    cells = []
     for name, _, steps, calls, _ in rounds[0]:
         med = statistics.median(seconds[name])
         per_ep = "" if calls is None else f"{calls:.0f}"
         print(f"{name:>28} {med:>9.2f} {med / ref:>8.2f} {np.mean(steps):>8.1f} {per_ep:>13}")
+        cells.append([name, f"{med:.2f}", f"{med / ref:.2f}", per_ep])
     strip = lambda rs: [{k: v for k, v in r.items() if k not in ("wall_s", "policy")} for r in rs]  # noqa: E731
     same = all(strip(rows[0][4]) == strip(rows[1][4]) for rows in rounds)
     print(f"rsb eval and rsb eval remote recorded the same episodes: {same}")
+    write("vla_eval_speed", {
+        "suite": args.suite, "chunk": args.chunk, "steps": args.steps, "episodes_per_row": args.num * args.rounds,
+        "median_s": {n: round(statistics.median(seconds[n]), 3) for n in names}, "same_records": same,
+        "table": table(["run", "s / episode", "x native", "server inferences / episode"], cells, "lrrr")})
 
 
 if __name__ == "__main__":

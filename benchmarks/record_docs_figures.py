@@ -8,9 +8,9 @@
 Run it on an otherwise idle machine with the question data (`RSB_DATA_DIR`): each benchmark writes
 `benchmarks/results/NAME.json` (`recorded.py`: command, date, commit, machine and its load), and the pages'
 marked regions are rendered from those files. Then commit the files and the pages together
-(`tests/acceptance/test_docs_figures.py` fails while a page differs from its file). About 45 minutes on two
-idle cores, most of it the expert's 3,200 episodes, the fresh clone's set-up and the 200-episode
-throughput runs.
+(`tests/acceptance/test_docs_figures.py` fails while a page differs from its file). About half an hour on two
+idle cores (an estimate from the single runs' times), most of it the expert's 3,200 episodes, the
+fresh clone's set-up and the 200-episode throughput runs.
 
 Figures from lent GPU boxes and long trainings (`recorded_from` in their files) are not re-measured here:
 `python benchmarks/gpu_check.py` on a GPU box records `gpu_check.json`, which docs/gpu.md's table then shows.

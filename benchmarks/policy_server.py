@@ -1,203 +1,192 @@
-"""One model for P workers x K envs: today's server (one request at a time) against the batching server.
+"""One model for every worker, end to end: `rsb eval --policy-process shared` against `worker`, with the
+simulator and a model that computes.
 
-    python benchmarks/policy_server.py [--procs 1 2 4 8] [--envs 4] [--waves 3] [--fixed-ms 50] [--row-ms 1]
+    python benchmarks/policy_server.py [--procs 2] [--envs 1 4] [-n 8] [--max-steps 40]
+                                       [--hidden 2048] [--layers 4] [--horizon 4] [--threads 1] [--device cpu]
 
-A stand-in model whose forward pass costs ``--fixed-ms`` plus ``--row-ms`` a row (``time.sleep``, then a
-small torch MLP over the rows: the actions depend on the observations) and holds ``--model-mib`` of
-weights is built once in a server process of its own (as ``rsb eval --policy-process shared`` starts
-one) and served there on 127.0.0.1 by ``PolicyServer(..., batching=False)`` (the server before: one
-lock around each request) and by the batching server at each ``--max-wait-ms`` T. P worker
-processes of K envs each (state observations: RSB's 117 floats a row; torch loaded, as an ``rsb eval``
-worker has it for ManiSkill) drive each server as ``rsb eval`` workers do (``RemotePolicy``, one
-batched request per chunk, episode starts marked); then each builds its own copy of the model
-(``--policy-process worker``). The simulator is left out (zero-cost steps): what is measured is the
-policy path; ``rsb eval`` adds its steps on top.
-
-Prints, per P: episodes/s through today's server and the batching server at each T with the ratio,
-the batch sizes the batching server formed (rows a call: calls, warm-up calls left out), and peak
-memory (the sum of the processes' peak RSS) of ``shared`` (the server process + P clients) against
-``worker`` (P processes, each with its copy). Each P is measured in one run, its rows back to back,
-so load from other processes falls on each of them.
+The model: a torch MLP (state observation -> ``--layers`` hidden layers of ``--hidden`` -> a chunk of
+``--horizon`` actions), both policy forms and the served form's ``reset_envs``, one forward pass over
+the rows of each call, declared ``heavy`` (this module's ``make_mlp``, importable by the eval's
+processes). Each (P workers, K envs a worker) runs the same seeds twice: ``--policy-process worker``
+(a copy a worker) and ``shared`` (one server process, every worker's rows batched, the default
+``--max-batch`` / ``--max-wait-ms``). Timed: the whole command (start-up included, what a user waits
+for) and the steady env-steps/s of its own throughput line; the shared run's batch sizes; and, in
+this process, one forward pass over 1, 2, 4, 8 and 16 rows (how the model's cost grows with its rows).
+``--device cuda`` puts the model on the GPU (where the batch should pay). Recorded to
+``benchmarks/results/policy_server.json`` (``--name`` another file).
 """
 from __future__ import annotations
 
 import argparse
-import multiprocessing as mp
-import resource
-import threading
+import os
+import re
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
 
-OBS_DIM = 117  # RSB's state observation
-ACTION_DIM = 14
-HORIZON = 4  # actions a chunk
-STEPS = 8  # steps an episode: two chunks
+HERE = Path(__file__).resolve().parent
+SUITE = "RSB-Direct-4"  # no question data needed
+OBS_DIM, ACTION_DIM = 117, 14
+THROUGHPUT = re.compile(r"throughput: start-up ([\d.,]+) s, then ([\d.,]+) env-steps/s \(([\d,]+) env-steps")
+BATCHES = re.compile(r"batches formed: (\d+) policy calls, ([\d.]+) rows a call")
 
 
-class StandIn:
-    """The stand-in model: both forms and the served form's ``reset_envs``; a forward pass costs
-    ``fixed_ms`` + ``row_ms`` a row (asleep, as a GPU call leaves the CPU) plus a small MLP."""
+class MLPPolicy:
+    """A model that computes: ``layers`` x ``hidden`` MLP from the state to a chunk; stateless between
+    calls, so its chunks are the same in any grouping of rows."""
 
-    def __init__(self, model_mib: int = 256, fixed_ms: float = 50.0, row_ms: float = 1.0) -> None:
+    name = "mlp"
+
+    def __init__(self, hidden: int = 2048, layers: int = 4, horizon: int = 4, device: str = "cpu",
+                 threads: int | None = 1) -> None:
         import torch
 
+        if threads:
+            torch.set_num_threads(int(threads))
         torch.manual_seed(0)
-        torch.set_num_threads(1)
-        self.net = torch.nn.Sequential(torch.nn.Linear(OBS_DIM, 64), torch.nn.ReLU(),
-                                       torch.nn.Linear(64, HORIZON * ACTION_DIM))
-        # the model's memory (a VLA's weights): touched once, so that it is resident, not only reserved
-        self.weights = torch.ones(model_mib * 2**20 // 4, dtype=torch.float32)
-        self.fixed_s, self.row_s = fixed_ms / 1000.0, row_ms / 1000.0
+        dims = [OBS_DIM] + [hidden] * layers
+        mods: list[Any] = []
+        for a, b in zip(dims, dims[1:]):
+            mods += [torch.nn.Linear(a, b), torch.nn.ReLU()]
+        self.net = torch.nn.Sequential(*mods, torch.nn.Linear(dims[-1], horizon * ACTION_DIM)).to(device).eval()
+        self.horizon, self.device = horizon, device
 
-    def reset(self, instruction: str, obs: Any) -> None:
+    def reset(self, instruction: str, obs: Any, seed: int | None = None) -> None:
         pass
 
     def act(self, obs: Any) -> np.ndarray:
         return self.act_batch(np.asarray(obs)[None], [0])[0]
 
-    def reset_batch(self, instructions: Any, obs: Any) -> None:
+    def reset_batch(self, instructions: Any, obs: Any, seeds: Any = None) -> None:
         pass
 
-    def reset_envs(self, instructions: Any, obs: Any, envs: Any) -> None:
+    def reset_envs(self, instructions: Any, obs: Any, envs: Any, seeds: Any = None) -> None:
         pass
 
     def act_batch(self, obs: Any, envs: Any) -> np.ndarray:
         import torch
 
-        time.sleep(self.fixed_s + self.row_s * len(envs))
         with torch.no_grad():
-            out = self.net(torch.as_tensor(np.array(obs, dtype=np.float32)))
-        return out.reshape(len(envs), HORIZON, ACTION_DIM).numpy()
+            x = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=self.device)
+            out = torch.tanh(self.net(x)).reshape(len(envs), self.horizon, ACTION_DIM)
+        return out.cpu().numpy()
 
 
-def _episodes(policy: Any, envs: int, waves: int, seed: int) -> int:
-    """What an ``rsb eval`` worker does with its policy, the steps left out: per wave, reset every env,
-    then one call per chunk for the envs (all in step here)."""
-    rng = np.random.default_rng(seed)
-    for _ in range(waves):
-        obs = rng.standard_normal((envs, OBS_DIM)).astype(np.float32)
-        policy.reset_batch(["put the answer in the zone"] * envs, obs)
-        for _ in range(STEPS // HORIZON):
-            chunks = policy.act_batch(obs, list(range(envs)))
-            assert len(chunks) == envs
-            obs = obs + 0.01
-    return waves * envs
+def make_mlp(hidden: int = 2048, layers: int = 4, horizon: int = 4, device: str = "cpu",
+             threads: int | None = 1) -> MLPPolicy:
+    return MLPPolicy(hidden, layers, horizon, device, threads)
 
 
-def _peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+make_mlp.heavy = True  # a model: what `rsb eval --policy-process auto` weighs sharing for
 
 
-def _worker(index: int, ports: dict[str, int], args: argparse.Namespace, barrier: Any, out: Any) -> None:
-    import torch  # noqa: F401  (an rsb eval worker has torch loaded: ManiSkill's envs)
+def forward_ms(args: argparse.Namespace, rows: list[int], repeats: int = 20) -> dict[int, float]:
+    """One forward pass over ``rows`` rows, ms (median of ``repeats``), in this process."""
+    import torch
 
-    from rsb_maniskill.policies.remote.client import RemotePolicy
-
-    clients = {name: RemotePolicy("127.0.0.1", port, mark_episode_start=True, connect_timeout=60,
-                                  request_timeout=600) for name, port in ports.items()}
-    for client in clients.values():  # warm: connected, the first call's one-time costs paid
-        _episodes(client, args.envs, 1, index)
-    for name in ports:  # measured: the time between the two waits of the main process
-        barrier.wait()
-        _episodes(clients[name], args.envs, args.waves, index)
-        barrier.wait()
-    rss_shared = _peak_rss_mb()
-    for client in clients.values():
-        client.close()
-    own = StandIn(args.model_mib, args.fixed_ms, args.row_ms)  # --policy-process worker: its own copy
-    _episodes(own, args.envs, 1, index)
-    barrier.wait()
-    _episodes(own, args.envs, args.waves, index)
-    barrier.wait()
-    out.put((index, rss_shared, _peak_rss_mb()))
-
-
-def _server(args: argparse.Namespace, ports: Any, stop: Any, out: Any) -> None:
-    """The shared policy process (as ``rsb eval --policy-process shared`` starts one): the model built
-    once, served by today's server and by the batching server at each T; then its batch sizes and peak RSS."""
-    from rsb_maniskill.policies.remote.server import PolicyServer
-
-    model = StandIn(args.model_mib, args.fixed_ms, args.row_ms)
-    servers = {"serial": PolicyServer(model, "127.0.0.1", 0, batching=False).start()}
-    for t in args.max_wait_ms:
-        servers[f"T={t:g}"] = PolicyServer(model, "127.0.0.1", 0, max_batch=args.max_batch, max_wait_ms=t).start()
-    ports.put({k: s.port for k, s in servers.items()})
-    if stop.get() == "clear":  # every worker warmed up on every server: count the measured batches only
-        for s in servers.values():
-            if s.batcher is not None:
-                s.batcher.sizes.clear()
-    stop.get()
-    for s in servers.values():
-        s.shutdown()
-    out.put(({k: s.batcher.summary() for k, s in servers.items() if s.batcher is not None}, _peak_rss_mb()))
-
-
-def run(procs: int, args: argparse.Namespace) -> dict[str, Any]:
-    ctx = mp.get_context("spawn")
-    ports, stop, served = ctx.Queue(), ctx.Queue(), ctx.Queue()
-    server = ctx.Process(target=_server, args=(args, ports, stop, served))
-    server.start()
-    names = ports.get(timeout=180)
-    barrier, out = ctx.Barrier(procs + 1), ctx.Queue()
-    workers = [ctx.Process(target=_worker, args=(i, names, args, barrier, out)) for i in range(procs)]
-    for w in workers:
-        w.start()
-    seconds = {}
-    try:
-        for name in (*names, "worker"):
-            barrier.wait(timeout=180)
-            if name == "serial":
-                stop.put("clear")
+    policy = make_mlp(args.hidden, args.layers, args.horizon, args.device, args.threads)
+    out = {}
+    for n in rows:
+        obs = np.random.default_rng(0).standard_normal((n, OBS_DIM)).astype(np.float32)
+        policy.act_batch(obs, list(range(n)))  # warm
+        times = []
+        for _ in range(repeats):
             t0 = time.perf_counter()
-            barrier.wait(timeout=180)
-            seconds[name] = time.perf_counter() - t0
-        rss = [out.get(timeout=120) for _ in workers]
-    finally:
-        stop.put("stop")
-        for w in workers:
-            w.join(timeout=30)
-    summary, server_rss = served.get(timeout=60)
-    server.join(timeout=30)
-    episodes = procs * args.envs * args.waves
-    return {"procs": procs, "episodes": episodes, "eps": {k: episodes / v for k, v in seconds.items()},
-            "summary": summary, "rss_shared_mb": server_rss + sum(r[1] for r in rss),
-            "rss_worker_mb": sum(r[2] for r in rss)}
+            policy.act_batch(obs, list(range(n)))
+            if args.device != "cpu":
+                torch.cuda.synchronize()
+            times.append(1000 * (time.perf_counter() - t0))
+        out[n] = float(np.median(times))
+    return out
+
+
+def eval_run(args: argparse.Namespace, mode: str, procs: int, envs: int) -> dict[str, Any]:
+    """One `rsb eval` of the MLP: wall time, the throughput line's figures, the batch sizes (shared)."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")]))
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "rsb_maniskill.cli", "eval", "policy_server:make_mlp",
+               "-a", f"hidden={args.hidden}", "-a", f"layers={args.layers}", "-a", f"horizon={args.horizon}",
+               "-a", f"device={args.device}", "-a", f"threads={args.threads}", "--suites", SUITE, "-o", "state",
+               "-n", str(args.num_episodes),
+               "--max-steps", str(args.max_steps), "--num-procs", str(procs), "--num-envs", str(envs),
+               "--policy-process", mode, "--out", tmp]
+        t0 = time.perf_counter()
+        done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=3600)
+        wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise SystemExit(f"rsb eval failed ({mode}, P={procs}, K={envs}):\n{done.stderr[-3000:]}")
+    found = THROUGHPUT.search(done.stdout + done.stderr)
+    batches = BATCHES.search(done.stderr)
+    return {"wall_s": round(wall, 2),
+            "start_up_s": float(found.group(1).replace(",", "")) if found else None,
+            "env_steps_per_s": float(found.group(2).replace(",", "")) if found else None,
+            "env_steps": int(found.group(3).replace(",", "")) if found else None,
+            "policy_calls": int(batches.group(1)) if batches else None,
+            "rows_a_call": float(batches.group(2)) if batches else None}
+
+
+def _median(tries: list[dict[str, Any]]) -> dict[str, Any]:
+    """Each figure's median over the tries (the tries kept beside it)."""
+    return {k: (float(np.median([t[k] for t in tries])) if all(t[k] is not None for t in tries) else None)
+            for k in tries[0]}
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--procs", type=int, nargs="+", default=[1, 2, 4, 8], help="worker processes P")
-    p.add_argument("--envs", type=int, default=4, help="envs a worker K")
-    p.add_argument("--waves", type=int, default=3, help="waves of K episodes a worker")
-    p.add_argument("--fixed-ms", type=float, default=50.0)
-    p.add_argument("--row-ms", type=float, default=1.0)
-    p.add_argument("--model-mib", type=int, default=256, help="the model's weights in memory, MiB")
-    p.add_argument("--max-batch", type=int, default=64)
-    p.add_argument("--max-wait-ms", type=float, nargs="+", default=[5.0, 25.0],
-                   help="the batching server's T, one row each")
+    p.add_argument("--procs", type=int, nargs="+", default=[2], help="worker processes P")
+    p.add_argument("--envs", type=int, nargs="+", default=[1, 4], help="envs a worker K")
+    p.add_argument("-n", "--num-episodes", type=int, default=8)
+    p.add_argument("--max-steps", type=int, default=40)
+    p.add_argument("--hidden", type=int, default=2048)
+    p.add_argument("--layers", type=int, default=4)
+    p.add_argument("--horizon", type=int, default=4, help="actions a chunk (a policy call every HORIZON steps)")
+    p.add_argument("--device", default="cpu", help="where the model computes (cuda: on the GPU)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch threads of the model in each process that holds it (0: torch's default)")
+    p.add_argument("--repeats", type=int, default=2, help="runs of each mode, interleaved; the median is kept")
+    p.add_argument("--name", default="policy_server", help="the recorded file's name (benchmarks/results/NAME.json)")
     args = p.parse_args()
-    print(f"stand-in model: {args.fixed_ms:g} ms + {args.row_ms:g} ms a row, {args.model_mib} MiB "
-          f"of weights; K = {args.envs} envs a worker, {args.waves} waves, {STEPS} steps in chunks of {HORIZON}; "
-          f"--max-batch {args.max_batch}; simulator left out")
-    batching = [f"T={t:g}" for t in args.max_wait_ms]
-    print("| P x K | episodes | today's server ep/s | " + " | ".join(f"batching {b} ms ep/s | ratio" for b in batching)
-          + " | worker (P copies) ep/s | peak RSS shared MiB | peak RSS worker MiB |")
-    print("|---|---:|---:|" + "---:|---:|" * len(batching) + "---:|---:|---:|")
-    lines = []
+    model = make_mlp(args.hidden, args.layers, args.horizon, threads=args.threads)
+    params = sum(x.numel() for x in model.net.parameters())
+    forward = forward_ms(args, [1, 2, 4, 8, 16])
+    print(f"model: MLP {args.layers} x {args.hidden} ({params / 1e6:.1f} M parameters) on {args.device}, "
+          f"{args.threads or 'default'} torch thread(s), chunks of {args.horizon}; {SUITE}, state obs, "
+          f"{args.num_episodes} episodes of {args.max_steps} steps; median of {args.repeats} runs each; "
+          f"{os.cpu_count()} CPUs, 1-min load {os.getloadavg()[0]:.1f}")
+    print("forward pass, ms: " + ", ".join(f"{n} rows {ms:.2f}" for n, ms in forward.items()))
+    columns = ["P x K", "worker: wall s", "shared: wall s", "shared / worker wall", "worker: env-steps/s",
+               "shared: env-steps/s", "shared: rows a call"]
+    print("| " + " | ".join(columns) + " |")
+    print("|---|" + "---:|" * (len(columns) - 1))
+    rows, runs = [], []
     for procs in args.procs:
-        r = run(procs, args)
-        eps = r["eps"]
-        cells = " | ".join(f"{eps[b]:.1f} | {eps[b] / eps['serial']:.1f}x" for b in batching)
-        print(f"| {procs} x {args.envs} | {r['episodes']} | {eps['serial']:.1f} | {cells} | {eps['worker']:.1f} | "
-              f"{r['rss_shared_mb']:.0f} | {r['rss_worker_mb']:.0f} |", flush=True)
-        lines += [f"P = {procs}, {b} ms: {r['summary'][b]}" for b in batching]
-    print("batch sizes formed by the batching server (rows a call: calls):")
-    for line in lines:
-        print(f"  {line}")
+        for envs in args.envs:
+            tries: dict[str, list] = {"worker": [], "shared": []}
+            for _ in range(args.repeats):  # interleaved: load from other work falls on both
+                for mode in tries:
+                    tries[mode].append(eval_run(args, mode, procs, envs))
+            worker, shared = (_median(tries[m]) for m in ("worker", "shared"))
+            runs.append({"procs": procs, "envs": envs, "worker": worker, "shared": shared, "tries": tries})
+            row = [f"{procs} x {envs}", f"{worker['wall_s']:.1f}", f"{shared['wall_s']:.1f}",
+                   f"{shared['wall_s'] / worker['wall_s']:.2f}x", f"{worker['env_steps_per_s'] or 0:,.0f}",
+                   f"{shared['env_steps_per_s'] or 0:,.0f}", f"{shared['rows_a_call'] or 0:.1f}"]
+            rows.append(row)
+            print("| " + " | ".join(row) + " |", flush=True)
+    write(args.name, {"model": {"kind": "mlp", "hidden": args.hidden, "layers": args.layers,
+                                "horizon": args.horizon, "device": args.device, "threads": args.threads,
+                                "parameters": params},
+                      "suite": SUITE, "episodes": args.num_episodes, "max_steps": args.max_steps,
+                      "forward_ms": {str(n): round(ms, 3) for n, ms in forward.items()}, "runs": runs,
+                      "table": table(columns, rows)},
+          notes="wall: the whole rsb eval command, start-up included; env-steps/s: its own throughput line "
+                "(steady time); shared uses rsb eval's default --max-batch / --max-wait-ms")
 
 
 if __name__ == "__main__":
-    threading.current_thread().name = "bench"
     main()

@@ -52,6 +52,7 @@ from rsb_maniskill.policies.interface import as_chunk, as_chunks, is_batched, sp
 DEFAULT_MAX_BATCH = 64  # rows (envs) a forward pass at most: 16 workers x 4 envs
 DEFAULT_MAX_WAIT_MS = 25.0  # how long the first request of a batch waits for others: about half a 50 ms forward pass
 MAX_WAIT_LIMIT_MS = 60_000.0  # a longer wait is a typo (and past what a thread's timeout takes)
+MAX_BATCH_LIMIT = 65_536  # rows a call: more is a typo
 POLL_S = 0.1  # how often a waiting connection looks for a call past the policy timeout, or a stop
 
 
@@ -172,8 +173,8 @@ class _Call:
 
 
 def _check_limits(max_batch: int, max_wait_ms: float, policy_timeout: float | None) -> None:
-    if isinstance(max_batch, bool) or not isinstance(max_batch, int) or max_batch < 1:
-        raise ValueError(f"max_batch must be a whole number of rows >= 1, got {max_batch!r}")
+    if isinstance(max_batch, bool) or not isinstance(max_batch, int) or not 1 <= max_batch <= MAX_BATCH_LIMIT:
+        raise ValueError(f"max_batch must be a whole number of rows from 1 to {MAX_BATCH_LIMIT}, got {max_batch!r}")
     if not 0 <= max_wait_ms <= MAX_WAIT_LIMIT_MS:  # NaN fails both
         raise ValueError(f"max_wait_ms must be between 0 and {MAX_WAIT_LIMIT_MS:g} ms, got {max_wait_ms!r}")
     if policy_timeout is not None and not (0 < policy_timeout and math.isfinite(policy_timeout)):

@@ -38,6 +38,7 @@ from rsb_maniskill.policies.registry import load_policy, policy_spec
 from rsb_maniskill.policies.remote.batching import (
     DEFAULT_MAX_BATCH,
     DEFAULT_MAX_WAIT_MS,
+    MAX_BATCH_LIMIT,
     MAX_WAIT_LIMIT_MS,
     Batcher,
     Request,
@@ -61,7 +62,6 @@ logger = logging.getLogger(__name__)
 READY = "rsb serve: listening on"  # the line a parent process reads the port from (stdout)
 PARENT_POLL_S = 1.0  # --parent-pid: how often the server checks that its parent still lives
 POLICY_TIMEOUT_S = 300.0  # --policy-timeout's default: rsb eval's (a call longer than this is taken for a hang)
-MAX_BATCH_LIMIT = 65536  # rows a call: more is a typo
 STOP_CLOSE_S = 3.0  # how long a stopping server waits for its connections to close (Ctrl-C: out within 5 s)
 
 

@@ -117,8 +117,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--policy-process", choices=("auto", "shared", "worker"), default="auto",
                    help="shared: the policy built once, in a server process of its own that answers every worker's "
                         "envs in one batched call (rsb serve over loopback); worker: one policy per worker; auto "
-                        "(default): shared for a policy that declares a model (heavy) with several workers, printed "
-                        "with why")
+                        "(default): shared for a policy that declares a model computed on a GPU (heavy, gpu) with "
+                        "several workers on a machine with CUDA, else worker; printed with why")
     p.set_defaults(func=run_eval)
 
 

@@ -20,7 +20,7 @@ import signal
 import sys
 import unicodedata
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from rsb_maniskill.commands.eval_args import (
     MANIFEST_KEYS,
@@ -50,6 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     from rsb_maniskill.parallel.plan import add_worker_args
     from rsb_maniskill.perturb import AXES
     from rsb_maniskill.policies.registry import POLICIES
+    from rsb_maniskill.policies.remote.batching import DEFAULT_MAX_BATCH, DEFAULT_MAX_WAIT_MS
     from rsb_maniskill.robot import CONTROL_MODE
 
     state_only = [name for name, spec in POLICIES.items() if spec.obs_mode == "state"]
@@ -112,13 +113,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"longest one policy call (factory, reset, act) may take before the run stops with a "
                         f"policy error (default {POLICY_TIMEOUT_S:g}; 0: no limit). The episodes run in a worker "
                         "process, which is killed when a call outlasts it")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress bars and no lines saying what the run chose (workers, envs, policy "
+                        "process): errors, warnings and notes on the results only")
     add_worker_args(p)  # --num-procs auto|N, --executor, --address
     p.add_argument("--policy-process", choices=("auto", "shared", "worker"), default="auto",
                    help="shared: the policy built once, in a server process of its own that answers every worker's "
                         "envs in one batched call (rsb serve over loopback); worker: one policy per worker; auto "
                         "(default): shared for a policy that declares a model computed on a GPU (heavy, gpu) with "
                         "several workers on a machine with CUDA, else worker; printed with why")
+    p.add_argument("--max-batch", type=int, default=DEFAULT_MAX_BATCH, metavar="B",
+                   help=f"shared policy: rows (envs) one policy call answers at most (default {DEFAULT_MAX_BATCH})")
+    p.add_argument("--max-wait-ms", type=float, default=DEFAULT_MAX_WAIT_MS, metavar="T",
+                   help="shared policy: how long a request waits for other workers' to join its batch, unless "
+                        f"every worker's is in (default {DEFAULT_MAX_WAIT_MS:g})")
     p.set_defaults(func=run_eval)
 
 
@@ -188,6 +196,23 @@ def _num_envs(text: str) -> int | None:
         raise argparse.ArgumentTypeError(f"must be auto or a whole number of envs >= 1, got {text!r}") from None
 
 
+def check_batching(max_batch: int, max_wait_ms: float) -> None:
+    """``--max-batch`` / ``--max-wait-ms``: values a shared policy server runs with, else a usage error."""
+    from rsb_maniskill.policies.remote.batching import MAX_WAIT_LIMIT_MS
+
+    if max_batch < 1:
+        raise EvalError(f"--max-batch must be a whole number of rows >= 1, got {max_batch}")
+    if not 0 <= max_wait_ms <= MAX_WAIT_LIMIT_MS:  # NaN and inf too
+        raise EvalError(f"--max-wait-ms must be from 0 to {MAX_WAIT_LIMIT_MS:g} ms, got {max_wait_ms:g}")
+
+
+def _info(quiet: bool) -> Callable[[str], None]:
+    """Where a line saying what the run chose goes: stderr, or nowhere with -q (errors, warnings, notes)."""
+    if quiet:
+        return lambda line: None
+    return lambda line: print(line, file=sys.stderr, flush=True)
+
+
 def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
@@ -205,8 +230,9 @@ def run_eval(args: argparse.Namespace) -> int:
         print(f"rsb eval: error: {err}", file=sys.stderr)
         return 2
     except (PolicyError, JobError) as err:  # finished episodes are kept
-        return print_error("eval", err, 1, hint=True,
-                           then="fix it and rerun the same command: finished episodes are kept")
+        return print_error("eval", err, 1, hint=isinstance(err, PolicyError) or bool(err.detail),
+                           then=getattr(err, "then", None) or "fix it and rerun the same command: finished "
+                                                              "episodes are kept")
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -233,7 +259,8 @@ def _run_jobs(args: argparse.Namespace, suites: list[str], label: str, policy_kw
                     stamp=stamp)
 
 
-def _shared_server(args: argparse.Namespace, stack: contextlib.ExitStack, num_procs: int, policy_kwargs: dict) -> Any:
+def _shared_server(args: argparse.Namespace, stack: contextlib.ExitStack, num_procs: int, policy_kwargs: dict,
+                   info: Callable[[str], None]) -> Any:
     """``--policy-process``: the shared policy server (started on ``stack``, stopped with it), or None when
     each worker builds its own policy; the choice is printed with why."""
     from rsb_maniskill.policies.remote.shared import SharedServer, choose
@@ -244,10 +271,11 @@ def _shared_server(args: argparse.Namespace, stack: contextlib.ExitStack, num_pr
         raise EvalError(str(err)) from None
     if (args.policy_process == "auto" and num_procs > 1) or choice == "shared":
         where = "one server process for every worker" if choice == "shared" else "one per worker"
-        print(f"rsb eval: policy process: {choice} ({where}): {why}", file=sys.stderr)
+        info(f"rsb eval: policy process: {choice} ({where}): {why}")
     if choice != "shared":
         return None
-    return stack.enter_context(SharedServer(args.policy, policy_kwargs, start_timeout=args.policy_timeout or None,
+    return stack.enter_context(SharedServer(args.policy, policy_kwargs, max_batch=args.max_batch,
+                                            max_wait_ms=args.max_wait_ms, start_timeout=args.policy_timeout or None,
                                             policy_timeout=args.policy_timeout or None, quiet=args.quiet))
 
 
@@ -304,10 +332,13 @@ def _run_eval(args: argparse.Namespace) -> int:
         settings_id,
     )
     from rsb_maniskill.parallel.plan import executor_from_args, obs_mode_renders, resolve_num_envs, resolve_workers
+    from rsb_maniskill.parallel.pool import ProcessPool
+    from rsb_maniskill.parallel.ray_pool import RayExecutor
     from rsb_maniskill.policies.registry import factory_path, policy_spec
     from rsb_maniskill.version import BENCHMARK_VERSION
 
     suites = args.suites
+    info = _info(args.quiet)  # lines that say what the run chose: not with -q
     gpu_physics = args.sim_backend == GPU_SIM_BACKEND
     if args.num_envs is NUM_ENVS_NOT_GIVEN:
         args.num_envs = 1 if gpu_physics else None
@@ -319,6 +350,7 @@ def _run_eval(args: argparse.Namespace) -> int:
         raise EvalError(f"--max-steps must be >= 1, got {args.max_steps}")
     if not args.policy_timeout >= 0:  # NaN too
         raise EvalError(f"--policy-timeout must be >= 0 seconds (0: no limit), got {args.policy_timeout}")
+    check_batching(args.max_batch, args.max_wait_ms)
     if gpu_physics and args.num_envs is None:
         raise EvalError(f"--num-envs auto picks CPU envs a process; with -b {GPU_SIM_BACKEND} give --num-envs K")
     if gpu_physics and (args.num_envs or 1) > 1 and (args.num_procs or 1) > 1 and args.executor == "local":
@@ -386,15 +418,22 @@ def _run_eval(args: argparse.Namespace) -> int:
         if executor is not None:
             stack.enter_context(executor)  # a local Ray cluster lives for the whole run
         for line in said:
-            print(line, file=sys.stderr, flush=True)
+            info(line)
+        episodes = args.num_episodes * max(episodes_per_scene(s, m, args.variants)
+                                           for s in suites for m in args.instruction)  # a job's, at most
         executor, num_procs = resolve_workers(args.num_procs, executor, obs_mode_renders(obs_mode) or args.videos > 0,
-                                              num_envs=args.num_envs, episodes=args.num_episodes * max(
-                                                  episodes_per_scene(s, m, args.variants)
-                                                  for s in suites for m in args.instruction),
-                                              gpu_physics=gpu_physics)
+                                              num_envs=args.num_envs, episodes=episodes, gpu_physics=gpu_physics,
+                                              log=info)
+        a_worker = -(-episodes // num_procs)
+        if args.num_envs > a_worker:  # K envs for fewer episodes would build envs for nothing
+            info(f"envs: {a_worker} a process (--num-envs {args.num_envs}: no more than the {a_worker} episodes a "
+                 "worker runs)")
+            args.num_envs = a_worker
         server = None
         try:
-            server = _shared_server(args, stack, num_procs, policy_kwargs)  # --policy-process
+            server = _shared_server(args, stack, num_procs, policy_kwargs, info)  # --policy-process
+            if not isinstance(executor, RayExecutor):  # workers started once for every suite, mode, perturbation
+                executor = stack.enter_context(executor or ProcessPool())
             _run_jobs(args, suites, label, server.client_kwargs() if server else policy_kwargs, obs_mode, max_steps,
                       env_kwargs, out, records_path, num_procs, executor, perturbs,
                       {SETTINGS_FIELD: settings_id(settings, MANIFEST_KEYS)}, policy="remote" if server else None)

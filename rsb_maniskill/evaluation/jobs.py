@@ -14,19 +14,27 @@ caller:
 from __future__ import annotations
 
 import os
+import signal
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from rsb_maniskill.env_ids import CPU_SIM_BACKEND
-from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED, record_episode
+from rsb_maniskill.evaluation.protocol import EVAL_ENV_KWARGS, SHUFFLE_SEED, episode_of, record_episode
 from rsb_maniskill.evaluation.records import perturb_label as record_perturb
 from rsb_maniskill.evaluation.runner import DEFAULT_MAX_STEPS, EpisodeSettings, batched_loop, episode_loop
 from rsb_maniskill.evaluation.store import RecordWriter, read_records
 from rsb_maniskill.parallel.pool import Executor, InProcess, Interrupted, ProcessPool, deal, watched
 from rsb_maniskill.perturb import label as perturb_label
-from rsb_maniskill.policies.errors import PolicyError, blame_policy, first_line, policy_call_label, stuck_call_error
+from rsb_maniskill.policies.errors import (
+    PolicyError,
+    blame_policy,
+    episode_where,
+    one_line,
+    policy_call_label,
+    stuck_call_error,
+)
 from rsb_maniskill.policies.interface import is_batched, policy_name
 from rsb_maniskill.policies.registry import load_policy, policy_spec
 
@@ -39,12 +47,13 @@ class JobError(RuntimeError):
     One line; ``detail`` is the traceback (``rsb --debug``). It pickles whole (a worker sends it
     back as it is); the episodes finished before it are kept."""
 
-    def __init__(self, message: str, detail: str | None = None) -> None:
+    def __init__(self, message: str, detail: str | None = None, then: str | None = None) -> None:
         super().__init__(message)
         self.detail = detail
+        self.then = then  # what to do next, where it is not "fix it and rerun"
 
     def __reduce__(self) -> tuple:
-        return type(self), (self.args[0], self.detail)
+        return type(self), (self.args[0], self.detail, self.then)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -114,34 +123,63 @@ class ProgressBar:
 
 
 class Throughput:
-    """A run's pace, for the last line of ``rsb eval``: the start-up (from :meth:`start` to the
-    first episode's start: imports, workers, envs, policies) and the steady env-steps/s after it
-    (every episode's steps over the time from the first episode's start to the last record). An
-    episode's start is its record's arrival less its ``wall_s``."""
+    """A run's pace, for the last line of ``rsb eval``, on this process's clock.
+
+    The steady time is the time episodes ran: each job's window, from the moment its first worker
+    began its episodes (it sends :data:`EPISODES_BEGIN` once its env and policy are built) to the
+    job's last record; windows of several jobs add up. The start-up is the rest of the time up to the
+    last record: the run's own (imports, the workers) and each job's env and policy. A job whose
+    episodes run without that mark (:func:`run_episodes`, in this process) opens its window at its
+    first episode's start: a record's arrival less its ``wall_s``."""
 
     def __init__(self) -> None:
         self.start()
 
     def start(self) -> None:
         self.t0 = time.monotonic()
-        self.first: float | None = None
         self.last = self.t0
         self.steps = self.episodes = 0
+        self.windows: list[tuple[float, float]] = []  # (begin, last record) of each finished job
+        self.opened: float | None = None  # the current job's window: since when episodes run
+        self.marked = False  # opened by a worker's mark (else from records' wall_s)
+        self.closes: float | None = None  # the current job's last record
+
+    def begin(self) -> None:
+        """A worker begins its episodes (the first one opens the job's window)."""
+        if not self.marked:
+            now = time.monotonic()
+            self.opened = now if self.opened is None else min(self.opened, now)
+            self.marked = True
 
     def add(self, record: Mapping[str, Any]) -> None:
         now = time.monotonic()
-        began = now - float(record.get("wall_s") or 0.0)
-        self.first = began if self.first is None else min(self.first, began)
-        self.last, self.steps, self.episodes = now, self.steps + int(record.get("steps") or 0), self.episodes + 1
+        if not self.marked:
+            began = now - float(record.get("wall_s") or 0.0)
+            self.opened = began if self.opened is None else min(self.opened, began)
+        self.last = self.closes = now
+        self.steps, self.episodes = self.steps + int(record.get("steps") or 0), self.episodes + 1
+
+    def end_job(self) -> None:
+        """The current job is over: its window closes at its last record (none: no window)."""
+        if self.opened is not None and self.closes is not None:
+            self.windows.append((self.opened, self.closes))
+        self.opened, self.marked, self.closes = None, False, None
+
+    def steady_s(self) -> float:
+        """Seconds episodes ran (the windows, the current job's included)."""
+        windows = self.windows + ([(self.opened, self.closes)] if self.opened is not None and self.closes else [])
+        return sum(max(0.0, b - a) for a, b in windows)
 
     def line(self) -> str:
-        if self.first is None:
+        if not self.episodes:
             return "throughput: no episode ran"
-        run = max(self.last - self.first, 1e-9)
-        return (f"throughput: start-up {max(0.0, self.first - self.t0):.1f} s, then {self.steps / run:,.0f} "
+        run = max(self.steady_s(), 1e-9)
+        start_up = max(0.0, self.last - self.t0 - run)
+        return (f"throughput: start-up {start_up:.1f} s, then {self.steps / run:,.0f} "
                 f"env-steps/s ({self.steps:,} env-steps, {self.episodes:,} episodes in {run:.1f} s)")
 
 
+EPISODES_BEGIN = "episodes-begin"  # what a worker sends once its env and policy are built (not a record)
 PACE = Throughput()  # every record drive() writes in this process; rsb eval starts it and prints its line
 
 
@@ -182,6 +220,7 @@ def drive(settings: EpisodeSettings, out_path: str | os.PathLike, run: Callable[
                 run(todo, write)
     finally:
         bar.close()
+        PACE.end_job()
     return records
 
 
@@ -280,10 +319,30 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
         # envs, num_envs to each of num_procs workers
         gpu_envs = job.num_envs > 1 and not job.cpu_vector
         shards = deal(todo, 1 if gpu_envs and executor is None else num_procs)
+        # never more envs than the episodes a worker runs: K envs for 2 episodes would build K - 2 for nothing
+        sized = replace(job, num_envs=max(1, min(job.num_envs, max(map(len, shards)))))
         chosen = executor or (ProcessPool() if len(shards) > 1 or isolate else InProcess())
-        outcome = chosen.run(run_shard, [(job, shard) for shard in shards], write)
+        recorded: set = set()
+
+        def on_message(message: Any) -> None:
+            if isinstance(message, str) and message == EPISODES_BEGIN:
+                PACE.begin()
+                return
+            recorded.add(record_episode(message))
+            write(message)
+
+        outcome = chosen.run(run_shard, [(sized, shard) for shard in shards], on_message)
         if outcome.interrupted:
             raise Interrupted(outcome.interrupted)
+        # SIGKILL: nothing the policy does ends its process so; the machine (out of memory) or a user did
+        killed = [t for t in outcome.tasks if getattr(t, "exit_code", None) == -signal.SIGKILL]
+        died = killed or [t for t in outcome.tasks if getattr(t, "exit_code", None) is not None and not t.stuck]
+        if died:  # killed (out of memory?), or ended outside any policy call
+            t = died[0]
+            lost = sorted({episode_of(e)[0] for e in shards[t.index] if e not in recorded})
+            raise JobError(f"evaluation worker {t.index} {'was ' if t.error.startswith('killed') else ''}{t.error}, "
+                           f"running {episode_where(job.suite_id, lost, job.instruction_mode)}: those episodes were "
+                           "not recorded", then="rerun the same command to resume: finished episodes are kept")
         stuck = [t for t in outcome.tasks if getattr(t, "stuck", None)]
         if stuck:  # a policy call that hung (killed at its limit) or ended its worker
             t = stuck[0]
@@ -295,7 +354,7 @@ def run_job(job: EvalJob, out_path: str | os.PathLike, num_procs: int = 1, progr
         if errors:
             first = min(errors)
             raise JobError(f"{len(errors)} of {len(shards)} evaluation workers failed on {job.suite_id}; worker "
-                           f"{first}: {first_line(errors[first])}", detail=errors[first])
+                           f"{first}: {errors[first].splitlines()[0]}", detail=errors[first])
 
     return drive(job, out_path, run, progress, stamp)
 
@@ -329,11 +388,12 @@ def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> BaseException | 
 
         hint = renderer_hint(str(err))
         return JobError(f"cannot build the env {job.suite_id} ({settings}): {type(err).__name__}: "
-                        f"{first_line(str(err))}{f'; {hint}' if hint else ''}", detail=traceback.format_exc())
+                        f"{one_line(str(err))}{f'; {hint}' if hint else ''}", detail=traceback.format_exc())
     try:
         with watched(policy_call_label("building it", job.suite_id), job.policy_timeout), \
                 blame_policy("building it", policy=job.label, where=job.suite_id):
             policy = _load_policies(job, env)
+        write(EPISODES_BEGIN)  # the throughput line's steady time starts here
         if job.num_envs > 1:
             batched_loop(env, policy, job, seeds, write)
         else:
@@ -341,7 +401,7 @@ def run_shard(task: tuple[EvalJob, list[int]], write: Write) -> BaseException | 
     except PolicyError as err:
         return err
     except Exception as err:  # noqa: BLE001  (reported by the driver, in one line)
-        return JobError(f"{job.suite_id}: {type(err).__name__}: {first_line(str(err))}",
+        return JobError(f"{job.suite_id}: {type(err).__name__}: {one_line(str(err))}",
                         detail=traceback.format_exc())
     finally:
         env.close()

@@ -326,7 +326,8 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
     the step it terminates or truncates, and it then holds its last action until the wave ends
     (a vector of CPU envs, ``rsb_maniskill.vector``, stops stepping it: ``env.unwrapped.hold(i)``). The
     last wave is padded with repeats of its last seed whose outcome is discarded. Records equal
-    those of :func:`episode_loop`, episode for episode.
+    those of :func:`episode_loop`, episode for episode, but for ``wall_s`` (here: from the wave's
+    reset to the episode's end).
     """
     import torch
 
@@ -346,6 +347,7 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
         n = len(wave_items)
         items = wave_items + [wave_items[-1]] * (b - n)  # the last wave padded with repeats
         wave = [seed for seed, _ in wave_items]
+        t0 = time.monotonic()  # an episode's wall_s: from its wave's reset to its own end
         obs, info = observations.reset(seed=[seed for seed, _ in items],
                                        options=variant_reset(settings.reset_options, [k for _, k in items]))
         specs = list(base.episode_specs)
@@ -394,6 +396,7 @@ def batched_loop(env: Any, policy: Any, settings: EpisodeSettings, todo: Sequenc
                     active[i] = False
                     if callable(hold):  # a vector of CPU envs stops stepping it (no physics for nothing)
                         hold(i)
+                    extras[i]["wall_s"] = round(time.monotonic() - t0, 3)
                     write(episodes.record(seed=wave[i], spec=specs[i], given=given[i], info=_row_info(info, i),
                                           steps=steps[i], extra=extras[i], frames=frames.pop(i, None), said=said[i]))
 

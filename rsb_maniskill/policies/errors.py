@@ -61,19 +61,28 @@ def episode_where(suite_id: str, seeds: Sequence[Any], instruction_mode: str) ->
 def blame_policy(call: str, *, policy: str | None, where: str | None) -> Iterator[None]:
     """The block calls the policy (``call``: "reset", "act", ...) and checks its output: a
     :class:`PolicyError` raised in it gets the policy and the episode named, any other exception
-    becomes one (the policy raised it), keeping its traceback; so does ``sys.exit()`` (SystemExit).
-    Ctrl-C passes through."""
+    becomes one (the policy raised it), keeping its traceback; so does ``sys.exit()`` (SystemExit),
+    and a KeyboardInterrupt the policy raised itself where signals are guarded (a worker process:
+    no Ctrl-C came). Ctrl-C passes through."""
+    from rsb_maniskill.parallel.pool import from_a_signal
+
     try:
         yield
     except PolicyError as err:
         err.policy, err.where = err.policy or policy, err.where or where
         err.detail = err.detail or traceback.format_exc()
         raise
+    except KeyboardInterrupt as err:
+        if from_a_signal(err):
+            raise
+        raise PolicyError(f"{call} raised KeyboardInterrupt with no Ctrl-C sent: a policy must return or raise an "
+                          "Exception (KeyboardInterrupt stops the whole run)", policy=policy, where=where,
+                          detail=traceback.format_exc()) from err
     except SystemExit as err:  # sys.exit() in a policy must not end the evaluation as if it were done
         raise PolicyError(f"{call} called sys.exit({err.code!r}): a policy must return or raise, never exit the "
                           "process", policy=policy, where=where, detail=traceback.format_exc()) from err
     except Exception as err:
-        said = first_line(str(err))
+        said = one_line(str(err))
         raise PolicyError(f"{call} raised {type(err).__name__}{f': {said}' if said else ''}", policy=policy,
                           where=where, detail=traceback.format_exc()) from err
 
@@ -100,9 +109,17 @@ def stuck_call_error(label: str, policy: str, *, timeout_s: float | None = None,
     return PolicyError(message, policy=policy, where=where or None)
 
 
-def first_line(text: str) -> str:
-    """A message in one line: its first, and " ..." when there were more (a server's traceback, say)."""
+TRACEBACK_START = "Traceback (most recent call last):"
+
+
+def one_line(text: str) -> str:
+    """A message in one line. A Python traceback in it (a server's, a worker's) gives way to its cause,
+    the exception line at its end, after whatever text led to it; otherwise the first line, and " ..."
+    when there were more."""
     lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    if TRACEBACK_START in lines:
+        lead = lines[:lines.index(TRACEBACK_START)]
+        return ": ".join([*(line.rstrip(":") for line in lead), lines[-1]])
     return lines[0] + (" ..." if len(lines) > 1 else "") if lines else ""
 
 

@@ -50,7 +50,7 @@ def test_data_dir_reaches_the_workers_and_every_output_says_what_ran(tmp_path):
         assert res.returncode == 0, res.stderr[-2000:]
         verdicts[name] = {json.loads((out / "results.json").read_text())["rows"][0]["episodes"],
                           json.loads((out / "summary.json").read_text())["episodes"]}
-        said = [line for line in res.stderr.splitlines() if line.strip()]
+        said = [line for line in res.stderr.splitlines() if line.strip()] or [""]  # -q: a good run says nothing
         differ = "episodes differ from RSB-MS"
         assert (differ in said[-1]) == (rows is not None), res.stderr[-2000:]
         assert ((out / "summary.md").read_text().splitlines()[0].startswith(f"**{differ}")) == (rows is not None)
@@ -168,10 +168,48 @@ def test_a_dataset_build_says_how_many_workers_start(capsys):
 def test_workers_are_quiet_plain_and_counted_as_started(tmp_path):
     """--num-procs 99 for 2 episodes: the line says the 2 workers that start, and no worker prints
     ManiSkill's render-device warning (nothing renders) nor colour codes."""
-    res = rsb("eval", "random", *EVAL, "-n", "2", "--max-steps", "2", "--num-procs", "99", "--out",
+    loud = [a for a in EVAL if a != "-q"]  # -q drops the lines saying what the run chose
+    res = rsb("eval", "random", *loud, "-n", "2", "--max-steps", "2", "--num-procs", "99", "--out",
               str(tmp_path / "r"), NO_COLOR="1")
     assert res.returncode == 0, res.stderr[-2000:]
     assert "workers: 2 processes" in res.stderr and "99 processes" not in res.stderr, res.stderr[-2000:]
     assert "Rendering might be disabled" not in res.stderr and "\x1b[" not in res.stderr, res.stderr[-2000:]
 
 
+
+
+# ------------------------------------------------------------ a policy's own KeyboardInterrupt, a killed worker
+
+
+@pytest.mark.parametrize("where, call", [("factory", "building it"), ("act", "act")])
+def test_a_policys_own_keyboard_interrupt_is_one_line_naming_it_and_the_call(where, call, tmp_path):
+    """KeyboardInterrupt raised by the policy itself (no Ctrl-C sent), in its factory or in act: one
+    error line naming the policy and the call (was "worker 0: KeyboardInterrupt() ..."), no traceback."""
+    res = rsb("eval", "bad_policies:exits", "-a", "how=KeyboardInterrupt", "-a", f"where={where}", *EVAL, "-n", "1",
+              "--max-steps", "3", "--out", str(tmp_path / "r"))
+    errors = error_lines(res.stderr)
+    assert res.returncode == 1 and len(errors) == 1 and "Traceback" not in res.stderr, res.stderr[-2000:]
+    assert errors[0].startswith(f"rsb eval: error: policy 'bad_policies:exits' on {SUITE}"), errors[0]
+    assert f": {call} raised KeyboardInterrupt with no Ctrl-C sent" in errors[0] and "worker" not in errors[0]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_worker_killed_by_sigkill_says_so_what_was_lost_and_that_a_rerun_resumes(tmp_path):
+    """kill -9 of a worker (as the out-of-memory killer does) while its policy waits in act: one line
+    naming the signal and its likely cause, the suite and seeds not recorded, and that a rerun resumes
+    (was "exited with code -9")."""
+    from rsb_maniskill.evaluation.protocol import eval_seeds
+
+    out = tmp_path / "r"
+    proc = start("eval", "bad_policies:hangs", "-a", "after=3", *EVAL, "-n", "3", "--max-steps", "3",
+                 "--num-procs", "1", "--policy-timeout", "0", "--out", str(out))
+    assert wait_until(lambda: lines(out / "episodes.jsonl") >= 1, proc), proc.communicate()[1][-2000:]
+    workers = workers_of(proc.pid)
+    assert len(workers) == 1
+    os.kill(workers[0], signal.SIGKILL)
+    _, err = proc.communicate(timeout=120)
+    lost = ", ".join(map(str, eval_seeds(SUITE, 3)[1:]))
+    assert proc.returncode == 1 and error_lines(err) == [
+        "rsb eval: error: evaluation worker 0 was killed by SIGKILL (likely out of memory, or killed by the user), "
+        f"running {SUITE} seeds {lost} (normal instruction): those episodes were not recorded; rerun the same "
+        "command to resume: finished episodes are kept"], err[-2000:]

@@ -146,10 +146,15 @@ def test_oracle_served_over_websocket_loopback(tmp_path):
 
     env = gym.make(SUITE, obs_mode="state", render_backend="none", **EVAL_ENV_KWARGS)
     seeds = eval_seeds(SUITE, 3)
+
+    class Oracle(ExpertPolicy):
+        def fork(self) -> ExpertPolicy:  # the server's policy for the env it serves: the one env here
+            return ExpertPolicy(env)
+
     try:
         # The server thread runs the oracle on the same env the runner steps; the runner waits for
         # each reply, so the two never touch the env at once.
-        with PolicyServer(ExpertPolicy(env), host="127.0.0.1", port=0) as server:
+        with PolicyServer(Oracle(env), host="127.0.0.1", port=0) as server:
             with RemotePolicy("127.0.0.1", server.port, mark_episode_start=True, connect_timeout=10,
                               request_timeout=60, name="remote-oracle") as client:
                 records = run_episodes(env, client, SUITE, seeds, tmp_path / "e.jsonl", progress=False)

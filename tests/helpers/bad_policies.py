@@ -85,7 +85,8 @@ class InterruptsOnce(Returns):
 
 class Exits(Returns):
     """Ends the process from ``where`` ("act", "reset" or "factory") with ``how``: "sys.exit" (code 0),
-    "os._exit" (code 3) or "SystemExit" (code 5); in act only after ``after`` calls (finished episodes first)."""
+    "os._exit" (code 3) or "SystemExit" (code 5), or raises "KeyboardInterrupt" with no Ctrl-C sent; in act
+    only after ``after`` calls (finished episodes first)."""
 
     def __init__(self, how: str = "sys.exit", where: str = "act", after: int = 0) -> None:
         super().__init__("width")
@@ -102,6 +103,8 @@ class Exits(Returns):
             os._exit(3)
         if self.how == "SystemExit":
             raise SystemExit(5)
+        if self.how == "KeyboardInterrupt":
+            raise KeyboardInterrupt
         sys.exit(0)
 
     def reset(self, instruction, obs) -> None:

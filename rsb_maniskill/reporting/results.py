@@ -370,9 +370,10 @@ def _interval_problem(rate: Mapping[str, Any], n: int) -> str | None:
     k = v * n
     if abs(k - round(k)) > 1e-6 * max(1.0, k):
         return f"a rate of {100 * v:g} % is no whole number of {n:,} episodes"
-    want = wilson_interval(round(k), n)
+    k = min(max(round(k), 0), n)
+    want = wilson_interval(k, n)
     if abs(want[0] - lo) > 1e-6 or abs(want[1] - hi) > 1e-6:
-        return (f"[{100 * lo:.1f}, {100 * hi:.1f}] % is not the Wilson interval of {round(k):,} of {n:,} episodes "
+        return (f"[{100 * lo:.1f}, {100 * hi:.1f}] % is not the Wilson interval of {k:,} of {n:,} episodes "
                 f"([{100 * want[0]:.1f}, {100 * want[1]:.1f}] %): its n or its rate was edited")
     return None
 

@@ -146,6 +146,9 @@ class EnvTalker:
     def reset_batch(self, instructions, obs):
         pass
 
+    def reset_envs(self, instructions, obs, envs):  # served: the batched form (one client here: slot = env index)
+        pass
+
     def act_batch(self, obs, envs):
         return {"actions": np.zeros((len(envs), 3, 14), np.float32), "text": [f"option {'ABCD'[e]}" for e in envs]}
 

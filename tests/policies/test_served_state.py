@@ -95,7 +95,7 @@ def test_diffusion_baseline_acts_the_same_served_or_per_worker(tmp_path):
     got = _run_all(tmp_path, "served_policies:make_recording_diffusion", "-a", f"checkpoint={ckpt}")
     _same_everywhere(got)
     for k in (1, 4):
-        assert "each env its own copy" in got[("shared", k)][2]  # served one env at a time, as the server said
+        assert "each env its own (a copy of the policy as built" in got[("shared", k)][2]  # as the server said
 
 
 def test_stateful_batched_policy_acts_the_same_served_or_per_worker(tmp_path):

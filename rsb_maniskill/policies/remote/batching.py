@@ -239,8 +239,10 @@ class Batcher:
         name = type(self.policy).__name__
         limit = f"; a call over {self.policy_timeout:g} s fails its rows" if self.policy_timeout else ""
         if not self.batched:
+            made = "its fork()" if callable(getattr(self.policy, "fork", None)) else \
+                "a copy of the policy as built, its torch modules shared"
             return (f"{name} has no batched form with reset_envs: served one env at a time, each env its own "
-                    f"copy of the policy as built (its torch modules shared){limit}")
+                    f"({made}){limit}")
         return (f"{name}: one act_batch a batch of up to {self.max_batch} rows gathered for at most "
                 f"{self.max_wait * 1000:g} ms; episode starts reset their rows only (reset_envs){limit}")
 

@@ -368,13 +368,11 @@ def _exit_now(signum: int, frame: Any) -> None:
 
 def _watch_parent(pid: int, server: PolicyServer, main_thread: bool) -> None:
     """Stop serving when the process that started this server is gone (a server never outlives its run)."""
-    import _thread
-
     while True:
         time.sleep(PARENT_POLL_S)
         if os.getppid() != pid:
             if main_thread:
-                _thread.interrupt_main()  # the main thread stops it, as on Ctrl-C
+                os.kill(os.getpid(), signal.SIGTERM)  # a real signal wakes the main thread: it stops as on Ctrl-C
             else:
                 server.shutdown()
             return

@@ -260,3 +260,37 @@ def test_a_shared_eval_whose_policy_raises_or_hangs_ends_within_10_s_in_one_line
     assert len(errors) == 1, done.stderr[-3000:]
     assert ("KeyboardInterrupt" if fault == "interrupt" else "timeout") in errors[0], errors[0]
     assert "Traceback" not in done.stderr and "INFO" not in done.stderr, done.stderr[-3000:]
+
+
+def test_a_server_whose_run_died_stops_by_itself(tmp_path):
+    """`--parent-pid`: the run that started the server is killed (SIGKILL: nothing of it runs on); the
+    server sees it within a second or two and stops, its batch sizes said, as on Ctrl-C."""
+    ready = tmp_path / "ready"
+    parent = subprocess.Popen([sys.executable, "-c", (
+        "import os, subprocess, sys, time\n"
+        f"p = subprocess.Popen([sys.executable, '-m', 'rsb_maniskill.cli', 'serve', 'counted_policies:make_counted', "
+        f"'-a', 'log={tmp_path / 'loads'}', '--host', '127.0.0.1', '--port', '0', '--parent-pid', str(os.getpid())], "
+        "stdout=subprocess.PIPE, text=True)\n"
+        "p.stdout.readline()\n"
+        f"open({str(ready)!r}, 'w').write(str(p.pid))\n"
+        "time.sleep(120)\n")], env=_env())
+    try:
+        deadline = time.monotonic() + 60
+        while not ready.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        server = int(ready.read_text())
+        parent.kill()
+        parent.wait(10)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 10:
+            try:
+                state = Path(f"/proc/{server}/stat").read_text().rsplit(")", 1)[1].split()[0]
+            except OSError:
+                break
+            if state == "Z":
+                break
+            time.sleep(0.1)
+        assert time.monotonic() - t0 < 5, "the server outlived its run"
+    finally:
+        if parent.poll() is None:
+            parent.kill()

@@ -166,3 +166,14 @@ def test_quiet_is_errors_only_and_normal_output_has_no_logging_lines(tmp_path):
         assert res.stdout.strip().splitlines()[-1].startswith("throughput: ")
     assert runs[True].stderr == ""
     assert "workers: 2 processes (--num-procs 2)" in runs[False].stderr and "ep/s" in runs[False].stderr
+
+
+def test_an_error_line_keeps_the_cause_of_a_traceback():
+    """A message carrying a traceback (a server's, a worker's) reads as its cause, whole, in one line."""
+    from rsb_maniskill.policies.errors import one_line
+
+    served = ("error in policy server:\nTraceback (most recent call last):\n  File \"model.py\", line 3, in act\n"
+              "    raise ValueError(\"bad image size: 224 x 224 expected\")\nValueError: bad image size: 224 x 224 "
+              "expected")
+    assert one_line(served) == "error in policy server: ValueError: bad image size: 224 x 224 expected"
+    assert one_line("first\nsecond") == "first ..." and one_line("  one  ") == "one" and one_line("") == ""

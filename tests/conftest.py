@@ -3,8 +3,10 @@ sets it to the shared copies), else the small fixtures written for the tests, so
 only needs *some* questions skips on a machine without the datasets."""
 from __future__ import annotations
 
+import json
 import os
 import signal
+import time
 from pathlib import Path
 
 import pytest
@@ -14,27 +16,42 @@ from net_helpers import silent_proxy_server
 FIXTURE_DATA = Path(__file__).resolve().parent / "fixtures" / "semantic_data"
 
 
-# Seconds each of the longest test files took in one whole `make test` run (2 cores, the sum of its
-# tests' setup, call and teardown).
-# `make test` hands whole files to its workers in collection order (xdist --dist loadfile
-# --no-loadscope-reorder): the long ones go first, so none starts last and runs alone at the end.
-# Only the order depends on these numbers; a file not listed keeps its place after them.
-LONGEST_FILES = {
-    "export/test_dataset_build.py": 268, "acceptance/test_faults.py": 239, "audit/test_audit.py": 207,
-    "integrations/test_lerobot_env.py": 206, "commands/test_eval_cli.py": 201, "motionplan/test_generate.py": 168,
-    "commands/test_bad_input.py": 129, "export/test_lerobot_export.py": 127, "semantic/test_options.py": 98,
-    "tasks/test_perturb.py": 90, "parallel/test_ray_executor.py": 85, "baselines/test_diffusion_policy.py": 73,
-    "sim/test_render_engine.py": 73, "motionplan/test_expert.py": 70, "acceptance/test_light_imports.py": 52,
-    "tasks/test_tasks.py": 46, "vector/test_vector_env.py": 45, "reporting/test_html_report.py": 41,
-}
+DURATIONS = Path(__file__).resolve().parent / "durations.json"
+
+
+def _file_seconds() -> dict[str, float]:
+    """Seconds each test file cost in one whole-suite run (tests/durations.json, written by
+    scripts/test_durations.py from a run's --junitxml or --durations 0 output); {} without the file."""
+    try:
+        return dict(json.loads(DURATIONS.read_text(encoding="utf-8"))["files"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
 
 
 def pytest_collection_modifyitems(config, items) -> None:
-    """The longest files first (LONGEST_FILES), each file's tests in their own order."""
-    def seconds(item) -> int:
-        return LONGEST_FILES.get(item.nodeid.split("::", 1)[0].removeprefix("tests/"), 0)
+    """The costliest files first, each file's tests in their own order. `make test` hands whole files
+    to its workers in collection order (xdist --dist loadfile --no-loadscope-reorder): the long ones go
+    first, so none starts last and runs alone at the end. Only the order depends on the measured
+    seconds; a file the durations file does not know keeps its place after them."""
+    seconds = _file_seconds()
+    items.sort(key=lambda item: -seconds.get(item.nodeid.split("::", 1)[0], 0))  # stable: the rest keep order
 
-    items.sort(key=lambda item: -seconds(item))  # stable: the rest keep their order
+
+_STARTED = time.monotonic()
+_LOAD_AT_START = os.getloadavg()[0]
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
+    """The guard on the suite's cost: its wall time, the cores and workers it ran on and the machine's
+    load (README's test command says what to expect on 2 cores; tests/durations.json, what each file costs)."""
+    if hasattr(config, "workerinput"):  # an xdist worker: the controller reports
+        return
+    cores = len(os.sched_getaffinity(0))
+    workers = len(getattr(config.option, "tx", None) or []) or 1
+    minutes = (time.monotonic() - _STARTED) / 60
+    terminalreporter.write_line(
+        f"rsb: suite wall time {minutes:.1f} min on {cores} cores, {workers} worker{'s' * (workers > 1)} "
+        f"(1-min load {_LOAD_AT_START:.1f} at start, {os.getloadavg()[0]:.1f} at end)")
 
 
 def pytest_configure(config) -> None:
@@ -43,6 +60,19 @@ def pytest_configure(config) -> None:
     pass without the command ever being interrupted. (Runs in each xdist worker too.)"""
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    _share_the_cores(config)
+
+
+def _share_the_cores(config) -> None:
+    """OpenMP and BLAS thread pools (torch, scikit-learn, numpy) of the cores' share of each test
+    worker: `make test` runs a worker a core plus one, and a pool of a thread a core in each spins at
+    its barriers for the threads the other workers hold (the audit tests took twice the CPU time with
+    two threads a worker on two cores as with one). Set here, in the controller before its workers
+    start, so that they and every command a test starts inherit it; a user's OMP_NUM_THREADS wins."""
+    if hasattr(config, "workerinput") or "OMP_NUM_THREADS" in os.environ:
+        return
+    workers = len(getattr(config.option, "tx", None) or []) or 1
+    os.environ["OMP_NUM_THREADS"] = str(max(1, len(os.sched_getaffinity(0)) // workers))
 
 
 @pytest.fixture

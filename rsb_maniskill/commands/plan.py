@@ -30,7 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "scene test) at intraclass correlation --icc. Exact powers where they can be computed; the "
                     "scene test's simulated (10,000 run pairs, the count printed only where its estimate less 3 "
                     "standard errors reaches --power). Give both rates as fractions (0.3 0.4) or both as percents "
-                    "(30%% 40%%).")
+                    "(30% 40%).")
     p.add_argument("rate_a", metavar="A", help="the first rate: 0.3, or 30%% (then B in percents too)")
     p.add_argument("rate_b", metavar="B", help="the second rate, in A's unit")
     p.add_argument("--alpha", type=float, default=0.05,

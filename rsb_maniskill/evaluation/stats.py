@@ -219,10 +219,11 @@ def scene_permutation(num_a: Sequence[float], den_a: Sequence[float], num_b: Seq
         t = t[np.isfinite(t)]
         return ScenePermutation(diff, float(np.mean(np.abs(t) >= abs(diff) - tol)), c)
     rng = np.random.default_rng(seed)
-    hits = draws = 0
+    hits = draws = flips = 0
     rows = min(PERMUTATIONS, max(1000, 4_000_000 // k))  # a chunk: at most ~4M flips of a scene in memory
-    while draws < MAX_PERMUTATIONS:
-        bits = rng.integers(0, 256, (rows, (k + 7) // 8), dtype=np.uint8)
+    while flips < MAX_PERMUTATIONS:
+        bits = rng.integers(0, 256, (min(rows, MAX_PERMUTATIONS - flips), (k + 7) // 8), dtype=np.uint8)
+        flips += len(bits)
         t = flipped(np.unpackbits(bits, axis=1, count=k).astype(float))
         t = t[np.isfinite(t)]
         hits, draws = hits + int(np.sum(np.abs(t) >= abs(diff) - tol)), draws + len(t)

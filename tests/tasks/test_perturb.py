@@ -317,14 +317,17 @@ def test_gpu_per_env_perturbations_match_cpu():
 
 
 # ---------------------------------------------------------------- rsb eval --sweep
-def _eval(*args, out):
-    return subprocess.run([sys.executable, "-m", "rsb_maniskill.cli", "eval", "oracle", "--suites", "RSB-Math-4",
-                           "-q", "--out", str(out), *args], capture_output=True, text=True, timeout=600)
+def _eval(*args, out) -> int:
+    """`rsb eval oracle` in this process, one worker (what a sweep records needs no episode played to
+    its end: 5 steps each)."""
+    from rsb_maniskill.cli import main
+
+    return main(["eval", "oracle", "--suites", "RSB-Math-4", "-q", "--out", str(out), "--num-procs", "1",
+                 "--max-steps", "5", *args])
 
 
-def test_eval_sweep_records_axis_and_level_resumes_and_reports(tmp_path, question_data):
-    res = _eval("-n", "2", "--sweep", "lang_layout", out=tmp_path)
-    assert res.returncode == 0, res.stderr[-2000:]
+def test_eval_sweep_records_axis_and_level_resumes_and_reports(tmp_path, question_data, capsys):
+    assert _eval("-n", "2", "--sweep", "lang_layout", out=tmp_path) == 0, capsys.readouterr().err[-2000:]
     recs = [json.loads(line) for line in (tmp_path / "episodes.jsonl").read_text().splitlines()]
     assert len(recs) == 2 * 4
     levels = sorted((r.get("perturb_axis", ""), r.get("perturb_level", 0)) for r in recs)
@@ -337,15 +340,15 @@ def test_eval_sweep_records_axis_and_level_resumes_and_reports(tmp_path, questio
     assert rows == [("lang_layout", lv, 2) for lv in range(4)]
     assert "### Robustness: oracle on RSB-Math-4" in (tmp_path / "summary.md").read_text()
     assert 'id="robustness"' in (tmp_path / "report.html").read_text()
-    again = _eval("-n", "2", "--sweep", "lang_layout", out=tmp_path)
-    assert again.returncode == 0 and len((tmp_path / "episodes.jsonl").read_text().splitlines()) == 8, "resumed"
+    assert _eval("-n", "2", "--sweep", "lang_layout", out=tmp_path) == 0
+    assert len((tmp_path / "episodes.jsonl").read_text().splitlines()) == 8, "resumed"
 
 
 @pytest.mark.parametrize("args, words", [(("--perturb", "camera=7"), ["camera", "0, 1, 2, 3", "--perturb"]),
                                          (("--sweep", "fog"), ["unknown perturbation axis 'fog'", "--sweep"]),
                                          (("--sweep", "camera", "--perturb", "noise=1"), ["not both"])])
-def test_eval_bad_perturbation_is_one_clear_line(tmp_path, args, words):
-    res = _eval(*args, out=tmp_path)
-    assert res.returncode == 2
-    line = [x for x in res.stderr.splitlines() if x.startswith("rsb eval: error")]
-    assert len(line) == 1 and all(w in line[0] for w in words), res.stderr[-1000:]
+def test_eval_bad_perturbation_is_one_clear_line(tmp_path, args, words, capsys):
+    assert _eval(*args, out=tmp_path) == 2
+    err = capsys.readouterr().err
+    line = [x for x in err.splitlines() if x.startswith("rsb eval: error")]
+    assert len(line) == 1 and all(w in line[0] for w in words), err[-1000:]

@@ -112,7 +112,7 @@ def test_cli_eval_and_generate_on_ray(executor, tmp_path, capsys):
     from rsb_maniskill.cli import main
 
     out = tmp_path / "res"
-    assert main(["eval", "blind", "--suites", SUITE, "-n", "3", "--max-steps", "30", "--out", str(out), "-q",
+    assert main(["eval", "random", "--suites", SUITE, "-n", "3", "--max-steps", "30", "--out", str(out), "-q",
                  "--executor", "ray"]) == 0
     assert sorted(r["seed"] for r in read_records(out / "episodes.jsonl")) == eval_seeds(SUITE, 3)
     capsys.readouterr()

@@ -18,6 +18,7 @@ import h5py
 import numpy as np
 import pytest
 
+from rsb_maniskill.cli import main
 from rsb_maniskill.motionplan import ExpertResult, ScriptedExpert
 from rsb_maniskill.motionplan.config import output_path
 from rsb_maniskill.motionplan.dataset import annotate_episodes, check_pair
@@ -106,9 +107,11 @@ def _arrays(group: h5py.Group) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
-    """Three demos from seeds 0.. with the real expert (shared by the checks below)."""
+    """Three demos from seeds 0.. with the real expert (shared by the checks below). Their cameras are
+    64x48 (env kwargs the file records, so every replay to rgb below renders that: the same code as
+    at 320x240, a twentieth of the pixels)."""
     tmp = tmp_path_factory.mktemp("gen")
-    summary = generate(_cfg(tmp, num=3))
+    summary = generate(_cfg(tmp, num=3, env_kwargs={"camera_size": (64, 48)}))
     assert summary.path is not None and summary.completed == 3, summary
     return summary
 
@@ -153,15 +156,16 @@ def test_output_name_follows_maniskill_layout(tmp_path):
         f"{ENV_ID}/motionplanning/train-shard2of5.state.pd_joint_pos.physx_cpu.h5"
 
 
-def test_unknown_suite_and_unwritable_dir_leave_no_files(tmp_path):
+def test_unknown_suite_and_unwritable_dir_leave_no_files(tmp_path, capsys):
     out = tmp_path / "out"
-    res = _rsb("generate", "RSB-Nope-4", "-n", "2", "--out", str(out))
-    assert res.returncode == 2 and "unknown suite 'RSB-Nope-4'" in res.stderr and "RSB-Math-4" in res.stderr
+    assert main(["generate", "RSB-Nope-4", "-n", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown suite 'RSB-Nope-4'" in err and "RSB-Math-4" in err
     assert not out.exists()
     blocker = tmp_path / "a_file"
     blocker.write_text("not a directory")
-    res = _rsb("generate", ENV_ID, "-n", "2", "--out", str(blocker / "demos"))
-    assert res.returncode == 2 and "cannot write to output directory" in res.stderr
+    assert main(["generate", ENV_ID, "-n", "2", "--out", str(blocker / "demos")]) == 2
+    assert "cannot write to output directory" in capsys.readouterr().err
     assert _all_files(tmp_path) == [blocker]
     with pytest.raises(GenerateError, match="split"):
         generate(_cfg(tmp_path, split="validation"))
@@ -233,7 +237,7 @@ def test_generated_dataset_is_valid_and_self_describing(dataset):
     assert env_info["env_id"] == f"rsb_maniskill:{ENV_ID}"  # gymnasium imports the pack to find it
     assert env_info["env_kwargs"]["split"] == "train"
     assert env_info["env_kwargs"]["control_mode"] == "pd_joint_pos"
-    assert env_info["env_kwargs"]["obs_mode"] == "state"
+    assert env_info["env_kwargs"]["obs_mode"] == "state" and env_info["env_kwargs"]["camera_size"] == [64, 48]
     assert data["source_type"] == "motionplanning"
     assert [ep["episode_seed"] for ep in data["episodes"]] == sorted(ep["episode_seed"] for ep in data["episodes"])
     for ep in data["episodes"]:
@@ -378,7 +382,8 @@ def test_replay_to_rgb_observations(dataset):
         assert len(cams) >= 1
         for cam in cams.values():
             rgb = cam["rgb"]
-            assert rgb.dtype == np.uint8 and rgb.shape[0] == f["traj_0/actions"].shape[0] + 1 and rgb.shape[-1] == 3
+            assert rgb.dtype == np.uint8 and rgb.shape[0] == f["traj_0/actions"].shape[0] + 1
+            assert rgb.shape[1:] == (48, 64, 3)  # the recorded env kwargs reach the replay's env
 
 
 @pytest.mark.slow
@@ -443,19 +448,20 @@ def test_sigterm_with_worker_processes(tmp_path):
 
 
 @pytest.mark.slow
-def test_shards_merge_into_one_dataset(tmp_path):
+def test_shards_merge_into_one_dataset(tmp_path, capsys):
+    """The commands in this process (the processes' own signals and exits are the SIGTERM tests')."""
     paths = []
     for i in range(2):
-        res = _rsb("generate", ENV_ID, "--questions", "0:4", "--shard", f"{i}/2", "--out", str(tmp_path), "-q")
-        assert res.returncode == 0, res.stderr[-3000:]
+        assert main(["generate", ENV_ID, "--questions", "0:4", "--shard", f"{i}/2", "--out", str(tmp_path), "-q",
+                     "--num-procs", "1"]) == 0, capsys.readouterr().err[-3000:]
         paths.append(tmp_path / ENV_ID / "motionplanning" / f"train-shard{i}of2.state.pd_joint_pos.physx_cpu.h5")
-    res = _rsb("merge", *map(str, paths), "--out", str(tmp_path / "all.h5"), "--sort-by-seed")
-    assert res.returncode == 0, res.stderr
+    assert main(["merge", *map(str, paths), "--out", str(tmp_path / "all.h5"), "--sort-by-seed"]) == 0
     data = _check_dataset(tmp_path / "all.h5")
     assert [ep["question_index"] for ep in data["episodes"]] == [0, 1, 2, 3]
     assert data["rsb"]["shards"] == ["0/2", "1/2"] and data["rsb"]["completed"] == 4
-    res = _rsb("merge", *map(str, paths), "--out", str(tmp_path / "all.h5"))
-    assert res.returncode == 2 and "--overwrite" in res.stderr
+    capsys.readouterr()
+    assert main(["merge", *map(str, paths), "--out", str(tmp_path / "all.h5")]) == 2
+    assert "--overwrite" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -209,10 +209,12 @@ def test_overfit_one_demo_reproduces_first_chunk(demos, tmp_path):
 
 @pytest.mark.slow
 def test_rgb_variant_trains_and_runs_in_rsb_eval(tmp_path):
-    """One camera demo (head and wrist cameras, rendered on CPU), a few iterations, one short episode."""
+    """One camera demo (head and wrist cameras, rendered on CPU at 64x48: the policy sees 32x32), a few
+    iterations, one short episode."""
     from rsb_maniskill.cli import main as rsb_main
 
-    summary = generate(GenerateConfig(env_id=SUITE, out=str(tmp_path / "demos"), num=1, obs_mode="rgb", progress=False))
+    summary = generate(GenerateConfig(env_id=SUITE, out=str(tmp_path / "demos"), num=1, obs_mode="rgb", progress=False,
+                                      env_kwargs={"camera_size": (64, 48)}))
     assert summary.completed == 1
     with pytest.raises(Exception, match="--obs state needs 'state'"):
         load_demos([summary.path], obs="state")
@@ -221,8 +223,8 @@ def test_rgb_variant_trains_and_runs_in_rsb_eval(tmp_path):
     assert state["meta"]["cameras"] == ["head_camera", "left_wrist_camera", "right_wrist_camera"]
     assert state["config"]["obs_mode"] == "rgb" and state["config"]["num_cameras"] == 3
     rc = rsb_main(["eval", "rsb_maniskill.baselines.diffusion_policy:make_policy", "-a", f"checkpoint={ckpt}",
-                   "-a", "inference_steps=2", "-o", "rgb", "--suites", SUITE, "-n", "1", "--max-steps", "10",
-                   "--name", "dp-rgb", "--out", str(tmp_path / "eval"), "-q"])
+                   "-a", "inference_steps=2", "-o", "rgb", "-e", "camera_size=[64,48]", "--suites", SUITE, "-n", "1",
+                   "--max-steps", "10", "--name", "dp-rgb", "--out", str(tmp_path / "eval"), "-q"])
     assert rc == 0
     records = [json.loads(line) for line in (tmp_path / "eval" / "episodes.jsonl").read_text().splitlines()]
     assert len(records) == 1 and records[0]["steps"] == 10

@@ -2,14 +2,16 @@
 simulator and a model that computes.
 
     python benchmarks/policy_server.py [--procs 2] [--envs 1 4] [-n 8] [--max-steps 40]
-                                       [--hidden 2048] [--layers 4] [--horizon 4] [--threads 1] [--device cpu]
+                                       [--max-wait-ms 25 0] [--repeats 3] [--hidden 2048] [--layers 4]
+                                       [--horizon 4] [--threads 1] [--device cpu]
 
 The model: a torch MLP (state observation -> ``--layers`` hidden layers of ``--hidden`` -> a chunk of
 ``--horizon`` actions), both policy forms and the served form's ``reset_envs``, one forward pass over
 the rows of each call, declared ``heavy`` (this module's ``make_mlp``, importable by the eval's
-processes). Each (P workers, K envs a worker) runs the same seeds twice: ``--policy-process worker``
-(a copy a worker) and ``shared`` (one server process, every worker's rows batched, the default
-``--max-batch`` / ``--max-wait-ms``). Timed: the whole command (start-up included, what a user waits
+processes). Each (P workers, K envs a worker) runs the same seeds with ``--policy-process worker``
+(a copy a worker) and ``shared`` (one server process, every worker's rows batched) at each
+``--max-wait-ms`` T (25: the default; 0: no wait for other workers' rows), ``--repeats`` times,
+interleaved, the median kept. Timed: the whole command (start-up included, what a user waits
 for) and the steady env-steps/s of its own throughput line; the shared run's batch sizes; and, in
 this process, one forward pass over 1, 2, 4, 8 and 16 rows (how the model's cost grows with its rows).
 ``--device cuda`` puts the model on the GPU (where the batch should pay). Recorded to
@@ -106,7 +108,7 @@ def forward_ms(args: argparse.Namespace, rows: list[int], repeats: int = 20) -> 
     return out
 
 
-def eval_run(args: argparse.Namespace, mode: str, procs: int, envs: int) -> dict[str, Any]:
+def eval_run(args: argparse.Namespace, mode: str, procs: int, envs: int, wait: float | None = None) -> dict[str, Any]:
     """One `rsb eval` of the MLP: wall time, the throughput line's figures, the batch sizes (shared)."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")]))
     with tempfile.TemporaryDirectory() as tmp:
@@ -115,7 +117,7 @@ def eval_run(args: argparse.Namespace, mode: str, procs: int, envs: int) -> dict
                "-a", f"device={args.device}", "-a", f"threads={args.threads}", "--suites", SUITE, "-o", "state",
                "-n", str(args.num_episodes),
                "--max-steps", str(args.max_steps), "--num-procs", str(procs), "--num-envs", str(envs),
-               "--policy-process", mode, "--out", tmp]
+               "--policy-process", mode, "--out", tmp] + ([] if wait is None else ["--max-wait-ms", f"{wait:g}"])
         t0 = time.perf_counter()
         done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=3600)
         wall = time.perf_counter() - t0
@@ -149,7 +151,9 @@ def main() -> None:
     p.add_argument("--device", default="cpu", help="where the model computes (cuda: on the GPU)")
     p.add_argument("--threads", type=int, default=1,
                    help="torch threads of the model in each process that holds it (0: torch's default)")
-    p.add_argument("--repeats", type=int, default=2, help="runs of each mode, interleaved; the median is kept")
+    p.add_argument("--max-wait-ms", type=float, nargs="+", default=[25.0, 0.0],
+                   help="the shared runs' --max-wait-ms T, one shared run each (25: rsb eval's default)")
+    p.add_argument("--repeats", type=int, default=3, help="runs of each mode, interleaved; the median is kept")
     p.add_argument("--name", default="policy_server", help="the recorded file's name (benchmarks/results/NAME.json)")
     args = p.parse_args()
     model = make_mlp(args.hidden, args.layers, args.horizon, threads=args.threads)
@@ -160,32 +164,36 @@ def main() -> None:
           f"{args.num_episodes} episodes of {args.max_steps} steps; median of {args.repeats} runs each; "
           f"{os.cpu_count()} CPUs, 1-min load {os.getloadavg()[0]:.1f}")
     print("forward pass, ms: " + ", ".join(f"{n} rows {ms:.2f}" for n, ms in forward.items()))
-    columns = ["P x K", "worker: wall s", "shared: wall s", "shared / worker wall", "worker: env-steps/s",
-               "shared: env-steps/s", "shared: rows a call"]
+    columns = ["P x K", "policy process", "wall s", "/ worker", "env-steps/s", "rows a call"]
     print("| " + " | ".join(columns) + " |")
-    print("|---|" + "---:|" * (len(columns) - 1))
+    print("|---|---|" + "---:|" * (len(columns) - 2))
+    modes = {"worker": ("worker", None), **{f"shared T={t:g}": ("shared", t) for t in args.max_wait_ms}}
     rows, runs = [], []
     for procs in args.procs:
         for envs in args.envs:
-            tries: dict[str, list] = {"worker": [], "shared": []}
-            for _ in range(args.repeats):  # interleaved: load from other work falls on both
-                for mode in tries:
-                    tries[mode].append(eval_run(args, mode, procs, envs))
-            worker, shared = (_median(tries[m]) for m in ("worker", "shared"))
-            runs.append({"procs": procs, "envs": envs, "worker": worker, "shared": shared, "tries": tries})
-            row = [f"{procs} x {envs}", f"{worker['wall_s']:.1f}", f"{shared['wall_s']:.1f}",
-                   f"{shared['wall_s'] / worker['wall_s']:.2f}x", f"{worker['env_steps_per_s'] or 0:,.0f}",
-                   f"{shared['env_steps_per_s'] or 0:,.0f}", f"{shared['rows_a_call'] or 0:.1f}"]
-            rows.append(row)
-            print("| " + " | ".join(row) + " |", flush=True)
+            tries: dict[str, list] = {name: [] for name in modes}
+            for _ in range(args.repeats):  # interleaved: load from other work falls on every mode alike
+                for name, (mode, wait) in modes.items():
+                    tries[name].append(eval_run(args, mode, procs, envs, wait))
+            got = {name: _median(t) for name, t in tries.items()}
+            runs.append({"procs": procs, "envs": envs, "worker": got["worker"],
+                         "shared": {f"{t:g}": got[f"shared T={t:g}"] for t in args.max_wait_ms}, "tries": tries})
+            for name, fig in got.items():
+                label = "worker (a copy each)" if name == "worker" else f"shared, --max-wait-ms {modes[name][1]:g}"
+                row = [f"{procs} x {envs}", label, f"{fig['wall_s']:.1f}",
+                       f"{fig['wall_s'] / got['worker']['wall_s']:.2f}x", f"{fig['env_steps_per_s'] or 0:,.0f}",
+                       "" if fig["rows_a_call"] is None else f"{fig['rows_a_call']:.1f} of {procs * envs}"]
+                rows.append(row)
+                print("| " + " | ".join(row) + " |", flush=True)
     write(args.name, {"model": {"kind": "mlp", "hidden": args.hidden, "layers": args.layers,
                                 "horizon": args.horizon, "device": args.device, "threads": args.threads,
                                 "parameters": params},
                       "suite": SUITE, "episodes": args.num_episodes, "max_steps": args.max_steps,
+                      "max_wait_ms": args.max_wait_ms, "repeats": args.repeats,
                       "forward_ms": {str(n): round(ms, 3) for n, ms in forward.items()}, "runs": runs,
-                      "table": table(columns, rows)},
+                      "table": table(columns, rows, "llrrrr")},
           notes="wall: the whole rsb eval command, start-up included; env-steps/s: its own throughput line "
-                "(steady time); shared uses rsb eval's default --max-batch / --max-wait-ms")
+                "(steady time); each figure the median of the interleaved tries (kept in runs[].tries)")
 
 
 if __name__ == "__main__":

@@ -71,7 +71,7 @@ def is_heavy(spec: str) -> bool:
 def runs_on_gpu(spec: str) -> bool:
     """Whether a policy declares that its model computes on a GPU where one is there (``gpu``, as
     ``heavy``): one served model batches every worker's envs in a forward pass that costs about the
-    same for 1 and 32 rows there; on the CPU it costs more with each row, so a copy a worker is faster."""
+    same for 1 and 32 rows there; on the CPU a copy a worker was faster (``benchmarks/policy_server.py``)."""
     if spec in POLICIES:
         return POLICIES[spec].gpu
     return bool(getattr(resolve_factory(spec), "gpu", False))

@@ -6,10 +6,11 @@ with the run (and by itself if the run dies: ``--parent-pid``); a worker that di
 rows. A policy call that outlasts the run's ``--policy-timeout`` fails in the server, as it would
 in a worker.
 
-``auto`` shares only where it pays: a policy that declares a model (``heavy``) computed on a GPU
-(``gpu``, ``registry.py``) on a machine with CUDA, with more than one worker. On the CPU a copy a
-worker is faster: a CPU forward pass grows with its rows and the batch's wait adds to every step
-(``benchmarks/policy_server.py``, recorded in ``benchmarks/results/policy_server.json``).
+``auto`` shares only where it is meant to pay: a policy that declares a model (``heavy``) computed on
+a GPU (``gpu``, ``registry.py``) on a machine with CUDA, with more than one worker. On the CPU a copy
+a worker was faster than one shared with the default wait, which every policy call pays while the
+workers' rows rarely line up (``benchmarks/policy_server.py``, recorded in
+``benchmarks/results/policy_server.json``).
 """
 from __future__ import annotations
 
@@ -68,11 +69,11 @@ def choose(mode: str, spec: str, num_procs: int, local: bool = True, cuda: bool 
     if num_procs <= 1:
         return "worker", "one worker: one copy either way"
     if not runs_on_gpu(spec):
-        return "worker", (f"{spec}'s model runs on the CPU (it declares no gpu), where a copy a worker is faster than "
+        return "worker", (f"{spec}'s model runs on the CPU (it declares no gpu), where a copy a worker was faster than "
                           f"one shared ({MEASURED}); --policy-process shared loads it once anyway")
     if not (cuda_available() if cuda is None else cuda):
         return "worker", (f"{spec}'s model runs on a GPU and this machine has none (CUDA): on the CPU a copy a worker "
-                          f"is faster ({MEASURED})")
+                          f"was faster ({MEASURED})")
     return "shared", f"{spec}'s model runs on the GPU: loaded once and batched for the {num_procs} workers"
 
 

@@ -197,13 +197,13 @@ def test_env_type_rsb_and_envhub_in_lerobot(tmp_path):
 
 @pytest.mark.slow
 def test_lerobot_loop_export_train_eval_report(tmp_path):
-    """A few Direct-4 demos -> rsb export lerobot -> lerobot-train (tiny ACT, CPU) -> lerobot-eval
+    """Two Direct-4 demos -> rsb export lerobot -> lerobot-train (tiny ACT, CPU) -> lerobot-eval
     --env.type=rsb: LeRobot's success rate is the records' TSR, and `rsb report` reads the run."""
     from rsb_maniskill.export.build import export_lerobot
     from rsb_maniskill.motionplan.generate import GenerateConfig, generate
 
     py = lerobot_with_rsb()
-    demos = generate(GenerateConfig(env_id=SUITE, out=str(tmp_path / "demos"), num=4, progress=False,
+    demos = generate(GenerateConfig(env_id=SUITE, out=str(tmp_path / "demos"), num=2, progress=False,
                                     env_kwargs={"camera_size": SMALL})).path
     data = tmp_path / "rsb-direct-4"
     export_lerobot([demos], data, progress=False)

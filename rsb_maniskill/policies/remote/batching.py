@@ -182,6 +182,10 @@ def _check_limits(max_batch: int, max_wait_ms: float, policy_timeout: float | No
                          f"{policy_timeout!r}")
 
 
+def _count(n: int, word: str) -> str:
+    return f"{n} {word}" + ("" if n == 1 else "s")
+
+
 def _stderr(line: str) -> None:
     print(f"rsb serve: {line}", file=sys.stderr, flush=True)
 
@@ -333,7 +337,7 @@ class Batcher:
             call.cut = True
         rows = sum(len(p) for p in call.parts)
         err = ServedPolicyError(f"the policy's {call.method} call ran past the policy timeout "
-                                f"({self.policy_timeout:g} s; a hang?): its {rows} rows fail")
+                                f"({self.policy_timeout:g} s; a hang?): its {_count(rows, 'row')} fail")
         self.log(f"{err}; requests are refused until it returns")
         self._fail(call.parts, err)
 
@@ -428,9 +432,9 @@ class Batcher:
         if cut:
             return  # failed at the timeout already
         rows = sum(len(p) for p in parts)
-        what = f"{type(err).__name__}: {err}" if str(err) else type(err).__name__
-        line = (f"the policy's {'act_batch' if self.batched else 'reset/act'} call raised {what}: its {rows} "
-                f"rows ({len(parts)} requests) fail, not called again")
+        what = f"{type(err).__name__}: {' '.join(str(err).split())}" if str(err) else type(err).__name__
+        line = (f"the policy's {'act_batch' if self.batched else 'reset/act'} call raised {what}: its "
+                f"{_count(rows, 'row')} ({_count(len(parts), 'request')}) fail, not called again")
         if debug_enabled():
             print("".join(traceback.format_exception(type(err), err, err.__traceback__)).rstrip(), file=sys.stderr)
         self.log(line)

@@ -140,8 +140,11 @@ class SharedServer:
         return None if code is None else f"the shared policy server (pid {self.proc.pid}) stopped with exit code {code}"
 
     def check(self) -> None:
-        """Raise a PolicyError naming the server when it is gone (called when workers failed: a server
-        killed closes their connections as it exits, so it is given a moment to be reaped)."""
+        """Raise a PolicyError naming the server when it is gone (called when workers failed). A server
+        that answers its health check is serving: the workers' error was the policy's, said at once; one
+        that does not (killed: it closed their connections as it exited) is given a moment to be reaped."""
+        if self.proc.poll() is None and self._healthy():
+            return
         try:
             self.proc.wait(timeout=CHECK_WAIT_S)
         except subprocess.TimeoutExpired:
@@ -149,6 +152,19 @@ class SharedServer:
         line = self.dead()
         if line:
             raise PolicyError(f"{line}; the workers lost their policy", policy=self.spec)
+
+    def _healthy(self) -> bool:
+        """``GET /healthz`` answers 200 (the server's handshake check, before any policy call)."""
+        import http.client
+
+        conn = http.client.HTTPConnection(LOOPBACK, self.port, timeout=1.0)
+        try:
+            conn.request("GET", "/healthz")
+            return conn.getresponse().status == 200
+        except (OSError, http.client.HTTPException):
+            return False
+        finally:
+            conn.close()
 
     def stop(self) -> None:
         if self.proc.poll() is None:

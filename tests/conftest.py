@@ -68,11 +68,14 @@ def _share_the_cores(config) -> None:
     worker: `make test` runs a worker a core plus one, and a pool of a thread a core in each spins at
     its barriers for the threads the other workers hold (the audit tests took twice the CPU time with
     two threads a worker on two cores as with one). Set here, in the controller before its workers
-    start, so that they and every command a test starts inherit it; a user's OMP_NUM_THREADS wins."""
-    if hasattr(config, "workerinput") or "OMP_NUM_THREADS" in os.environ:
+    start, so that they and every command a test starts inherit it; a user's OMP_NUM_THREADS wins. The
+    rule is the one `rsb`'s own worker processes follow (rsb_maniskill.parallel.threads)."""
+    if hasattr(config, "workerinput"):
         return
+    from rsb_maniskill.parallel.threads import cpu_share, thread_env
+
     workers = len(getattr(config.option, "tx", None) or []) or 1
-    os.environ["OMP_NUM_THREADS"] = str(max(1, len(os.sched_getaffinity(0)) // workers))
+    os.environ.update(thread_env(cpu_share(workers)))
 
 
 @pytest.fixture

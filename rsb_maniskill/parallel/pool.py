@@ -34,6 +34,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Protocol, Sequence
 
+from rsb_maniskill.parallel.threads import cpu_share, thread_env
+
 Emit = Callable[[Any], None]
 Target = Callable[[Any, Emit], Any]
 
@@ -214,6 +216,8 @@ class ProcessPool:
     ``devices``: GPUs as ``CUDA_VISIBLE_DEVICES`` names them; worker k starts with
     ``CUDA_VISIBLE_DEVICES=devices[k % len(devices)]``, so it renders (and runs CUDA) on that one
     GPU: set in its environment before its interpreter starts, hence before the simulator loads.
+    Each worker's thread pools (torch, OpenMP, BLAS) take its share of the cores, ``cores // workers``
+    of the run that starts it (:mod:`rsb_maniskill.parallel.threads`; a user's ``OMP_NUM_THREADS`` wins).
 
     Alone, :meth:`run` starts its workers and stops them before it returns. In a ``with`` block they
     live until the block ends: each :meth:`run` hands its tasks to the workers already started
@@ -253,8 +257,9 @@ class ProcessPool:
         """Worker processes running now (between two runs of a ``with`` block: the ones kept)."""
         return sum(w.proc.is_alive() for w in self._workers.values())
 
-    def _worker(self, index: int) -> _Worker:
-        """Worker ``index``: the one kept from an earlier run if it still lives, else a new one."""
+    def _worker(self, index: int, threads: int) -> _Worker:
+        """Worker ``index``: the one kept from an earlier run if it still lives, else a new one whose
+        thread pools run ``threads`` threads."""
         import multiprocessing as mp
 
         kept = self._workers.get(index)
@@ -268,7 +273,7 @@ class ProcessPool:
         watch = ctx.Array("d", 2, lock=False)  # (since, limit) of the watched block, 0: none
         label = ctx.Array("c", _LABEL_BYTES, lock=False)
         proc = ctx.Process(target=_worker_main, args=(task_r, msg_w, watch, label, os.getpid()), daemon=True)
-        with _environ(CUDA_VISIBLE_DEVICES=self.device_of(index)):  # the child inherits it
+        with _environ(CUDA_VISIBLE_DEVICES=self.device_of(index), **thread_env(threads)):  # the child inherits them
             proc.start()
         task_r.close()  # the child holds these ends
         msg_w.close()
@@ -282,8 +287,9 @@ class ProcessPool:
         done: dict[int, TaskOutcome] = {}
         with InterruptGuard() as guard:
             try:
+                share = cpu_share(len(tasks))  # the cores each worker's thread pools may take
                 for k, task in enumerate(tasks):
-                    workers.append(self._worker(k))
+                    workers.append(self._worker(k, share))
                     try:
                         workers[k].tasks.send((target, task, k))
                     except OSError:  # it died since it was kept: noticed below as dead

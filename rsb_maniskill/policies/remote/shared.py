@@ -6,6 +6,12 @@ with the run (and by itself if the run dies: ``--parent-pid``); a worker that di
 rows. A policy call that outlasts the run's ``--policy-timeout`` fails in the server, as it would
 in a worker.
 
+Threads: each worker's pools take its share of the cores (``cores // workers``,
+:mod:`rsb_maniskill.parallel.threads`); the server's take every core. A worker that sent a request
+waits for its reply, so the server computes while the workers it answers are idle: with the default
+wait (every connected worker's request, or ``--max-wait-ms``) nearly all of them are; with no wait, a
+batch may overlap the other workers' physics, and the cores are briefly oversubscribed.
+
 ``auto`` shares only where it is meant to pay: a policy that declares a model (``heavy``) computed on
 a GPU (``gpu``, ``registry.py``) on a machine with CUDA, with more than one worker. On the CPU a copy
 a worker was faster than one shared with the default wait, which every policy call pays while the
@@ -22,6 +28,7 @@ import sys
 import threading
 from typing import Any, Callable, Mapping
 
+from rsb_maniskill.parallel.threads import cpu_share, thread_env
 from rsb_maniskill.policies.errors import PolicyError
 from rsb_maniskill.policies.registry import is_heavy, policy_spec, runs_on_gpu
 from rsb_maniskill.policies.remote.batching import DEFAULT_MAX_BATCH, DEFAULT_MAX_WAIT_MS
@@ -98,6 +105,7 @@ class SharedServer:
         for key, value in policy_kwargs.items():
             cmd += ["-a", f"{key}={json.dumps(value)}"]
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))  # the specs this run resolves
+        env.update(thread_env(cpu_share(1), env))  # its model's pools: every core (see the module's docstring)
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, env=env, text=True)
         self.port = self._read_port(start_timeout)
 

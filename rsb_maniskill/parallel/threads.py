@@ -1,0 +1,34 @@
+"""Each local process's share of the cores for its thread pools (torch's intra-op pool, OpenMP, BLAS).
+
+Each of these pools starts a thread a core in every process, so N worker processes on C cores would
+run N x C threads spinning at their barriers for cores the other workers hold. Every worker
+:class:`~rsb_maniskill.parallel.pool.ProcessPool` starts gets ``max(1, cores // workers)`` through
+the variables below, set in its environment before its interpreter starts (torch, numpy's BLAS and
+OpenMP read them as they load). A user's ``OMP_NUM_THREADS`` wins (MKL and OpenBLAS fall back to
+it), as does any one of them set alone. Ray sets its workers' ``OMP_NUM_THREADS`` itself (their CPUs).
+"""
+from __future__ import annotations
+
+import os
+from typing import Mapping
+
+# OpenMP (torch's intra-op pool, libgomp), then the BLAS libraries numpy or torch may be built on
+THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+
+def cpu_share(processes: int, cpus: int | None = None) -> int:
+    """Threads a process when ``processes`` local processes share ``cpus`` (None: the CPUs this
+    process may use, its affinity capped by a cgroup quota, as ``--num-procs auto`` counts them)."""
+    if cpus is None:
+        from rsb_maniskill.parallel.plan import usable_cpus  # plan imports the pool, which imports this
+
+        cpus = usable_cpus()
+    return max(1, cpus // max(1, processes))
+
+
+def thread_env(threads: int, environ: Mapping[str, str] = os.environ) -> dict[str, str]:
+    """The variables to add to a process's environment so that its pools run ``threads`` threads:
+    none if the user set ``OMP_NUM_THREADS``, else those of :data:`THREAD_VARS` not set."""
+    if "OMP_NUM_THREADS" in environ:
+        return {}
+    return {name: str(threads) for name in THREAD_VARS if name not in environ}

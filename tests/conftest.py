@@ -48,9 +48,10 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
         return
     cores = len(os.sched_getaffinity(0))
     workers = len(getattr(config.option, "tx", None) or []) or 1
-    minutes = (time.monotonic() - _STARTED) / 60
+    seconds = time.monotonic() - _STARTED
+    wall = f"{seconds / 60:.1f} min" if seconds >= 60 else f"{seconds:.0f} s"
     terminalreporter.write_line(
-        f"rsb: suite wall time {minutes:.1f} min on {cores} cores, {workers} worker{'s' * (workers > 1)} "
+        f"rsb: suite wall time {wall} on {cores} cores, {workers} worker{'s' * (workers > 1)} "
         f"(1-min load {_LOAD_AT_START:.1f} at start, {os.getloadavg()[0]:.1f} at end)")
 
 

@@ -176,15 +176,16 @@ def checked_results(results_dir: str) -> dict:
 
 def episodes_lines(*dirs: str) -> str:
     """Per run: whether its episodes are the benchmark version's (``evaluation/provenance.py``), from
-    its records, else its results.json's rows."""
-    from rsb_maniskill.evaluation.provenance import UNVERIFIED, check_records
-    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_manifest, read_records
-    from rsb_maniskill.reporting.results import load_results
+    its records (the line ``rsb report`` prints: a pinned verdict kept where no data is at hand to
+    re-check it), else its results.json's rows."""
+    from rsb_maniskill.evaluation.provenance import UNVERIFIED
+    from rsb_maniskill.evaluation.store import RECORDS_FILE, read_records
+    from rsb_maniskill.reporting.results import load_results, run_provenance
 
     out = []
     for d in dirs:
         if (Path(d) / RECORDS_FILE).exists():
-            out.append(f"{d}: {check_records(read_records(Path(d) / RECORDS_FILE), runs=read_manifest(d)).text()}")
+            out.append(f"{d}: {run_provenance(read_records(Path(d) / RECORDS_FILE), d).text()}")
         else:
             verdicts = sorted({r.get("episodes", UNVERIFIED) for r in load_results(d)["rows"]})
             out.append(f"{d}: episodes {'/'.join(verdicts)} (its results.json)")

@@ -9,6 +9,7 @@ import contextlib
 import sys
 from typing import Any
 
+from rsb_maniskill.commands.eval_args import ObsModeAction
 from rsb_maniskill.commands.vocab import add_old_spelling
 from rsb_maniskill.env_ids import add_suites_argument
 from rsb_maniskill.motionplan.config import DEFAULT_EXPERT
@@ -35,7 +36,8 @@ def register(subparsers) -> None:
     p.add_argument("--seed-start", type=int, default=0, help="first seed (seed mode; default 0)")
     p.add_argument("--out", default="demos", help="output root directory (default: demos)")
     p.add_argument("--traj-name", default=None, help="file name stem (default: the split)")
-    p.add_argument("-o", "--obs-mode", default="state", help="observations to record (default: state)")
+    p.add_argument("-o", "--obs-mode", default="state", action=ObsModeAction,  # refused as parsed, as by rsb eval
+                   help="observations to record (default: state)")
     p.add_argument("--save-video", action="store_true", help="also write one mp4 per kept demo")
     p.add_argument("--shard", default="0/1", metavar="I/N",
                    help="make shard I of N (disjoint seeds/questions); merge shards with `rsb merge`")

@@ -36,9 +36,8 @@ from rsb_maniskill.commands.eval_args import (
 )
 from rsb_maniskill.debug import print_error
 from rsb_maniskill.evaluation.store import ManifestError, RecordsError
-from rsb_maniskill.policies.errors import PolicyError
+from rsb_maniskill.policies.errors import POLICY_TIMEOUT_S, PolicyError
 
-POLICY_TIMEOUT_S = 300.0  # --policy-timeout's default: a policy call longer than this is taken for a hang
 SWEEP_LEVELS = (0, 1, 2, 3)  # --sweep runs these, one after the other (level 0: the unperturbed run)
 
 

@@ -13,6 +13,9 @@ from contextlib import contextmanager
 from typing import Any, Iterator, Sequence
 
 SHOWN_CHARS = 60  # how much of an unexpected output an error message quotes
+# --policy-timeout's default, in rsb eval's workers and in a policy server (rsb serve, the shared one):
+# one policy call longer than this is taken for a hang and fails as the policy's error
+POLICY_TIMEOUT_S = 300.0
 
 
 class PolicyError(ValueError):

@@ -33,6 +33,7 @@ from typing import Any, Callable
 import numpy as np
 
 from rsb_maniskill.debug import debug_enabled
+from rsb_maniskill.policies.errors import POLICY_TIMEOUT_S
 from rsb_maniskill.policies.interface import is_batched
 from rsb_maniskill.policies.registry import load_policy, policy_spec
 from rsb_maniskill.policies.remote.batching import (
@@ -61,7 +62,6 @@ from rsb_maniskill.resolve import key_values
 logger = logging.getLogger(__name__)
 READY = "rsb serve: listening on"  # the line a parent process reads the port from (stdout)
 PARENT_POLL_S = 1.0  # --parent-pid: how often the server checks that its parent still lives
-POLICY_TIMEOUT_S = 300.0  # --policy-timeout's default: rsb eval's (a call longer than this is taken for a hang)
 STOP_CLOSE_S = 3.0  # how long a stopping server waits for its connections to close (Ctrl-C: out within 5 s)
 
 

@@ -275,7 +275,8 @@ def _shared_server(args: argparse.Namespace, stack: contextlib.ExitStack, num_pr
         return None
     return stack.enter_context(SharedServer(args.policy, policy_kwargs, max_batch=args.max_batch,
                                             max_wait_ms=args.max_wait_ms, start_timeout=args.policy_timeout or None,
-                                            policy_timeout=args.policy_timeout or None, quiet=args.quiet))
+                                            policy_timeout=args.policy_timeout or None, quiet=args.quiet,
+                                            workers=num_procs))
 
 
 def _say_episodes(records: list[dict], out: Path) -> None:

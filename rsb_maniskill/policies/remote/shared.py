@@ -6,16 +6,18 @@ with the run (and by itself if the run dies: ``--parent-pid``); a worker that di
 rows. A policy call that outlasts the run's ``--policy-timeout`` fails in the server, as it would
 in a worker.
 
-Threads: each worker's pools take its share of the cores (``cores // workers``,
-:mod:`rsb_maniskill.parallel.threads`); the server's take every core. A worker that sent a request
-waits for its reply, so the server computes while the workers it answers are idle: with the default
-wait (every connected worker's request, or ``--max-wait-ms``) nearly all of them are; with no wait, a
-batch may overlap the other workers' physics, and the cores are briefly oversubscribed.
+Threads: the server's pools take one worker's share of the cores (``cores // workers``, as each
+worker's: :mod:`rsb_maniskill.parallel.threads`), not every core. With no wait its forward passes
+overlap the other workers' physics, and a pool with more threads than free cores stalls at its
+barriers (on a busy machine a forward pass then takes a scheduler tick or more, many times its cost).
+With the default wait the workers it answers are mostly idle while it computes, so a larger pool
+would gain at most those cores on the forward pass alone.
 
 ``auto`` shares only where it is meant to pay: a policy that declares a model (``heavy``) computed on
 a GPU (``gpu``, ``registry.py``) on a machine with CUDA, with more than one worker. On the CPU a copy
-a worker was faster than one shared with the default wait, which every policy call pays while the
-workers' rows rarely line up (``benchmarks/policy_server.py``, recorded in
+a worker was faster than one shared, each process's threads its share of the cores: with the default
+wait, which every policy call pays while the workers' rows rarely line up, and with none, where each
+call still pays the round trip (``benchmarks/policy_server.py``, recorded in
 ``benchmarks/results/policy_server.json``).
 """
 from __future__ import annotations
@@ -87,12 +89,13 @@ def choose(mode: str, spec: str, num_procs: int, local: bool = True, cuda: bool 
 class SharedServer:
     """A policy server process on a free loopback port; ``client_kwargs`` are the ``remote`` policy's
     arguments that reach it. ``max_batch`` / ``max_wait_ms``: ``rsb serve``'s; ``policy_timeout``: the
-    run's (a call past it fails its rows); ``quiet``: the server prints errors only (``rsb eval -q``).
+    run's (a call past it fails its rows); ``quiet``: the server prints errors only (``rsb eval -q``);
+    ``workers``: the local workers it serves (its thread pools take one worker's share of the cores).
     It inherits ``rsb --debug`` (``RSB_DEBUG``). A context manager: stopped (SIGTERM, then killed) on exit."""
 
     def __init__(self, spec: str, policy_kwargs: Mapping[str, Any], *, max_batch: int = DEFAULT_MAX_BATCH,
                  max_wait_ms: float = DEFAULT_MAX_WAIT_MS, start_timeout: float | None = None,
-                 policy_timeout: float | None = None, quiet: bool = False,
+                 policy_timeout: float | None = None, quiet: bool = False, workers: int = 1,
                  log: Callable[[str], None] | None = None) -> None:
         self.spec = spec
         self.policy_timeout = policy_timeout
@@ -105,7 +108,7 @@ class SharedServer:
         for key, value in policy_kwargs.items():
             cmd += ["-a", f"{key}={json.dumps(value)}"]
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))  # the specs this run resolves
-        env.update(thread_env(cpu_share(1), env))  # its model's pools: every core (see the module's docstring)
+        env.update(thread_env(cpu_share(workers), env))  # a worker's share (see the module's docstring)
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, env=env, text=True)
         self.port = self._read_port(start_timeout)
 

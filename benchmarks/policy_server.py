@@ -3,17 +3,19 @@ simulator and a model that computes.
 
     python benchmarks/policy_server.py [--procs 2] [--envs 1 4] [-n 8] [--max-steps 40]
                                        [--max-wait-ms 25 0] [--repeats 3] [--hidden 2048] [--layers 4]
-                                       [--horizon 4] [--threads 1] [--device cpu]
+                                       [--horizon 4] [--threads 0] [--device cpu]
 
 The model: a torch MLP (state observation -> ``--layers`` hidden layers of ``--hidden`` -> a chunk of
 ``--horizon`` actions), both policy forms and the served form's ``reset_envs``, one forward pass over
 the rows of each call, declared ``heavy`` (this module's ``make_mlp``, importable by the eval's
-processes). Each (P workers, K envs a worker) runs the same seeds with ``--policy-process worker``
-(a copy a worker) and ``shared`` (one server process, every worker's rows batched) at each
-``--max-wait-ms`` T (25: the default; 0: no wait for other workers' rows), ``--repeats`` times,
-interleaved, the median kept. Timed: the whole command (start-up included, what a user waits
-for) and the steady env-steps/s of its own throughput line; the shared run's batch sizes; and, in
-this process, one forward pass over 1, 2, 4, 8 and 16 rows (how the model's cost grows with its rows).
+processes), with torch's threads as ``rsb eval`` gives each process (``--threads 0``): a worker its
+share of the cores (cores // P), the shared server the same share. Each (P workers, K envs a worker)
+runs the same seeds with ``--policy-process worker`` (a copy a worker) and ``shared`` (one server
+process, every worker's rows batched) at each ``--max-wait-ms`` T (25: the default; 0: no wait for
+other workers' rows), ``--repeats`` times, interleaved, the median kept. Timed: the whole command
+(start-up included, what a user waits for) and the steady env-steps/s of its own throughput line;
+the shared run's batch sizes; and, in this process, one forward pass over 1, 2, 4, 8 and 16 rows
+at the server's threads for the first ``--procs`` (how the model's cost grows with its rows).
 ``--device cuda`` puts the model on the GPU (where the batch should pay). Recorded to
 ``benchmarks/results/policy_server.json`` (``--name`` another file).
 """
@@ -46,7 +48,7 @@ class MLPPolicy:
     name = "mlp"
 
     def __init__(self, hidden: int = 2048, layers: int = 4, horizon: int = 4, device: str = "cpu",
-                 threads: int | None = 1) -> None:
+                 threads: int | None = 0) -> None:
         import torch
 
         if threads:
@@ -81,18 +83,25 @@ class MLPPolicy:
 
 
 def make_mlp(hidden: int = 2048, layers: int = 4, horizon: int = 4, device: str = "cpu",
-             threads: int | None = 1) -> MLPPolicy:
+             threads: int | None = 0) -> MLPPolicy:
     return MLPPolicy(hidden, layers, horizon, device, threads)
 
 
 make_mlp.heavy = True  # a model: what `rsb eval --policy-process auto` weighs sharing for
 
 
+def forward_threads(args: argparse.Namespace) -> int:
+    """The torch threads of the model in the shared server of the first ``--procs`` workers."""
+    from rsb_maniskill.parallel.threads import cpu_share
+
+    return args.threads or cpu_share(args.procs[0])
+
+
 def forward_ms(args: argparse.Namespace, rows: list[int], repeats: int = 20) -> dict[int, float]:
     """One forward pass over ``rows`` rows, ms (median of ``repeats``), in this process."""
     import torch
 
-    policy = make_mlp(args.hidden, args.layers, args.horizon, args.device, args.threads)
+    policy = make_mlp(args.hidden, args.layers, args.horizon, args.device, forward_threads(args))
     out = {}
     for n in rows:
         obs = np.random.default_rng(0).standard_normal((n, OBS_DIM)).astype(np.float32)
@@ -149,8 +158,9 @@ def main() -> None:
     p.add_argument("--layers", type=int, default=4)
     p.add_argument("--horizon", type=int, default=4, help="actions a chunk (a policy call every HORIZON steps)")
     p.add_argument("--device", default="cpu", help="where the model computes (cuda: on the GPU)")
-    p.add_argument("--threads", type=int, default=1,
-                   help="torch threads of the model in each process that holds it (0: torch's default)")
+    p.add_argument("--threads", type=int, default=0,
+                   help="torch threads of the model in each process that holds it (0: the process's share of "
+                        "the cores, as rsb eval sets it)")
     p.add_argument("--max-wait-ms", type=float, nargs="+", default=[25.0, 0.0],
                    help="the shared runs' --max-wait-ms T, one shared run each (25: rsb eval's default)")
     p.add_argument("--repeats", type=int, default=3, help="runs of each mode, interleaved; the median is kept")
@@ -160,10 +170,12 @@ def main() -> None:
     params = sum(x.numel() for x in model.net.parameters())
     forward = forward_ms(args, [1, 2, 4, 8, 16])
     print(f"model: MLP {args.layers} x {args.hidden} ({params / 1e6:.1f} M parameters) on {args.device}, "
-          f"{args.threads or 'default'} torch thread(s), chunks of {args.horizon}; {SUITE}, state obs, "
+          f"{f'{args.threads} torch thread(s)' if args.threads else 'torch: each process its share of the cores'}, "
+          f"chunks of {args.horizon}; {SUITE}, state obs, "
           f"{args.num_episodes} episodes of {args.max_steps} steps; median of {args.repeats} runs each; "
           f"{os.cpu_count()} CPUs, 1-min load {os.getloadavg()[0]:.1f}")
-    print("forward pass, ms: " + ", ".join(f"{n} rows {ms:.2f}" for n, ms in forward.items()))
+    print(f"forward pass ({forward_threads(args)} torch thread(s)), ms: "
+          + ", ".join(f"{n} rows {ms:.2f}" for n, ms in forward.items()))
     columns = ["P x K", "policy process", "wall s", "/ worker", "env-steps/s", "rows a call"]
     print("| " + " | ".join(columns) + " |")
     print("|---|---|" + "---:|" * (len(columns) - 2))
@@ -190,6 +202,7 @@ def main() -> None:
                                 "parameters": params},
                       "suite": SUITE, "episodes": args.num_episodes, "max_steps": args.max_steps,
                       "max_wait_ms": args.max_wait_ms, "repeats": args.repeats,
+                      "forward_threads": forward_threads(args),
                       "forward_ms": {str(n): round(ms, 3) for n, ms in forward.items()}, "runs": runs,
                       "table": table(columns, rows, "llrrrr")},
           notes="wall: the whole rsb eval command, start-up included; env-steps/s: its own throughput line "

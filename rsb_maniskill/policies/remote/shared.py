@@ -15,10 +15,10 @@ would gain at most those cores on the forward pass alone.
 
 ``auto`` shares only where it is meant to pay: a policy that declares a model (``heavy``) computed on
 a GPU (``gpu``, ``registry.py``) on a machine with CUDA, with more than one worker. On the CPU a copy
-a worker was faster than one shared, each process's threads its share of the cores: with the default
-wait, which every policy call pays while the workers' rows rarely line up, and with none, where each
-call still pays the round trip (``benchmarks/policy_server.py``, recorded in
-``benchmarks/results/policy_server.json``).
+a worker was faster than one shared, each process's threads its share of the cores: the copies
+compute at once on their own cores, while the server computes a batch on one share with the workers
+waiting, each call paying the round trip (and, with the default wait, the wait for the last worker)
+(``benchmarks/policy_server.py``, recorded in ``benchmarks/results/policy_server.json``).
 """
 from __future__ import annotations
 

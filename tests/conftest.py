@@ -80,6 +80,16 @@ def _share_the_cores(config) -> None:
 
 
 @pytest.fixture
+def eval_workers_here():
+    """``rsb eval`` called in this process runs its worker tasks here too, not in a spawned worker
+    that imports ManiSkill anew (tests/helpers/eval_here.py: where the processes stay tested)."""
+    from eval_here import workers_here
+
+    with workers_here():
+        yield
+
+
+@pytest.fixture
 def question_data(monkeypatch) -> Path:
     """The data directory in use; sets ``RSB_DATA_DIR`` (also for subprocesses) when unset."""
     if os.environ.get("RSB_DATA_DIR"):

@@ -5,7 +5,9 @@ folder it was pointed at byte for byte as it was.
 The tables walk the commands' bad inputs: ``USAGE`` (caught before any env is built: no physics),
 ``DAMAGED`` (a results folder edited or damaged by hand), ``POLICIES`` (a user policy that
 misbehaves: one env, one episode), and every option of every command that takes a number or a
-choice, fed a word it cannot take (so a new flag gets the same treatment).
+choice, fed a word it cannot take (so a new flag gets the same treatment). Runs whose subject is what
+the user reads run rsb eval's worker tasks in this process (``eval_workers_here``); a policy's error
+from a real worker process: test_a_worker_sends_the_policy_error_back_whole...
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from eval_here import workers_here
 
 from rsb_maniskill.cli import build_parser, main
 
@@ -51,7 +54,8 @@ def rsb(capsys, argv: list[str]) -> tuple[int, str]:
 def results(tmp_path_factory) -> Path:
     """The folder of a finished `rsb eval` (random, one episode of 3 steps): what the errors must leave alone."""
     out = tmp_path_factory.mktemp("bad_input") / "results"
-    assert main(["eval", "random", "-n", "1", "--max-steps", "3", "--out", str(out), *RUN]) == 0
+    with workers_here():
+        assert main(["eval", "random", "-n", "1", "--max-steps", "3", "--out", str(out), *RUN]) == 0
     assert (out / "run.json").is_file() and (out / "summary.md").is_file()
     return out
 
@@ -111,6 +115,7 @@ def test_usage_errors_are_one_line_and_write_nothing(argv, status, message, resu
     assert snapshot(results) == before
 
 
+@pytest.mark.usefixtures("eval_workers_here")
 def test_a_typo_locks_nothing(results, capsys, tmp_path):
     """The issue's first item: a typo fails before run.json is written, so the corrected command runs
     in the same folder; and a run.json row of a run that recorded nothing (one killed before its
@@ -180,6 +185,7 @@ def test_compare_says_nsg_as_the_tables_do(results, tmp_path, capsys):
     assert "| nSG |" in out and "NSG" not in out
 
 
+@pytest.mark.usefixtures("eval_workers_here")
 def test_more_records_than_asked_is_said(results, tmp_path, capsys):
     """-n 1 on a folder holding 2 episodes of the row: the summary covers both, and a line says so."""
     out = tmp_path / "more"
@@ -200,6 +206,7 @@ POLICIES = [(["bad_policies:returns", "-a", f"what={what}"], phrase) for what, (
 
 
 @pytest.mark.parametrize("policy, phrase", POLICIES, ids=[" ".join(p[0]) for p in POLICIES])
+@pytest.mark.usefixtures("eval_workers_here")  # the way back from a worker: the next test
 def test_a_misbehaving_policy_is_one_line_naming_it_and_the_episode(policy, phrase, results, capsys):
     before = snapshot(results)
     code, err = rsb(capsys, ["eval", *policy, "-o", "state", "-n", "2", "--max-steps", "5", "--out", str(results),
@@ -338,6 +345,7 @@ def test_every_option_refuses_a_word_it_cannot_take(path, option, value, capsys)
     assert line.endswith(f"(see rsb {' '.join(path)} --help)".replace("rsb  ", "rsb ")), line
 
 
+@pytest.mark.usefixtures("eval_workers_here")
 def test_a_summary_written_at_an_interruption_says_it_is_partial(tmp_path, capsys, monkeypatch):
     """Ctrl-C in the second of three episodes: summary.md / .json and report.html say "partial:
     interrupted, 1 of 3 episodes"; the resumed run's summary no longer does."""

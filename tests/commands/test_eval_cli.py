@@ -96,6 +96,7 @@ def test_sigterm_stops_workers_and_keeps_finished_episodes(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("eval_workers_here")
 def test_videos_of_the_first_episodes(tmp_path):
     out = tmp_path / "res"
     assert rsb_eval("oracle", "--suites", "RSB-Math-10", "-n", "2", "--videos", "1", "--out", str(out)) == 0
@@ -109,6 +110,7 @@ def test_videos_of_the_first_episodes(tmp_path):
     assert rec["video"] == videos[0].name
 
 
+@pytest.mark.usefixtures("eval_workers_here")
 def test_errors_leave_results_untouched(tmp_path, capsys):
     out = tmp_path / "res"
     assert rsb_eval("random", "--suites", SUITE, "-n", "1", "--max-steps", "5", "--out", str(out)) == 0
@@ -164,6 +166,7 @@ def test_oracle_served_over_websocket_loopback(tmp_path):
     assert all(r["success"] and r["policy"] == "remote-oracle" for r in records)
 
 
+@pytest.mark.usefixtures("eval_workers_here")
 def test_shuffled_and_blank_modes_on_the_real_task(tmp_path):
     """Donor instructions come from the task's episode_spec(seed), without resetting the env."""
     out = tmp_path / "res"
@@ -186,6 +189,7 @@ def test_shuffled_and_blank_modes_on_the_real_task(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("eval_workers_here")
 def test_paper_objects_prints_the_beyond_blocks_table(tmp_path, capsys, question_data):
     """`--suites paper-objects`: the six paper suites with everyday objects, and the appendix's
     Scene | GSR | TSR table with its Avg row."""

@@ -295,14 +295,13 @@ def test_report_reads_vla_eval_results_with_intervals(tmp_path, capsys):
 
 # ---------------------------------------------------------------- both paths on the real task
 @pytest.fixture
-def env_capture(monkeypatch):
-    """The envs `rsb eval` and RSBBenchmark build (jobs.make_env), for the oracle server to plan on."""
+def env_capture(monkeypatch, eval_workers_here):
+    """The envs `rsb eval` and RSBBenchmark build (jobs.make_env), for the oracle server to plan on: built in
+    this process (eval_workers_here), where the oracle server reads them."""
     from rsb_maniskill.evaluation import jobs
 
-    made, make, run = [], jobs.make_env, jobs.run_job
+    made, make = [], jobs.make_env
     monkeypatch.setattr(jobs, "make_env", lambda job: made.append(make(job)) or made[-1])
-    # in this process, where the oracle server reads them (rsb eval isolates even one worker)
-    monkeypatch.setattr(jobs, "run_job", lambda *a, **kw: run(*a, **{**kw, "isolate": False}))
     return made
 
 

@@ -4,7 +4,7 @@ re-check them ("not re-checked: no data"), instead of decaying to "unverified"."
 from __future__ import annotations
 
 import pytest
-from test_verdicts_kept import NOT_RECHECKED, episode, run_dir
+from verdict_runs import NOT_RECHECKED, episode, run_dir
 
 from rsb_maniskill.cli import main
 

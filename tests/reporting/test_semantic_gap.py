@@ -26,12 +26,8 @@ class StatingExpert(ExpertPolicy):
 
 
 @pytest.fixture
-def stating_policies(monkeypatch):
-    from rsb_maniskill.evaluation import jobs
-
+def stating_policies(eval_workers_here):
     # registered in this process only (a lambda): the episodes run here, not in rsb eval's worker process
-    run = jobs.run_job
-    monkeypatch.setattr(jobs, "run_job", lambda *a, **kw: run(*a, **{**kw, "isolate": False}))
     register_policy("stating-blind", lambda env: StatingExpert(env, blind=True), needs_env=True, single_env=True,
                     obs_mode="state")
     register_policy("stating-oracle", lambda env: StatingExpert(env), needs_env=True, single_env=True,

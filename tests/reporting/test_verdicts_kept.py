@@ -9,14 +9,10 @@ import os
 from pathlib import Path
 
 import pytest
+from verdict_runs import NOT_RECHECKED, episode, run_dir
 
 from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.records import DIGEST_FIELD
-from rsb_maniskill.reporting.results import results_document
-from rsb_maniskill.version import BENCHMARK_VERSION
-
-SUITE = "RSB-HardMath-4"  # reads GSM8K: its episodes are checked on the question data at hand
-NOT_RECHECKED = "not re-checked: no data"
 
 
 @pytest.fixture
@@ -27,26 +23,6 @@ def no_data(tmp_path, monkeypatch) -> Path:
     monkeypatch.setenv("RSB_DATA_DIR", str(empty))
     monkeypatch.setenv("RSB_OFFLINE", "1")
     return empty
-
-
-def episode(i: int, digest: str | None = "0" * 16, policy: str = "pi05") -> dict:
-    r = {"policy": policy, "suite_id": SUITE, "seed": 10_000_000 + i, "question_id": i, "instruction": "x",
-         "instruction_mode": "normal", "target_block": 0, "correct_letter": "A", "first_grasped": 0,
-         "grasped_any": True, "grasped_correct": i % 2 == 0, "placed_correct": i % 2 == 0, "placed_wrong": False,
-         "success": i % 2 == 0, "steps": 5, "benchmark_version": BENCHMARK_VERSION}
-    return {**r, DIGEST_FIELD: digest} if digest else r
-
-
-def run_dir(path: Path, recs: list[dict], filed: list[dict] | None = None, verdict: str = "pinned") -> Path:
-    """A results folder: ``recs`` in episodes.jsonl, and a results.json written from ``filed`` (default:
-    the same records) whose rows said ``verdict`` when it was written."""
-    path.mkdir(parents=True)
-    (path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
-    doc = results_document(recs if filed is None else filed)
-    for row in doc["rows"]:
-        row["episodes"] = verdict
-    (path / "results.json").write_text(json.dumps(doc))
-    return path
 
 
 def report(capsys, folder: Path) -> tuple[str, dict, dict, str]:
@@ -103,7 +79,7 @@ def test_pinned_when_they_ran_kept_offline_and_the_check_wins_where_data_is(tmp_
     verdict, and one with the data checks again (a record edited since differs)."""
     from rsb_maniskill.evaluation.provenance import expected_digest
 
-    real = Path(os.environ.get("RSB_DATA_DIR", "/work/shared/data"))
+    real = Path(os.environ.get("RSB_DATA_DIR") or "no RSB_DATA_DIR")
     if not (real / "gsm8k" / "test.jsonl").exists():
         pytest.skip("needs the real GSM8K in RSB_DATA_DIR")
     monkeypatch.setenv("RSB_DATA_DIR", str(real))

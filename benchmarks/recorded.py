@@ -101,7 +101,10 @@ def write(name: str, figures: Mapping[str, Any], *, command: str | None = None, 
         "command": command or " ".join(shlex.quote(a) for a in ["python", *_script_argv()]),
         "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "commit": _git("rev-parse", "--short=12", "HEAD") or "unknown",
-        "dirty": bool(_git("status", "--porcelain", "--untracked-files=no", "--", "rsb_maniskill", "benchmarks")),
+        # the code measured differs from the commit (not the recorded files: a run of several benchmarks
+        # rewrites them as it goes)
+        "dirty": bool(_git("status", "--porcelain", "--untracked-files=no", "--", "rsb_maniskill", "benchmarks",
+                           ":(exclude)benchmarks/results")),
         "machine": machine(),
         "figures": dict(figures),
     }

@@ -45,6 +45,12 @@ JOBS: dict[str, tuple[list[str], list[str]]] = {
                                ["expert_success.py", "--record-as", "expert_success_objects", "--seeds", "10",
                                 "--suites", *OBJECTS]),
     "first_hour": (["first_hour.py"], ["first_hour.py"]),
+    "eval_run": (["eval_run.py"], ["eval_run.py", "--repeats", "1"]),
+    "policy_server": (["policy_server.py", "-n", "16", "--max-steps", "100"],
+                      ["policy_server.py", "-n", "8", "--max-steps", "100"]),
+    "worker_threads": (["worker_threads.py"], ["worker_threads.py"]),
+    "stats_checks": (["stats_checks.py"], ["stats_checks.py"]),
+    "plan_inputs": (["plan_inputs.py"], ["plan_inputs.py"]),
 }
 
 

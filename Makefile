@@ -20,9 +20,11 @@ demo: setup
 # its wall time ("rsb: suite wall time ..."). JOBS=0: one process.
 JOBS ?= $(shell python3 -c "import os; print(len(os.sched_getaffinity(0)) + 1)" 2>/dev/null || echo auto)
 XDIST := -n $(JOBS) --maxprocesses 4 --dist loadfile --no-loadscope-reorder
+# each test's seconds, for scripts/test_durations.py (the order above and README's suite time)
+JUNIT ?= .cache/junit.xml
 
 test: setup
-	$(PY) -m pytest -ra $(XDIST)
+	$(PY) -m pytest -ra $(XDIST) --junitxml=$(JUNIT)
 
 test-fast: setup
 	$(PY) -m pytest -ra $(XDIST) -m "not slow"

@@ -12,7 +12,9 @@ from the JUnit XML of a run (each test's setup, call and teardown) or from the t
 
 A module fixture's cost falls on the first test of its file: the per-file totals are the figures the
 order needs, a single test's figure is what it paid in that run. ``--top N`` prints the N costliest
-tests and files (the file is written only with ``--write``, default ``tests/durations.json``).
+tests and files (the file is written only with ``--write``, default ``tests/durations.json``; from a JUnit
+XML it also records the suite's wall time and counts in ``benchmarks/results/test_suite.json``, which
+README.md's Tests section quotes).
 """
 from __future__ import annotations
 
@@ -52,6 +54,15 @@ def from_junit(path: Path) -> dict[str, float]:
             continue
         seconds[_nodeid_of(classname, case.get("name", ""))] += float(case.get("time") or 0)
     return dict(seconds)
+
+
+def junit_counts(path: Path) -> dict[str, int]:
+    """The run's counts as JUnit's testsuite records them: tests, skipped, failed (failures + errors)."""
+    suite = next(ET.parse(path).getroot().iter("testsuite"), None)
+    if suite is None:
+        return {}
+    count = {k: int(suite.get(k) or 0) for k in ("tests", "skipped", "failures", "errors")}
+    return {"tests": count["tests"], "skipped": count["skipped"], "failed": count["failures"] + count["errors"]}
 
 
 def junit_wall_seconds(path: Path) -> float | None:
@@ -132,6 +143,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--command", default="make test", help="the command that made the run")
     p.add_argument("--load", default="not recorded", help="the machine's load during the run, in words")
     p.add_argument("--notes", default="")
+    p.add_argument("--load-start", type=float, default=None, help="the 1-min load when the run began (its last line)")
+    p.add_argument("--load-end", type=float, default=None, help="the 1-min load when it ended")
+    p.add_argument("--record-to", type=Path, default=None, metavar="DIR",
+                   help="where test_suite.json goes (default benchmarks/results)")
     p.add_argument("--fill", type=Path, default=None, metavar="JSON",
                    help="a {file: seconds} JSON file for the test files the run did not reach (a run that "
                         "stopped early): they follow the run's own files in the order")
@@ -161,7 +176,29 @@ def main(argv: list[str] | None = None) -> int:
         tmp.write_text(json.dumps(body, indent=1) + "\n", encoding="utf-8")
         tmp.replace(args.write)
         print(f"\nwritten: {args.write}")
+        if junit and body["wall_seconds"]:
+            path = record_suite(body, junit_counts(args.source), args.load_start, args.load_end, args.record_to)
+            print(f"recorded: {path}")
     return 0
+
+
+def record_suite(body: dict, counts: dict[str, int], load_start: float | None, load_end: float | None,
+                 out_dir: Path | None = None) -> Path:
+    """``benchmarks/results/test_suite.json``: the whole suite's wall time and counts, the figures README.md's
+    Tests section quotes (rendered by scripts/render_figures.py like every benchmark's)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from recorded import machine, write_earlier
+
+    here = machine()
+    figures = {"wall_min": round(body["wall_seconds"] / 60, 1), "test_cpu_min": round(body["test_seconds"] / 60, 1),
+               "files": len(body["files"]), **counts,
+               "passed": counts.get("tests", 0) - counts.get("skipped", 0) - counts.get("failed", 0)}
+    return write_earlier("test_suite", figures, command=body["command"], date=body["date"], commit=body["commit"],
+                         machine={"cores": body["machine"]["cores"], "cpu": here["cpu"],
+                                  "memory_gib": body["machine"]["memory_gib"], "load_1min_start": load_start,
+                                  "load_1min_end": load_end},
+                         recorded_from="the JUnit XML of that run (tests/durations.json; load: "
+                                       f"{body['machine']['load']})", out_dir=out_dir)
 
 
 if __name__ == "__main__":

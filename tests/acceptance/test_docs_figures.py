@@ -132,3 +132,29 @@ def test_a_region_renders_from_its_file_and_a_missing_one_is_named(figures, tmp_
         figures.render("<!-- figures: missing -->\n<!-- /figures -->", page, tmp_path)
     with pytest.raises(figures.FigureError, match="probe.json has no figure 'nope'"):
         figures.render("<!-- fig: probe nope -->1<!-- /fig -->", page, tmp_path)
+
+
+def test_the_suite_time_is_recorded_from_the_runs_junit_file(figures, tmp_path):
+    """scripts/test_durations.py --write: the suite's wall time and counts in test_suite.json (README's
+    Tests section quotes them), the durations file beside it."""
+    spec = importlib.util.spec_from_file_location("test_durations", ROOT / "scripts" / "test_durations.py")
+    durations = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(durations)
+    junit = tmp_path / "junit.xml"
+    junit.write_text(
+        '<testsuites><testsuite name="pytest" tests="3" skipped="1" failures="0" errors="0" time="1410.0">'
+        '<testcase classname="tests.acceptance.test_layout" name="test_a" time="30.5"/>'
+        '<testcase classname="tests.acceptance.test_layout" name="test_b" time="9.5"/>'
+        '<testcase classname="tests.tasks.test_tasks" name="test_gpu" time="0.0"><skipped/></testcase>'
+        '</testsuite></testsuites>')
+    out = tmp_path / "durations.json"
+    assert durations.main([str(junit), "--write", str(out), "--record-to", str(tmp_path), "--commit", "abc1234",
+                           "--load", "idle", "--load-start", "1.5", "--load-end", "3.9", "--top", "0"]) == 0
+    record = json.loads((tmp_path / "test_suite.json").read_text())
+    assert record["figures"] == {"wall_min": 23.5, "test_cpu_min": 0.7, "files": 2, "tests": 3, "skipped": 1,
+                                 "failed": 0, "passed": 2}
+    assert record["commit"] == "abc1234" and record["machine"]["load_1min_start"] == 1.5
+    assert json.loads(out.read_text())["files"]["tests/acceptance/test_layout.py"] == 40.0
+    text = "took <!-- fig: test_suite wall_min .1f -->?<!-- /fig --> min, <!-- fig: test_suite passed -->?<!-- /fig -->"
+    assert figures.render(text, tmp_path / "README.md", tmp_path) == \
+        "took <!-- fig: test_suite wall_min .1f -->23.5<!-- /fig --> min, <!-- fig: test_suite passed -->2<!-- /fig -->"

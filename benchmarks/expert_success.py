@@ -147,11 +147,18 @@ def main(argv: list[str] | None = None) -> int:
     print_table(rows, elapsed, sum(r["success"] for r in records))
     print(f"failures logged to {args.failures}")
     n_success = sum(r["success"] for r in records)
+    lengths = np.array([r["steps"] for r in records if r["success"]] or [0])
+    plans = np.array([r["plan_time"] for r in records])
     write(args.record_as, {
-        "suites": {suite: {k: r[k] for k in ("n", "success", "len_mean", "len_max")} for suite, r in rows.items()},
+        "suites": {suite: {k: r[k] for k in ("n", "success", "len_mean", "len_p95", "len_max", "plan_time",
+                                             "sim_time", "wall_time")} for suite, r in rows.items()},
         "seeds_per_suite": args.seeds, "episodes": len(records), "failures": len(records) - n_success,
         "lowest_success_pct": round(100 * min(r["success"] for r in rows.values()), 1),
-        "demos_per_min": round(60 * n_success / elapsed, 1)})
+        "demos_per_min": round(60 * n_success / elapsed, 1), "wall_s": round(elapsed, 1),
+        "len_min": int(lengths.min()), "len_median": float(np.median(lengths)), "len_max": int(lengths.max()),
+        "len_p99": float(np.percentile(lengths, 99)), "plan_s_mean": round(float(plans.mean()), 3),
+        "plan_s_p99": round(float(np.percentile(plans, 99)), 3), "plan_s_max": round(float(plans.max()), 3),
+        "arms": dict(sorted(_count(r["arm"] for r in records if r["arm"]).items()))})
     return 0 if all(r["success"] >= 0.98 for r in rows.values()) else 1
 
 

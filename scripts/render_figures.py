@@ -250,8 +250,32 @@ def cluster_cpu(page: Path, results: Path) -> str:
                                     "above, divided by N workers of one core each.*")
 
 
+def expert_suites(page: Path, results: Path) -> str:
+    """docs/expert.md's table of the scripted expert per suite, from expert_success.json: the columns
+    benchmarks/expert_success.py prints, those of them the file holds (p95 and the times from its later runs)."""
+    record = read("expert_success", results)
+    suites = lookup(record, "suites")
+
+    def held(key: str) -> bool:
+        return all(key in r for r in suites.values())
+
+    times = [(k, head, fmt) for k, head, fmt in (("plan_time", "plan s", ".3f"), ("sim_time", "sim s", ".2f"),
+                                                 ("wall_time", "wall s", ".2f")) if held(k)]
+    p95 = held("len_p95")
+    columns = ["suite", "seeds", "success", "mean length", *(["p95"] if p95 else []), "max",
+               *(head for _, head, _ in times)]
+    rows = [[suite, f"{r['n']}", f"{100 * r['success']:.1f} %", f"{r['len_mean']:.1f}",
+             *([f"{r['len_p95']:.0f}"] if p95 else []), f"{r['len_max']}", *(format(r[k], fmt) for k, _, fmt in times)]
+            for suite, r in suites.items()]
+    table = {"columns": columns, "align": "l" + "r" * (len(columns) - 1), "rows": rows}
+    n, failures = lookup(record, "episodes"), lookup(record, "failures")
+    total = (f"{n - failures:,} successful demos of {n:,} episodes, {lookup(record, 'demos_per_min'):.1f} "
+             f"successful demos a minute overall.")
+    return markdown_table(table) + "\n\n" + total + "\n\n" + source_line(record, page, results)
+
+
 RENDERERS: dict[str, Callable[[Path, Path], str]] = {"gpu_figures": gpu_figures, "episode_cost": episode_cost,
-                                                    "cluster_cpu": cluster_cpu}
+                                                    "cluster_cpu": cluster_cpu, "expert_suites": expert_suites}
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -24,6 +24,8 @@ import sys
 import tempfile
 import time
 
+from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
+
 from rsb_maniskill.parallel.plan import nvidia_gpus, obs_mode_renders, plan_workers, usable_cpus
 
 AUTO = "auto"
@@ -61,7 +63,7 @@ def run_once(cmd: list[str]) -> tuple[float, float, str]:
     return wall, main_cpu, line
 
 
-def bench(job: str, args: argparse.Namespace, cpus: int) -> None:
+def bench(job: str, args: argparse.Namespace, cpus: int) -> dict:
     auto_arg = AUTO
     if not takes_auto(job):
         plan = plan_workers(cpus, len(nvidia_gpus()), obs_mode_renders(args.obs_mode), episodes=args.num)
@@ -91,6 +93,11 @@ def bench(job: str, args: argparse.Namespace, cpus: int) -> None:
     best = max(settings[1:], key=rate.get)
     print(f"auto / best explicit ({best}): {rate[AUTO] / rate[best]:.2f} in episodes/s "
           f"(each run's own spread: {min(walls[AUTO]):.1f}-{max(walls[AUTO]):.1f} s for auto)")
+    chose = auto_arg if auto_arg != AUTO else (lines[AUTO].split()[1:2] or ["?"])[0]
+    return {"auto_chose": chose, "auto_over_best": round(rate[AUTO] / rate[best], 2),
+            "wall_s": {s: round(statistics.median(w), 1) for s, w in walls.items()},
+            "auto_spread_s": [round(min(walls[AUTO]), 1), round(max(walls[AUTO]), 1)],
+            "main_cpu_s": {s: round(statistics.median(c), 1) for s, c in main_cpu.items()}}
 
 
 def main() -> None:
@@ -103,8 +110,16 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=2)
     args = p.parse_args()
     cpus = usable_cpus()
-    for job in args.job:
-        bench(job, args, cpus)
+    jobs = {job: bench(job, args, cpus) for job in args.job}
+    counts = [str(k) for k in range(1, cpus + 1)]
+    rows = [[f"`rsb {job} -n {args.num}`" if job == "generate" else f"`rsb eval oracle -n {args.num}`", r["auto_chose"],
+             " / ".join(f"{r['wall_s'][s]:.1f}" for s in [AUTO, *counts]),
+             f"{r['auto_over_best']:.2f} (auto's own spread {r['auto_spread_s'][0]}-{r['auto_spread_s'][1]} s)"]
+            for job, r in jobs.items()]
+    heads = " / ".join(["auto", *(f"{k} process" + ("es" if k != "1" else "") for k in counts)])
+    write("auto_workers", {"table": table(["job", "auto chose", f"wall s: {heads}", "auto / best (episodes/s)"], rows,
+                                          align="lrlr"),
+                           "suite": args.suite, "episodes": args.num, "repeats": args.repeats, "jobs": jobs})
 
 
 if __name__ == "__main__":

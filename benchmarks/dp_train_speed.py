@@ -3,6 +3,7 @@
 the wall time that projects to for a whole run.
 
     python benchmarks/dp_train_speed.py --demos X.h5 [--threads 2] [--iters 400] [--total 30000] [--no-language]
+        [--record-as NAME]
 
 Target (issue 11): a state policy trains within about an hour on 2 CPU cores.
 """
@@ -28,6 +29,9 @@ def main() -> int:
     ap.add_argument("--iters", type=int, default=400, help="iterations timed (the first 100 are warm-up)")
     ap.add_argument("--total", type=int, default=30_000, help="the run length the time is projected to")
     ap.add_argument("--no-language", action="store_true")
+    ap.add_argument("--record-as", default="dp_train_speed", metavar="NAME",
+                    help="the figures go to benchmarks/results/NAME.json (default dp_train_speed; docs/baselines.md's "
+                         "one-thread figure: --threads 1 --record-as dp_train_speed_threads1)")
     args = ap.parse_args()
     if args.iters <= 100 or args.iters % 100:
         ap.error("--iters must be a multiple of 100 above 100")
@@ -40,9 +44,9 @@ def main() -> int:
     lang = "off" if args.no_language else "on"
     print(f"threads {args.threads}, language {lang}: {per_iter:.4f} s/iteration (iterations 100-{args.iters}); "
           f"{args.total:,} iterations = {per_iter * args.total / 60:.1f} min")
-    write("dp_train_speed", {"threads": args.threads, "language": not args.no_language,
-                             "s_per_iteration": round(per_iter, 4), "total_iterations": args.total,
-                             "projected_min": round(per_iter * args.total / 60, 1)})
+    write(args.record_as, {"threads": args.threads, "language": not args.no_language,
+                           "s_per_iteration": round(per_iter, 4), "total_iterations": args.total,
+                           "projected_min": round(per_iter * args.total / 60, 1)})
     return 0
 
 

@@ -43,6 +43,9 @@ def main() -> int:
             (t_drop, rc), (t_off, _) = seconds(args, dropped), seconds(args, switch)
             print(f"{name:<16}{t_drop:>19.2f}{t_off:>17.2f}{rc:>6}")
             figures[name] = {"packets_dropped_s": round(t_drop, 2), "offline_s": round(t_off, 2), "exit": rc}
+    timed = [v for k, v in figures.items() if k != "rsb --help"]
+    figures["commands"] = {key: {"min": min(v[key] for v in timed), "max": max(v[key] for v in timed)}
+                           for key in ("packets_dropped_s", "offline_s")}  # the ranges docs/semantic.md quotes
     write("offline_latency", figures)
     return 0
 

@@ -7,7 +7,8 @@ resident memory (RSS) of the command and of its worker processes every 0.2 s, st
 SIGINT after ``--seconds`` (as a user would: it resumes), and prints the peak RSS of the process
 tree, with the episodes it recorded. Then ``rsb audit RSB-Math-4 -n N`` the same way
 (it refuses an ``-n`` it cannot hold in memory, in one line, at once). Nothing here asserts a
-figure: compare the rows (before the fix ``-n 1000000000000`` grew past 8.7 GB in 32 s).
+figure: compare the rows (before the fix ``-n 1000000000000`` grew past 8.7 GB in 32 s). The rows are
+recorded in ``benchmarks/results/large_n_memory.json`` (``eval_peak_rss_gb`` by ``-n``: docs/evaluation.md).
 """
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from recorded import write  # benchmarks/recorded.py: the figures to benchmarks/results/
 
 
 def tree_rss_kb(pid: int) -> int:
@@ -59,6 +62,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, nargs="+", default=[100, 10**12])
     args = ap.parse_args()
     print(f"{'command':<7} {'-n':>15} {'peak RSS MB':>12} {'episodes':>9} {'exit':>5} {'wall s':>7}  last line")
+    rows: dict[str, dict[str, dict]] = {"eval": {}, "audit": {}}
     for n in args.n:
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "r"
@@ -67,10 +71,15 @@ def main() -> None:
             records = out / "episodes.jsonl"
             episodes = sum(1 for _ in records.open()) if records.exists() else 0
             print(f"{'eval':<7} {n:>15} {peak / 1024:>12.0f} {episodes:>9} {rc:>5} {wall:>7.1f}  {last[:90]}")
+            rows["eval"][str(n)] = {"peak_rss_mb": round(peak / 1024), "episodes": episodes, "exit": rc,
+                                    "wall_s": round(wall, 1)}
     for n in args.n:
         peak, rc, wall, last = measure(["audit", "RSB-Math-4", "-n", str(n)], args.seconds)
         print(f"{'audit':<7} {n:>15} {peak / 1024:>12.0f} {'-':>9} {rc:>5} {wall:>7.1f}  {last[:90]}")
+        rows["audit"][str(n)] = {"peak_rss_mb": round(peak / 1024), "exit": rc, "wall_s": round(wall, 1)}
     sys.stdout.flush()
+    gb = {n: round(r["peak_rss_mb"] / 1024, 2) for n, r in rows["eval"].items()}
+    write("large_n_memory", {"eval_peak_rss_gb": gb, "seconds": args.seconds, **rows})
 
 
 if __name__ == "__main__":

@@ -26,7 +26,8 @@ import time
 
 from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
 
-from rsb_maniskill.parallel.plan import nvidia_gpus, obs_mode_renders, plan_workers, usable_cpus
+from rsb_maniskill.parallel.plan import nvidia_gpus, obs_mode_renders, plan_workers
+from rsb_maniskill.parallel.threads import usable_cpus
 
 AUTO = "auto"
 

@@ -220,7 +220,8 @@ def main(argv: list[str] | None = None) -> int:
                   "the project root in a venv with this package installed (python benchmarks/gpu_check.py), or "
                   "--dry-run to check the script", file=sys.stderr)
             return 2
-    from rsb_maniskill.parallel.plan import RENDER_ENVS_PER_PROC, usable_cpus
+    from rsb_maniskill.parallel.plan import RENDER_ENVS_PER_PROC
+    from rsb_maniskill.parallel.threads import usable_cpus
 
     procs = args.procs or (2 if dry else usable_cpus())
     k = args.envs or (2 if dry else RENDER_ENVS_PER_PROC)

@@ -30,8 +30,7 @@ import numpy as np
 from policy_server import SUITE, THROUGHPUT  # the same model and suite as the policy server benchmark
 from recorded import table, write  # benchmarks/recorded.py: the figures to benchmarks/results/
 
-from rsb_maniskill.parallel.plan import usable_cpus
-from rsb_maniskill.parallel.threads import THREAD_VARS
+from rsb_maniskill.parallel.threads import THREAD_VARS, usable_cpus
 
 HERE = Path(__file__).resolve().parent
 

@@ -185,7 +185,8 @@ def check_gpu() -> list[Check]:
     status = "ok" if reason is None else "warn" if torch.cuda.is_available() else "info"
     out.append(Check("gpu", "GPU physics", status, reason or "physx_cuda, num_envs > 1 and `rsb eval -b physx_cuda "
                                                             "--num-envs` can run here"))
-    from rsb_maniskill.parallel.plan import nvidia_gpus, plan_num_envs, plan_workers, usable_cpus
+    from rsb_maniskill.parallel.plan import nvidia_gpus, plan_num_envs, plan_workers
+    from rsb_maniskill.parallel.threads import usable_cpus
     from rsb_maniskill.sim.camera_group import group_rendering_unavailable
 
     cpus, n_gpus = usable_cpus(), len(nvidia_gpus())

@@ -16,10 +16,10 @@ import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from rsb_maniskill.parallel.pool import Executor, ProcessPool
+from rsb_maniskill.parallel.threads import usable_cpus
 
 if TYPE_CHECKING:
     from rsb_maniskill.parallel.ray_pool import RayExecutor
@@ -43,39 +43,11 @@ NO_RENDER_OBS_MODES = ("none", "state", "state_dict")  # ManiSkill obs modes tha
 # bound, so one process a CPU and K = 4 (docs/gpu.md). Without an NVIDIA GPU (lavapipe) or without
 # cameras there is nothing to batch: K = 1.
 RENDER_ENVS_PER_PROC = 4
-CGROUP_ROOT = Path("/sys/fs/cgroup")
 
 
 def obs_mode_renders(obs_mode: str) -> bool:
     """Whether envs with this ManiSkill obs mode render cameras (rgb, depth, sensor_data, ...)."""
     return obs_mode not in NO_RENDER_OBS_MODES
-
-
-def cgroup_cpu_quota(root: Path = CGROUP_ROOT) -> float | None:
-    """CPUs' worth of time a cgroup quota allows this process (a container's ``--cpus``; v2
-    ``cpu.max`` or v1 ``cpu.cfs_quota_us``), None without a quota."""
-    try:
-        if (root / "cpu.max").is_file():
-            quota, period = (root / "cpu.max").read_text().split()[:2]
-            return None if quota == "max" else int(quota) / int(period)
-        v1 = root / "cpu"
-        if (v1 / "cpu.cfs_quota_us").is_file():
-            quota = int((v1 / "cpu.cfs_quota_us").read_text())
-            return None if quota < 0 else quota / int((v1 / "cpu.cfs_period_us").read_text())
-    except (OSError, ValueError):
-        pass
-    return None
-
-
-def usable_cpus(cgroup_root: Path = CGROUP_ROOT) -> int:
-    """The CPUs this process may use: its affinity (the cpuset a container or a job scheduler
-    gave it), capped by a cgroup CPU quota; not ``os.cpu_count()``, the whole machine's."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        cpus = os.cpu_count() or 1
-    quota = cgroup_cpu_quota(cgroup_root)
-    return max(1, min(cpus, math.ceil(quota))) if quota else cpus
 
 
 def visible_gpus(count: int, cuda_visible_devices: str | None) -> list[str]:

@@ -103,9 +103,9 @@ def limit_lavapipe_threads(threads: int | None) -> bool:
 
 def lavapipe_share(workers: int) -> int:
     """Raster threads per worker when ``workers`` local processes share the CPUs this process may use."""
-    from rsb_maniskill.parallel.plan import usable_cpus  # affinity and cgroup quota, as --num-procs auto counts
+    from rsb_maniskill.parallel.threads import cpu_share  # affinity and cgroup quota, as --num-procs auto counts
 
-    return max(1, usable_cpus() // max(1, workers))
+    return cpu_share(workers)
 
 
 def ensure_renderer() -> None:

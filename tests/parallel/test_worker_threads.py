@@ -8,9 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from rsb_maniskill.parallel.plan import usable_cpus
 from rsb_maniskill.parallel.pool import ProcessPool
-from rsb_maniskill.parallel.threads import THREAD_VARS, cpu_share, thread_env
+from rsb_maniskill.parallel.threads import THREAD_VARS, cpu_share, thread_env, usable_cpus
 
 REPO = Path(__file__).resolve().parents[2]
 HELPERS = REPO / "tests" / "helpers"

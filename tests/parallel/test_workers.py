@@ -12,6 +12,7 @@ import time
 import pytest
 
 from rsb_maniskill.parallel import plan as workers_plan
+from rsb_maniskill.parallel import threads
 from rsb_maniskill.parallel.plan import add_worker_args, plan_workers, resolve_workers
 from rsb_maniskill.parallel.pool import InProcess, Interrupted, InterruptGuard, ProcessPool, deal
 
@@ -294,18 +295,18 @@ def test_the_plan_line_says_what_and_why():
 def test_usable_cpus_is_the_affinity_capped_by_a_cgroup_quota(monkeypatch, tmp_path):
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 3, 5})
     monkeypatch.setattr(os, "cpu_count", lambda: 64)
-    assert workers_plan.usable_cpus(tmp_path) == 3  # the affinity, not the machine's 64
+    assert threads.usable_cpus(tmp_path) == 3  # the affinity, not the machine's 64
     (tmp_path / "cpu.max").write_text("max 100000\n")
-    assert workers_plan.usable_cpus(tmp_path) == 3
+    assert threads.usable_cpus(tmp_path) == 3
     (tmp_path / "cpu.max").write_text("150000 100000\n")  # docker --cpus 1.5
-    assert workers_plan.usable_cpus(tmp_path) == 2
+    assert threads.usable_cpus(tmp_path) == 2
     (tmp_path / "cpu.max").unlink()
     (tmp_path / "cpu").mkdir()
     (tmp_path / "cpu" / "cpu.cfs_quota_us").write_text("100000\n")  # cgroup v1, one CPU
     (tmp_path / "cpu" / "cpu.cfs_period_us").write_text("100000\n")
-    assert workers_plan.usable_cpus(tmp_path) == 1
+    assert threads.usable_cpus(tmp_path) == 1
     (tmp_path / "cpu" / "cpu.cfs_quota_us").write_text("-1\n")
-    assert workers_plan.usable_cpus(tmp_path) == 3
+    assert threads.usable_cpus(tmp_path) == 3
 
 
 @pytest.mark.parametrize("count, visible, expect", [

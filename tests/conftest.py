@@ -111,6 +111,17 @@ def no_data_dir(monkeypatch):
 
 
 @pytest.fixture
+def no_data(tmp_path, monkeypatch) -> Path:
+    """No question data at hand: an empty data folder, and no network (what a report on a laptop
+    without the datasets sees)."""
+    empty = tmp_path / "no-data"
+    empty.mkdir()
+    monkeypatch.setenv("RSB_DATA_DIR", str(empty))
+    monkeypatch.setenv("RSB_OFFLINE", "1")
+    return empty
+
+
+@pytest.fixture
 def silent_proxy(monkeypatch):
     """No network, also on a machine that has one: HTTPS_PROXY (subprocesses inherit it) is a proxy
     on 127.0.0.1 that accepts connections and never answers (a firewall that drops)."""

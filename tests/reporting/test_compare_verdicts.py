@@ -9,15 +9,6 @@ from verdict_runs import NOT_RECHECKED, episode, run_dir
 from rsb_maniskill.cli import main
 
 
-@pytest.fixture
-def no_data(tmp_path, monkeypatch) -> None:
-    """No question data at hand: an empty data folder, and no network."""
-    empty = tmp_path / "no-data"
-    empty.mkdir()
-    monkeypatch.setenv("RSB_DATA_DIR", str(empty))
-    monkeypatch.setenv("RSB_OFFLINE", "1")
-
-
 @pytest.mark.usefixtures("no_data")
 def test_compare_keeps_a_pinned_verdict_it_cannot_recheck(tmp_path, capsys):
     a = run_dir(tmp_path / "a", [episode(i) for i in range(3)])  # pinned when it ran

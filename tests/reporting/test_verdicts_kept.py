@@ -15,16 +15,6 @@ from rsb_maniskill.cli import main
 from rsb_maniskill.evaluation.records import DIGEST_FIELD
 
 
-@pytest.fixture
-def no_data(tmp_path, monkeypatch) -> Path:
-    """No question data at hand: an empty data folder, and no network."""
-    empty = tmp_path / "no-data"
-    empty.mkdir()
-    monkeypatch.setenv("RSB_DATA_DIR", str(empty))
-    monkeypatch.setenv("RSB_OFFLINE", "1")
-    return empty
-
-
 def report(capsys, folder: Path) -> tuple[str, dict, dict, str]:
     """``rsb report FOLDER``: its stdout, results.json, summary.json and the first line of summary.md."""
     capsys.readouterr()

@@ -338,11 +338,11 @@ def test_workers_get_one_task_each_whatever_the_suites():
 def test_workers_share_lavapipe_threads_unless_told(monkeypatch):
     """Each local worker caps lavapipe's raster threads to its share of the CPUs (software rendering
     only; a user's LP_NUM_THREADS wins)."""
-    from rsb_maniskill.parallel import plan as workers_plan
+    from rsb_maniskill.parallel import threads
     from rsb_maniskill.sim import render
 
     monkeypatch.delenv("LP_NUM_THREADS", raising=False)
-    monkeypatch.setattr(workers_plan, "usable_cpus", lambda: 6)  # the CPUs --num-procs auto counts
+    monkeypatch.setattr(threads, "usable_cpus", lambda: 6)  # the CPUs --num-procs auto counts
     assert render.lavapipe_share(2) == 3 and render.lavapipe_share(4) == 1 and render.lavapipe_share(24) == 1
     monkeypatch.setattr(render, "software_rendering", lambda: False)
     assert not render.limit_lavapipe_threads(1) and "LP_NUM_THREADS" not in os.environ  # a GPU driver: left alone

@@ -3,13 +3,11 @@ the arguments is refused in one line, in a second, before the simulator loads.""
 from __future__ import annotations
 
 import argparse
-import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_probe import probe
 
 from rsb_maniskill.cli import build_parser, main
 from rsb_maniskill.compat import CAMERA_TEXTURES, OBS_MODES, obs_mode_supported
@@ -101,28 +99,15 @@ def test_the_obs_modes_known_without_maniskill_are_maniskills():
     assert {m: obs_mode_supported(m) for m in modes} == {m: maniskill_takes(m) for m in modes}
 
 
-# What a bad -o leaves loaded: run in a process of its own, as the user's `rsb` is.
-PROBE = """
-import json, sys
-from rsb_maniskill.cli import main
-status = main(sys.argv[1:])
-heavy = sorted({m.split(".")[0] for m in sys.modules} & {"mani_skill", "sapien", "torch"})
-print(json.dumps({"status": status, "heavy": heavy}))
-"""
-
-
 @pytest.mark.parametrize("obs_mode, phrase", [
     ("bogus", "-o bogus: not an obs mode; use one of state, state_dict, none, sensor_data, pointcloud"),
     ("myresults", "-o is the obs mode: the results folder is --out myresults"),
     ("rbg", "(did you mean rgb?)"),
 ])
 def test_a_bad_obs_mode_is_refused_before_the_simulator_loads(obs_mode, phrase):
-    res = subprocess.run([sys.executable, "-c", PROBE, "eval", "oracle", "--suites", "RSB-Math-4", "-o", obs_mode],
-                         capture_output=True, text=True, cwd=REPO, timeout=120)
-    found = json.loads(res.stdout.strip().splitlines()[-1])
-    assert found == {"status": 2, "heavy": []}, res.stderr[-2000:]
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("rsb eval: error: ") and phrase in lines[0], res.stderr
+    found, lines, stderr = probe("eval", "oracle", "--suites", "RSB-Math-4", "-o", obs_mode)  # its own process
+    assert found == {"status": 2, "heavy": []}, stderr[-2000:]
+    assert len(lines) == 1 and lines[0].startswith("rsb eval: error: ") and phrase in lines[0], stderr
     assert lines[0].endswith("(see rsb eval --help)")
 
 

@@ -2,22 +2,8 @@
 simulator or torch loads, against ManiSkill's obs modes as compat.OBS_MODES knows them."""
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
-
-REPO = Path(__file__).resolve().parents[2]
-# What a bad -o leaves loaded: run in a process of its own, as the user's `rsb` is.
-PROBE = """
-import json, sys
-from rsb_maniskill.cli import main
-status = main(sys.argv[1:])
-heavy = sorted({m.split(".")[0] for m in sys.modules} & {"mani_skill", "sapien", "torch"})
-print(json.dumps({"status": status, "heavy": heavy}))
-"""
+from cli_probe import probe  # rsb in a process of its own: what a bad -o leaves loaded
 
 
 @pytest.mark.parametrize("obs_mode, phrase", [
@@ -25,12 +11,10 @@ print(json.dumps({"status": status, "heavy": heavy}))
     ("rbg", "(did you mean rgb?)"),
 ])
 def test_a_bad_obs_mode_is_refused_before_the_simulator_loads(obs_mode, phrase, tmp_path):
-    res = subprocess.run([sys.executable, "-c", PROBE, "generate", "RSB-Direct-4", "-n", "1", "-o", obs_mode,
-                          "--out", str(tmp_path / "demos")], capture_output=True, text=True, cwd=REPO, timeout=120)
-    found = json.loads(res.stdout.strip().splitlines()[-1])
-    assert found == {"status": 2, "heavy": []}, res.stderr[-2000:]
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("rsb generate: error: ") and phrase in lines[0], res.stderr
+    found, lines, stderr = probe("generate", "RSB-Direct-4", "-n", "1", "-o", obs_mode,
+                                 "--out", str(tmp_path / "demos"))
+    assert found == {"status": 2, "heavy": []}, stderr[-2000:]
+    assert len(lines) == 1 and lines[0].startswith("rsb generate: error: ") and phrase in lines[0], stderr
     assert lines[0].endswith("(see rsb generate --help)")
     assert not (tmp_path / "demos").exists()  # nothing written
 

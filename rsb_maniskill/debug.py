@@ -1,5 +1,5 @@
 """``rsb --debug``: whether a failed command shows its traceback, and the one way a command prints
-an error (a leaf: every command module may import it).
+an error (a leaf: every command module may import it), with :func:`plural` for the counts in its lines.
 
 Without ``--debug`` a command prints one line, ``rsb <command>: error: <what is wrong and how to
 fix it>``. With it (``rsb --debug eval ...``, or ``RSB_DEBUG=1`` in the environment, which worker
@@ -16,6 +16,11 @@ from typing import Iterator
 
 DEBUG_ENV = "RSB_DEBUG"
 DEBUG_HINT = "rsb --debug {command} ... shows the traceback"
+
+
+def plural(n: int, word: str) -> str:
+    """``1 row``, ``3 rows``: a count in a message line."""
+    return f"{n} {word}{'' if n == 1 else 's'}"
 
 
 def debug_enabled() -> bool:

@@ -18,6 +18,7 @@ import sys
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable
 
+from rsb_maniskill.debug import plural
 from rsb_maniskill.parallel.pool import Executor, ProcessPool
 from rsb_maniskill.parallel.threads import usable_cpus
 
@@ -102,10 +103,6 @@ class WorkerPlan:
         return f"workers: {n} {one if n == 1 else many}{where} ({self.why})"
 
 
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}{'' if n == 1 else 's'}"
-
-
 def plan_num_envs(gpus: int, renders: bool, requested: int | None = None) -> tuple[int, str]:
     """``--num-envs auto|K`` on the CPU backend: (K, why). K envs a process render all their cameras
     in one call where an NVIDIA GPU renders (:data:`RENDER_ENVS_PER_PROC`); with lavapipe, or with no
@@ -116,7 +113,7 @@ def plan_num_envs(gpus: int, renders: bool, requested: int | None = None) -> tup
         return 1, "auto: no camera to render, one env a process"
     if not gpus:
         return 1, "auto: rendering on the CPU (lavapipe), batching gains nothing; one env a process"
-    return RENDER_ENVS_PER_PROC, (f"auto: {_plural(gpus, 'NVIDIA GPU')} render the cameras of {RENDER_ENVS_PER_PROC} "
+    return RENDER_ENVS_PER_PROC, (f"auto: {plural(gpus, 'NVIDIA GPU')} render the cameras of {RENDER_ENVS_PER_PROC} "
                                   "envs a process in one call (H100: 16 processes x 4 envs, 3,210 rgb env-steps/s)")
 
 
@@ -124,7 +121,7 @@ def _started(n: int, why: str, requested: int | None, episodes: int | None) -> t
     """An explicit ``--num-procs N`` over more workers than episodes: the workers that start (one an
     episode at most; the seeds are dealt one a worker), said so, not the N asked for."""
     if requested is not None and episodes is not None and max(1, episodes) < n:
-        return max(1, episodes), f"{why}; {_plural(episodes, 'episode')}: one worker each at most"
+        return max(1, episodes), f"{why}; {plural(episodes, 'episode')}: one worker each at most"
     return n, why
 
 
@@ -151,17 +148,17 @@ def plan_workers(cpus: int, gpus: int, renders: bool, executor: str = "local", *
     """
     cpus, gpus = max(1, cpus), max(0, gpus)
     ray = executor == "ray"
-    where = f"Ray cluster of {_plural(cpus, 'CPU')}" if ray else _plural(cpus, "usable CPU")
+    where = f"Ray cluster of {plural(cpus, 'CPU')}" if ray else plural(cpus, "usable CPU")
     if renders or (ray and num_envs > 1):
-        where += ", " + (_plural(gpus, "GPU") if ray else
-                         _plural(gpus, "NVIDIA GPU") if gpus else "no NVIDIA GPU")
+        where += ", " + (plural(gpus, "GPU") if ray else
+                         plural(gpus, "NVIDIA GPU") if gpus else "no NVIDIA GPU")
     if num_envs > 1 and not gpu_physics:  # K CPU envs a worker, rendered in one call
         n = requested or cpus
         why = (f"--num-procs {requested}" if requested else f"auto: {where}, {num_envs} envs a process "
                "rendered in one call: the CPU physics is the bound")
         if requested is None and episodes is not None and -(-max(1, episodes) // num_envs) < n:
             n = -(-max(1, episodes) // num_envs)
-            why += f"; {_plural(episodes, 'episode')}, at least {num_envs} a worker"
+            why += f"; {plural(episodes, 'episode')}, at least {num_envs} a worker"
         n, why = _started(n, why, requested, episodes)
         if not (renders and gpus):
             return WorkerPlan(n, executor, why=why)
@@ -185,7 +182,7 @@ def plan_workers(cpus: int, gpus: int, renders: bool, executor: str = "local", *
     per = MIN_RENDERED_EPISODES_PER_WORKER if renders else MIN_STATE_EPISODES_PER_WORKER
     if requested is None and episodes is not None and -(-max(1, episodes) // per) < n:
         n = -(-max(1, episodes) // per)
-        why += f"; {_plural(episodes, 'episode')}, at least {per} a worker"
+        why += f"; {plural(episodes, 'episode')}, at least {per} a worker"
     n, why = _started(n, why, requested, episodes)
     if not (renders and gpus):
         return WorkerPlan(n, executor, why=why)

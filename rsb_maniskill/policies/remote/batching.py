@@ -46,7 +46,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from rsb_maniskill.debug import debug_enabled
+from rsb_maniskill.debug import debug_enabled, plural
 from rsb_maniskill.policies.interface import as_chunk, as_chunks, is_batched, split_output, split_outputs, takes_keyword
 
 DEFAULT_MAX_BATCH = 64  # rows (envs) a forward pass at most: 16 workers x 4 envs
@@ -180,10 +180,6 @@ def _check_limits(max_batch: int, max_wait_ms: float, policy_timeout: float | No
     if policy_timeout is not None and not (0 < policy_timeout and math.isfinite(policy_timeout)):
         raise ValueError(f"policy_timeout must be a finite number of seconds > 0 (None: no limit), got "
                          f"{policy_timeout!r}")
-
-
-def _count(n: int, word: str) -> str:
-    return f"{n} {word}" + ("" if n == 1 else "s")
 
 
 def _stderr(line: str) -> None:
@@ -337,7 +333,7 @@ class Batcher:
             call.cut = True
         rows = sum(len(p) for p in call.parts)
         err = ServedPolicyError(f"the policy's {call.method} call ran past the policy timeout "
-                                f"({self.policy_timeout:g} s; a hang?): its {_count(rows, 'row')} fail")
+                                f"({self.policy_timeout:g} s; a hang?): its {plural(rows, 'row')} fail")
         self.log(f"{err}; requests are refused until it returns")
         self._fail(call.parts, err)
 
@@ -434,7 +430,7 @@ class Batcher:
         rows = sum(len(p) for p in parts)
         what = f"{type(err).__name__}: {' '.join(str(err).split())}" if str(err) else type(err).__name__
         line = (f"the policy's {'act_batch' if self.batched else 'reset/act'} call raised {what}: its "
-                f"{_count(rows, 'row')} ({_count(len(parts), 'request')}) fail, not called again")
+                f"{plural(rows, 'row')} ({plural(len(parts), 'request')}) fail, not called again")
         if debug_enabled():
             print("".join(traceback.format_exception(type(err), err, err.__traceback__)).rstrip(), file=sys.stderr)
         self.log(line)
